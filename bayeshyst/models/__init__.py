@@ -1,0 +1,35 @@
+"""Hysteresis models: one module per family, a registry of names.
+
+``bayeshyst.models.get("pi_play", n_operators=12)`` builds a model;
+``bayeshyst.models.names()`` lists what is registered.
+"""
+
+from __future__ import annotations
+
+# importing the family modules registers their models
+from bayeshyst.models import maxwell, pi  # noqa: F401
+from bayeshyst.models.base import DataScales, HysteresisModel, Trajectory, data_scales
+from bayeshyst.models.maxwell import MaxwellSlip
+from bayeshyst.models.pi import (
+    PIInverse,
+    PrandtlIshlinskii,
+    PrandtlIshlinskiiStop,
+    play_pi_inverse,
+)
+from bayeshyst.models.registry import get, model_class, names, register
+
+__all__ = [
+    "DataScales",
+    "HysteresisModel",
+    "MaxwellSlip",
+    "PIInverse",
+    "PrandtlIshlinskii",
+    "PrandtlIshlinskiiStop",
+    "Trajectory",
+    "data_scales",
+    "get",
+    "model_class",
+    "names",
+    "play_pi_inverse",
+    "register",
+]

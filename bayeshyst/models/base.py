@@ -1,0 +1,304 @@
+"""The model contract: :class:`HysteresisModel` and its result record :class:`Trajectory`.
+
+A model is a frozen dataclass of *structural* settings (operator count, polynomial
+order). Everything that is estimated, or that depends on the data (thresholds placed
+over the input range), lives in ``theta`` and is declared by :meth:`param_space`.
+Forward simulation is pure: the state goes in (``state0``) and comes out
+(``Trajectory.state``), so a record can be simulated in pieces.
+
+Subclasses write one batched path, :meth:`HysteresisModel._run`, over ``W`` parameter
+vectors at once (the numba kernel loops over walkers); the single-theta methods are the
+``W = 1`` case of it. That keeps one implementation per model and makes
+"batched == one-by-one" a real test of the kernel's indexing.
+"""
+
+from __future__ import annotations
+
+import functools
+from abc import ABC, abstractmethod
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any, ClassVar
+
+import numpy as np
+
+from bayeshyst.errors import ParameterError, SimulationError
+from bayeshyst.params import ParamSpace
+
+__all__ = ["DataScales", "HysteresisModel", "Trajectory", "data_scales"]
+
+
+@dataclass(frozen=True)
+class DataScales:
+    """Ranges of a data set that default priors and operator placements scale with.
+
+    Attributes
+    ----------
+    u_min, u_max : float
+        Input range (V).
+    y_min, y_max : float
+        Output range (output unit, µm by default).
+    u_unit, y_unit : str
+        Units of input and output, used to label parameters.
+    """
+
+    u_min: float = -1.0
+    u_max: float = 1.0
+    y_min: float = -1.0
+    y_max: float = 1.0
+    u_unit: str = "V"
+    y_unit: str = "um"
+
+    @property
+    def u_span(self) -> float:
+        """Peak-to-peak input (V)."""
+        return self.u_max - self.u_min
+
+    @property
+    def y_span(self) -> float:
+        """Peak-to-peak output."""
+        return self.y_max - self.y_min
+
+    @property
+    def gain(self) -> float:
+        """Secant gain ``y_span / u_span`` (output unit per V)."""
+        return self.y_span / self.u_span
+
+    def __str__(self) -> str:
+        return (f"u in [{self.u_min:.4g}, {self.u_max:.4g}], "
+                f"y in [{self.y_min:.4g}, {self.y_max:.4g}]")
+
+
+def data_scales(data: Any = None) -> DataScales:
+    """Ranges of ``data`` (a Record, a Dataset, or None for unit ranges).
+
+    Warm-up samples count: they are simulated, so the operators must cover them too.
+    """
+    if data is None:
+        return DataScales()
+    if isinstance(data, DataScales):
+        return data
+    records = list(data) if hasattr(data, "records") else [data]
+    us = np.concatenate([np.asarray(r.u, float) for r in records])
+    ys = np.concatenate([np.asarray(r.y, float) for r in records])
+    u_min, u_max = float(us.min()), float(us.max())
+    y_min, y_max = float(ys.min()), float(ys.max())
+    # a constant input or output gives no scale; refuse rather than divide by zero later
+    if not u_max > u_min:
+        raise ParameterError(f"input u is constant ({u_min}); no hysteresis can be identified")
+    if not y_max > y_min:
+        raise ParameterError(f"output y is constant ({y_min}); no hysteresis can be identified")
+    units = dict(getattr(records[0], "units", None) or {})
+    return DataScales(u_min, u_max, y_min, y_max,
+                      str(units.get("u", "V")), str(units.get("y", "um")))
+
+
+@dataclass(frozen=True)
+class Trajectory:
+    """The result of a forward simulation.
+
+    Attributes
+    ----------
+    y : ndarray, shape (N,) or (W, N)
+        Model output (output unit). Rows of failed walkers hold NaN and are flagged in
+        ``failed``; a single run that fails raises instead of returning.
+    state : ndarray, shape (S,) or (W, S)
+        State after the last sample; pass it as ``state0`` to continue.
+    failed : ndarray of bool, shape () or (W,)
+        Whether the simulation of that parameter vector failed.
+    """
+
+    y: np.ndarray
+    state: np.ndarray
+    failed: np.ndarray
+
+    @property
+    def n_failed(self) -> int:
+        """Number of failed simulations."""
+        return int(np.count_nonzero(self.failed))
+
+    def __str__(self) -> str:
+        shape = "x".join(map(str, self.y.shape))
+        return f"Trajectory(y: {shape}, state size {self.state.shape[-1]}, failed {self.n_failed})"
+
+
+def _check_signal(u: Any, t: Any) -> tuple[np.ndarray, np.ndarray]:
+    u = np.ascontiguousarray(u, dtype=np.float64)
+    t = np.ascontiguousarray(t, dtype=np.float64)
+    if u.ndim != 1 or t.ndim != 1 or u.shape != t.shape:
+        raise ParameterError(f"u and t must be 1-D of equal length, got {u.shape} and {t.shape}")
+    if u.size == 0:
+        raise ParameterError("u and t are empty")
+    if not (np.all(np.isfinite(u)) and np.all(np.isfinite(t))):
+        raise ParameterError("u and t must be finite")
+    return u, t
+
+
+class HysteresisModel(ABC):
+    """Base class of every forward model ``u -> y``.
+
+    Class attributes
+    ----------------
+    name : str
+        Registry name (``"pi_play"``).
+    rate_dependent : bool
+        Whether the output depends on the speed of the input (and so on ``t``).
+    equation : str
+        The review equation(s) the model implements, for docs and ``bayeshyst models``.
+    """
+
+    name: ClassVar[str] = ""
+    rate_dependent: ClassVar[bool] = False
+    equation: ClassVar[str] = ""
+    has_inverse: ClassVar[bool] = False
+
+    # ------------------------------------------------------------------ subclass API
+    @abstractmethod
+    def param_space(self, data: Any = None) -> ParamSpace:
+        """Declared parameters, with default priors scaled from ``data``.
+
+        Parameters
+        ----------
+        data : Record, Dataset, DataScales or None
+            Data the priors and any data-dependent fixed values (operator thresholds)
+            are scaled to; ``None`` uses an input and output range of ``[-1, 1]``.
+        """
+
+    @abstractmethod
+    def _initial_state(self, theta: Mapping[str, np.ndarray], u0: float) -> np.ndarray:
+        """Relaxed initial state for a batch of ``W`` parameter vectors, shape (W, S)."""
+
+    @abstractmethod
+    def _run(
+        self,
+        u: np.ndarray,
+        t: np.ndarray,
+        theta: Mapping[str, np.ndarray],
+        state0: np.ndarray,
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Simulate ``W`` parameter vectors; return ``y (W, N)``, ``state (W, S)``, ``failed (W,)``.
+
+        ``theta`` holds C-contiguous float64 arrays with a leading ``W`` axis.
+        """
+
+    # ------------------------------------------------------------------ public API
+    @functools.cached_property
+    def _shapes(self) -> dict[str, tuple[int, ...]]:
+        space = self.param_space()
+        return {name: space[name].shape for name in space.all_names}
+
+    def _batch_theta(self, theta: Mapping[str, Any], batched: bool) -> tuple[dict, int]:
+        shapes = self._shapes
+        missing = [n for n in shapes if n not in theta]
+        unknown = [n for n in theta if n not in shapes]
+        if missing or unknown:
+            raise ParameterError(
+                f"{self.name}: theta is missing {missing} / has unknown {unknown}; "
+                f"expected {list(shapes)}"
+            )
+        out: dict[str, np.ndarray] = {}
+        width = None
+        for name, shape in shapes.items():
+            arr = np.asarray(theta[name], dtype=np.float64)
+            if not batched:
+                arr = arr[None, ...]
+            if arr.shape[1:] != shape:
+                want = ("(W, " if batched else "(") + ", ".join(map(str, shape)) + ")"
+                raise ParameterError(f"{self.name}: theta[{name!r}] has shape "
+                                     f"{np.shape(theta[name])}, expected {want}")
+            if width is None:
+                width = arr.shape[0]
+            elif arr.shape[0] != width:
+                raise ParameterError(f"{self.name}: theta[{name!r}] has {arr.shape[0]} rows, "
+                                     f"other parameters have {width}")
+            out[name] = np.ascontiguousarray(arr)
+        return out, int(width if width is not None else 1)
+
+    def initial_state(self, theta: Mapping[str, Any], u0: float) -> np.ndarray:
+        """The relaxed state before the first sample, for input value ``u0``, shape (S,)."""
+        tb, _ = self._batch_theta(theta, batched=False)
+        return self._initial_state(tb, float(u0))[0]
+
+    def run(self, u: Any, t: Any, theta: Mapping[str, Any], *,
+            state0: np.ndarray | None = None) -> Trajectory:
+        """Simulate one parameter vector and return output and final state.
+
+        Parameters
+        ----------
+        u : array_like, shape (N,)
+            Input (V).
+        t : array_like, shape (N,)
+            Sample times (s); rate-independent models ignore them.
+        theta : mapping
+            Physical parameter values by name (as from ``param_space().unpack(z)``).
+        state0 : ndarray, shape (S,), optional
+            State before the first sample; default :meth:`initial_state` at ``u[0]``.
+
+        Raises
+        ------
+        SimulationError
+            If the simulation fails (non-finite output or state).
+        """
+        u, t = _check_signal(u, t)
+        tb, _ = self._batch_theta(theta, batched=False)
+        s0 = (self._initial_state(tb, float(u[0])) if state0 is None
+              else np.ascontiguousarray(np.asarray(state0, dtype=np.float64)[None, :]))
+        y, state, failed = self._run(u, t, tb, s0)
+        if failed[0]:
+            raise SimulationError(f"{self.name}: simulation failed for theta={dict(theta)}")
+        return Trajectory(y[0], state[0], np.asarray(False))
+
+    def simulate(self, u: Any, t: Any, theta: Mapping[str, Any], *,
+                 state0: np.ndarray | None = None) -> np.ndarray:
+        """Model output ``y`` (shape (N,)) for input ``u``; see :meth:`run`."""
+        return self.run(u, t, theta, state0=state0).y
+
+    def run_batch(self, u: Any, t: Any, thetas: Mapping[str, Any], *,
+                  state0: np.ndarray | None = None) -> Trajectory:
+        """Simulate ``W`` parameter vectors at once (e.g. a whole emcee ensemble).
+
+        Parameters
+        ----------
+        u, t : array_like, shape (N,)
+            Input (V) and times (s), shared by all parameter vectors.
+        thetas : mapping
+            ``name -> array (W, *shape)`` (as from ``param_space().unpack(Z)`` with
+            ``Z`` of shape ``(W, ndim)``).
+        state0 : ndarray, shape (W, S), optional
+
+        Returns
+        -------
+        Trajectory
+            ``y (W, N)``, ``state (W, S)``, ``failed (W,)``; failed rows of ``y`` are NaN.
+        """
+        u, t = _check_signal(u, t)
+        tb, width = self._batch_theta(thetas, batched=True)
+        if state0 is None:
+            s0 = self._initial_state(tb, float(u[0]))
+        else:
+            s0 = np.ascontiguousarray(state0, dtype=np.float64)
+            if s0.ndim != 2 or s0.shape[0] != width:
+                raise ParameterError(f"state0 must have shape (W={width}, S), got {s0.shape}")
+        y, state, failed = self._run(u, t, tb, s0)
+        y[failed] = np.nan
+        return Trajectory(y, state, failed)
+
+    def simulate_batch(self, u: Any, t: Any, thetas: Mapping[str, Any], *,
+                       state0: np.ndarray | None = None) -> np.ndarray:
+        """Outputs ``(W, N)`` for ``W`` parameter vectors; raises if any simulation fails."""
+        traj = self.run_batch(u, t, thetas, state0=state0)
+        if traj.n_failed:
+            raise SimulationError(f"{self.name}: {traj.n_failed} of {traj.y.shape[0]} "
+                                  f"simulations failed (rows {np.flatnonzero(traj.failed)[:10]})")
+        return traj.y
+
+    def describe(self) -> str:
+        """Name, equation and the default parameter table, for ``bayeshyst models``."""
+        head = f"{self.name}  ({type(self).__name__}; {self.equation})"
+        if self.rate_dependent:
+            head += "  [rate-dependent]"
+        return head + "\n" + str(self.param_space())
+
+    def __str__(self) -> str:
+        return repr(self)
+
