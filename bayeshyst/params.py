@@ -43,6 +43,7 @@ __all__ = [
     "Transform",
     "TruncatedNormal",
     "Uniform",
+    "UpperLogTransform",
 ]
 
 _LOG_SQRT_2PI = 0.5 * math.log(2.0 * math.pi)
@@ -387,9 +388,10 @@ class TruncatedNormal(Prior):
     def _log_mass(self) -> float:
         a, b = self._std_bounds()
         # log(Phi(b) - Phi(a)) computed on the side that keeps precision in the tails
-        if a > 0:
-            return float(np.log(special.ndtr(-a) - special.ndtr(-b)))
-        return float(np.log(special.ndtr(b) - special.ndtr(a)))
+        with np.errstate(divide="ignore"):
+            if a > 0:
+                return float(np.log(special.ndtr(-a) - special.ndtr(-b)))
+            return float(np.log(special.ndtr(b) - special.ndtr(a)))
 
     @property
     def support(self) -> tuple[float, float]:
