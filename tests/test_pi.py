@@ -184,7 +184,7 @@ def test_regressors_reproduce_simulation():
     model = M.get("pi_play", n_operators=9)
     th = pi_theta(rng, 9)
     u = random_input(rng)
-    phi = model.regressors(u, th)
+    phi = model.regressors(u, np.arange(u.size, dtype=float), th)
     y = model.simulate(u, np.arange(u.size, dtype=float), th)
     np.testing.assert_allclose(phi @ np.concatenate([[th["p0"]], th["w"]]), y, atol=1e-12)
 

@@ -211,7 +211,9 @@ class HysteresisModel(ABC):
             elif arr.shape[0] != width:
                 raise ParameterError(f"{self.name}: theta[{name!r}] has {arr.shape[0]} rows, "
                                      f"other parameters have {width}")
-            out[name] = np.ascontiguousarray(arr)
+            # fixed values are read-only arrays; numba types those separately, so a copy
+            # keeps one compiled specialisation per kernel
+            out[name] = arr if arr.flags.writeable and arr.flags.c_contiguous else arr.copy()
         return out, int(width if width is not None else 1)
 
     def initial_state(self, theta: Mapping[str, Any], u0: float) -> np.ndarray:

@@ -18,11 +18,13 @@ from bayeshyst.models.registry import register
 from bayeshyst.params import Normal, Param, ParamSpace, Uniform
 
 __all__ = [
+    "LinearInWeights",
     "PIInverse",
     "PrandtlIshlinskii",
     "PrandtlIshlinskiiStop",
     "check_count",
     "default_thresholds",
+    "operator_space",
     "play_pi_inverse",
 ]
 
@@ -44,7 +46,9 @@ def check_count(n: int, what: str = "n_operators") -> None:
         raise ModelError(f"{what} must be an integer >= 1, got {n!r}")
 
 
-def _operator_space(n: int, scales: DataScales, *, linear: str) -> ParamSpace:
+def operator_space(n: int, scales: DataScales, *, linear: str) -> ParamSpace:
+    """Weights ``p0``, ``w`` (n,) with priors scaled to the secant gain, thresholds ``r``
+    fixed by :func:`default_thresholds` — the parameters every PI-type model shares."""
     g = scales.gain
     gu = f"{scales.y_unit}/{scales.u_unit}"
     span = scales.u_span
@@ -62,9 +66,67 @@ def _operator_space(n: int, scales: DataScales, *, linear: str) -> ParamSpace:
     )
 
 
+class LinearInWeights:
+    """Mixin: the design matrix of a PI-type model that is linear in ``[p0, w]``.
+
+    Used with :class:`HysteresisModel` subclasses that have ``n_operators``.
+    """
+
+    name: ClassVar[str]
+    n_operators: int
+    _shapes: dict[str, tuple[int, ...]]
+    simulate_batch: Any
+
+    def regressors(self, u: Any, t: Any, theta: Mapping[str, Any], *,
+                   state0: np.ndarray | None = None) -> np.ndarray:
+        """Design matrix ``Phi`` (N, n + 1) with ``y = Phi @ [p0, w]``.
+
+        Parameters
+        ----------
+        u : array_like, shape (N,)
+            Input (V).
+        t : array_like, shape (N,)
+            Sample times (s); only the rate-dependent model reads them.
+        theta : mapping
+            Values of every parameter except ``p0`` and ``w`` (those are ignored if
+            present): thresholds and shape parameters are held fixed.
+        state0 : ndarray, shape (S,), optional
+            State before the first sample; default relaxed at ``u[0]``.
+
+        Returns
+        -------
+        ndarray, shape (N, n + 1)
+            Column 0 is ``u``, column ``i`` the output of operator ``i`` (V).
+
+        Raises
+        ------
+        ParameterError
+            If ``theta`` lacks a parameter or has an unknown one.
+        SimulationError
+            If the shape parameters are outside their support.
+        """
+        shapes = self._shapes
+        need = [k for k in shapes if k not in ("p0", "w")]
+        missing = [k for k in need if k not in theta]
+        unknown = [k for k in theta if k not in shapes]
+        if missing or unknown:
+            raise ParameterError(f"{self.name}: theta is missing {missing} / has unknown "
+                                 f"{unknown}; expected {need}")
+        k = self.n_operators + 1
+        # one batched run with unit weights: walker 0 returns u, walker i operator i
+        basis = np.eye(k)
+        thetas = {name: np.broadcast_to(np.asarray(theta[name], dtype=float),
+                                        (k, *shapes[name])) for name in need}
+        thetas["p0"] = basis[:, 0]
+        thetas["w"] = basis[:, 1:]
+        s0 = None if state0 is None else np.tile(np.asarray(state0, dtype=float), (k, 1))
+        y = self.simulate_batch(u, t, thetas, state0=s0)
+        return np.ascontiguousarray(y.T)
+
+
 @register
 @dataclass(frozen=True)
-class PrandtlIshlinskii(HysteresisModel):
+class PrandtlIshlinskii(LinearInWeights, HysteresisModel):
     """Prandtl–Ishlinskii model with play (backlash) operators.
 
     .. math::  y_k = p_0 u_k + \\sum_{i=1}^{n} w_i F_{r_i}[u]_k,
@@ -97,7 +159,7 @@ class PrandtlIshlinskii(HysteresisModel):
         check_count(self.n_operators)
 
     def param_space(self, data: Any = None) -> ParamSpace:
-        return _operator_space(self.n_operators, data_scales(data), linear="linear (p0 u)")
+        return operator_space(self.n_operators, data_scales(data), linear="linear (p0 u)")
 
     def _initial_state(self, theta: Mapping[str, np.ndarray], u0: float) -> np.ndarray:
         return np.full((theta["w"].shape[0], self.n_operators), u0)
@@ -107,23 +169,6 @@ class PrandtlIshlinskii(HysteresisModel):
         y = np.empty((state.shape[0], u.shape[0]))
         pi_play_batch(u, theta["p0"], theta["w"], theta["r"], state, y)
         return y, state, np.zeros(state.shape[0], dtype=bool)
-
-    def regressors(self, u: Any, theta: Mapping[str, Any], *,
-                   state0: np.ndarray | None = None) -> np.ndarray:
-        """Design matrix ``Phi`` (N, n + 1) with ``y = Phi @ [p0, w]`` for fixed thresholds.
-
-        Column 0 is ``u``; column ``i`` is ``F_{r_i}[u]``. Used by the conjugate
-        posterior of the weights and by least-squares starts.
-        """
-        u = np.ascontiguousarray(u, dtype=float)
-        n = self.n_operators
-        unit = {"p0": 0.0, "w": np.zeros(n), "r": theta["r"]}
-        cols = np.empty((u.size, n + 1))
-        cols[:, 0] = u
-        for i in range(n):
-            unit["w"] = np.eye(n)[i]
-            cols[:, i + 1] = self.simulate(u, u, unit, state0=state0)
-        return cols
 
     def inverse_theta(self, theta: Mapping[str, Any]) -> PIInverse:
         """The exact inverse (review ref. [52]) as play- and stop-PI parameters."""
@@ -260,7 +305,7 @@ def play_pi_inverse(p0: float, w: Any, r: Any) -> PIInverse:
 
 @register
 @dataclass(frozen=True)
-class PrandtlIshlinskiiStop(HysteresisModel):
+class PrandtlIshlinskiiStop(LinearInWeights, HysteresisModel):
     """Prandtl–Ishlinskii model with stop (elastic-plastic) operators.
 
     .. math::  y_k = p_0 u_k + \\sum_{i=1}^{n} w_i E_{r_i}[u]_k,
@@ -290,7 +335,7 @@ class PrandtlIshlinskiiStop(HysteresisModel):
         check_count(self.n_operators)
 
     def param_space(self, data: Any = None) -> ParamSpace:
-        return _operator_space(self.n_operators, data_scales(data), linear="linear (p0 u)")
+        return operator_space(self.n_operators, data_scales(data), linear="linear (p0 u)")
 
     def _initial_state(self, theta: Mapping[str, np.ndarray], u0: float) -> np.ndarray:
         s = np.zeros((theta["w"].shape[0], self.n_operators + 1))

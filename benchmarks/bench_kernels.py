@@ -1,0 +1,170 @@
+"""Simulation speed of every registered model: numba kernel vs the same code interpreted.
+
+For each model (default settings, parameters at the prior mean of a data-scaled space)
+it times, in one run:
+
+* the compiled kernel, one parameter vector, N = 10^4 and 10^5 samples (best of R);
+* the same kernel with numba disabled (``NUMBA_DISABLE_JIT=1`` in a subprocess, so the
+  interpreted Python of the very same loop is measured) on a shorter record;
+* a batch of W = 32 parameter vectors (what one emcee step evaluates), parallel over
+  walkers on the machine's cores.
+
+It prints ns per sample, ns per operator-sample for operator models, and the ratio
+interpreted / compiled. ``--write`` replaces the table in ``benchmarks/RESULTS.md``.
+
+Usage::
+
+    python benchmarks/bench_kernels.py [--quick] [--write] [--models pi_play,bouc_wen]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+RESULTS = ROOT / "benchmarks" / "RESULTS.md"
+BEGIN, END = "<!-- kernels:begin -->", "<!-- kernels:end -->"
+
+
+def _signal(n: int) -> tuple[np.ndarray, np.ndarray]:
+    # 1 kHz sampling of a 10 Hz sine with a slow amplitude modulation: nested loops and
+    # reversals at every scale, the worst case for memory-keeping operators
+    t = np.arange(n) * 1e-3
+    u = 75.0 + 70.0 * np.sin(2 * np.pi * 10 * t) * (0.6 + 0.4 * np.sin(2 * np.pi * 0.37 * t))
+    return u, t
+
+
+def _setup(name: str):
+    from bayeshyst import models
+    from bayeshyst.models.base import DataScales
+
+    model = models.get(name)
+    scales = DataScales(0.0, 150.0, -1.0, 20.0)
+    space = model.param_space(scales)
+    # the prior mean in z is a typical, valid parameter vector for every model
+    z = np.mean(space.sample_prior(np.random.default_rng(0), 400), axis=0)
+    return model, space, z
+
+
+def _operators(model) -> int:
+    for attr in ("n_operators", "n_elements"):
+        if hasattr(model, attr):
+            return int(getattr(model, attr))
+    return 0
+
+
+def _time(fn, repeats: int) -> float:
+    best = float("inf")
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        fn()
+        best = min(best, time.perf_counter() - t0)
+    return best
+
+
+def measure(name: str, sizes: list[int], repeats: int, batch: int) -> dict:
+    """Time one model compiled (all sizes, and a batch) in this process."""
+    model, space, z = _setup(name)
+    theta = space.unpack(z)
+    out = {"model": name, "operators": _operators(model), "ns_per_sample": {}}
+    u, t = _signal(16)
+    model.simulate(u, t, theta)  # compile outside the timing
+    for n in sizes:
+        u, t = _signal(n)
+        sec = _time(lambda u=u, t=t: model.simulate(u, t, theta), repeats)
+        out["ns_per_sample"][str(n)] = sec / n * 1e9
+    zb = z + 0.01 * np.random.default_rng(1).standard_normal((batch, z.size))
+    thetas = space.unpack(zb)
+    u, t = _signal(sizes[0])
+    model.simulate_batch(u, t, thetas)
+    sec = _time(lambda: model.simulate_batch(u, t, thetas), repeats)
+    out["batch_ns_per_walker_sample"] = sec / (batch * sizes[0]) * 1e9
+    return out
+
+
+def measure_interpreted(name: str, n: int) -> float:
+    """ns per sample of the same kernel with numba disabled, in a subprocess."""
+    code = (
+        "import json,sys,time;sys.path.insert(0,%r);"
+        "from benchmarks.bench_kernels import _setup,_signal;"
+        "m,s,z=_setup(%r);th=s.unpack(z);u,t=_signal(%d);"
+        "t0=time.perf_counter();m.simulate(u,t,th);"
+        "print(json.dumps((time.perf_counter()-t0)/%d*1e9))" % (str(ROOT), name, n, n)
+    )
+    env = {**os.environ, "NUMBA_DISABLE_JIT": "1", "PYTHONPATH": str(ROOT)}
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         env=env, check=True, cwd=ROOT)
+    return float(json.loads(res.stdout.strip().splitlines()[-1]))
+
+
+def table(rows: list[dict], sizes: list[int]) -> str:
+    head = ["model"] + [f"ns/sample N={n:.0e}" for n in sizes] + [
+        "ns/operator-sample (largest N)", "ns/walker-sample (W=32)", "interpreted ns/sample",
+        "speed-up"]
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for r in rows:
+        big = r["ns_per_sample"][str(sizes[-1])]
+        per_op = f"{big / r['operators']:.2f}" if r["operators"] else "–"
+        cells = [r["model"]] + [f"{r['ns_per_sample'][str(n)]:.1f}" for n in sizes] + [
+            per_op, f"{r['batch_ns_per_walker_sample']:.1f}", f"{r['interpreted']:.0f}",
+            f"{r['interpreted'] / big:.0f}x"]
+        lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--quick", action="store_true", help="small sizes, one repeat")
+    ap.add_argument("--write", action="store_true", help="update benchmarks/RESULTS.md")
+    ap.add_argument("--models", default="", help="comma-separated names (default: all)")
+    args = ap.parse_args(argv)
+    sys.path.insert(0, str(ROOT))
+    from bayeshyst import models
+
+    names = [n for n in args.models.split(",") if n] or models.names()
+    sizes = [1_000, 10_000] if args.quick else [10_000, 100_000]
+    repeats = 1 if args.quick else 5
+    n_interp = 300 if args.quick else 2_000
+    rows = []
+    for name in names:
+        r = measure(name, sizes, repeats, batch=32)
+        r["interpreted"] = measure_interpreted(name, n_interp)
+        rows.append(r)
+        print(f"{name:<28} {r['ns_per_sample'][str(sizes[-1])]:9.1f} ns/sample  "
+              f"interpreted {r['interpreted']:10.0f} ns/sample  "
+              f"ratio {r['interpreted'] / r['ns_per_sample'][str(sizes[-1])]:8.0f}x",
+              flush=True)
+    text = table(rows, sizes)
+    print()
+    print(text)
+    if args.write:
+        import numba
+
+        meta = (f"Measured {time.strftime('%Y-%m-%d')} on {platform.machine()}, "
+                f"{os.cpu_count()} cores, Python {platform.python_version()}, "
+                f"numpy {np.__version__}, numba {numba.__version__}. "
+                "Interpreted = the same kernels with NUMBA_DISABLE_JIT=1, "
+                f"N = {n_interp}.")
+        block = f"{BEGIN}\n{meta}\n\n{text}\n{END}"
+        old = RESULTS.read_text() if RESULTS.exists() else "# Benchmark results\n\n"
+        if BEGIN in old:
+            new = old[: old.index(BEGIN)] + block + old[old.index(END) + len(END):]
+        else:
+            new = old.rstrip() + "\n\n## Kernel simulation speed\n\n" + block + "\n"
+        tmp = RESULTS.with_suffix(".md.tmp")
+        tmp.write_text(new)
+        tmp.replace(RESULTS)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
