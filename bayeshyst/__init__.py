@@ -9,6 +9,7 @@ uncertainty-aware inverse compensation.
 from __future__ import annotations
 
 from bayeshyst import models
+from bayeshyst.data import Dataset, Record, load
 from bayeshyst.errors import DataError, ModelError, ParameterError, SimulationError
 from bayeshyst.params import Param, ParamSpace
 
@@ -16,11 +17,14 @@ __version__ = "0.1.0.dev0"
 
 __all__ = [
     "DataError",
+    "Dataset",
     "ModelError",
     "Param",
     "ParamSpace",
     "ParameterError",
+    "Record",
     "SimulationError",
     "__version__",
+    "load",
     "models",
 ]

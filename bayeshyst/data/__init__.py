@@ -1,0 +1,62 @@
+"""Measurement data: validated records, file formats, segmentation, measured sets.
+
+* :class:`Record` / :class:`Dataset` -- validated once at construction
+  (:mod:`bayeshyst.data.record`);
+* :func:`load`, ``read_*`` / ``write_*`` -- CSV/text, ``.npz``, ``.mat`` with JSON
+  sidecars (:mod:`bayeshyst.data.io`, parser in :mod:`bayeshyst.data.parsing`);
+* :func:`find_reversals`, :func:`split_cycles`, :func:`estimate_frequency`,
+  :func:`split_by_frequency` -- cycles and frequency blocks
+  (:mod:`bayeshyst.data.segment`);
+* ``load_*`` -- the measured sets in the shared data folder
+  (:mod:`bayeshyst.data.measured`).
+"""
+
+from __future__ import annotations
+
+from bayeshyst.data.io import load, read_csv, read_mat, read_npz, write_csv, write_npz
+from bayeshyst.data.measured import (
+    load_micromanipulator_reference,
+    load_mr_damper,
+    load_piezo_actuator_150v,
+    load_piezo_micromanipulator,
+    shared_data_root,
+)
+from bayeshyst.data.parsing import Table, read_table, sidecar_path
+from bayeshyst.data.record import DEFAULT_UNITS, MIN_SAMPLES, Dataset, Record
+from bayeshyst.data.segment import (
+    CycleSplit,
+    cycle_labels,
+    default_prominence,
+    estimate_frequency,
+    find_reversals,
+    split_by_frequency,
+    split_cycles,
+)
+
+__all__ = [
+    "DEFAULT_UNITS",
+    "MIN_SAMPLES",
+    "CycleSplit",
+    "Dataset",
+    "Record",
+    "Table",
+    "cycle_labels",
+    "default_prominence",
+    "estimate_frequency",
+    "find_reversals",
+    "load",
+    "load_micromanipulator_reference",
+    "load_mr_damper",
+    "load_piezo_actuator_150v",
+    "load_piezo_micromanipulator",
+    "read_csv",
+    "read_mat",
+    "read_npz",
+    "read_table",
+    "shared_data_root",
+    "sidecar_path",
+    "split_by_frequency",
+    "split_cycles",
+    "write_csv",
+    "write_npz",
+]

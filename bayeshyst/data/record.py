@@ -1,0 +1,568 @@
+"""Validated measurement containers: :class:`Record` and :class:`Dataset`.
+
+A :class:`Record` is one contiguous measurement of an actuator: time ``t``, input ``u``
+and output ``y`` sampled together, plus metadata. Everything downstream (models,
+likelihoods, reports) trusts a Record without re-checking it, so validation happens
+exactly once, in ``__post_init__``, and the arrays are stored as read-only float64
+copies so that nobody can invalidate a Record after it was checked.
+
+A :class:`Dataset` is an ordered, named collection of Records, typically one per
+excitation frequency, with helpers to group and select by frequency.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import math
+from collections.abc import Iterable, Iterator, Mapping
+from dataclasses import dataclass, field
+from types import MappingProxyType
+from typing import Any
+
+import numpy as np
+
+from bayeshyst.errors import DataError
+
+__all__ = ["DEFAULT_UNITS", "MIN_SAMPLES", "Dataset", "Record"]
+
+#: Fewest samples a Record may hold. Four is the smallest count that can contain one
+#: rise and one fall of the input (a minimal loop) and still leave two scored samples
+#: after a one-sample warm-up; anything shorter cannot inform a hysteresis model.
+MIN_SAMPLES = 4
+
+#: Units assumed for columns that the caller does not specify.
+DEFAULT_UNITS: Mapping[str, str] = MappingProxyType({"t": "s", "u": "V", "y": "um"})
+
+
+def _default_units() -> dict[str, str]:
+    return dict(DEFAULT_UNITS)
+
+
+def _freeze(value: Any) -> Any:
+    """Return an immutable equivalent of a metadata value (dict -> proxy, list -> tuple)."""
+    if isinstance(value, np.ndarray):
+        return _freeze(value.tolist())
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, Mapping):
+        return MappingProxyType({k: _freeze(v) for k, v in value.items()})
+    if isinstance(value, list | tuple):
+        return tuple(_freeze(v) for v in value)
+    return value
+
+
+def _thaw(value: Any) -> Any:
+    """Inverse of :func:`_freeze` for mappings (mappingproxy cannot be pickled)."""
+    if isinstance(value, Mapping):
+        return {k: _thaw(v) for k, v in value.items()}
+    if isinstance(value, tuple):
+        return tuple(_thaw(v) for v in value)
+    return value
+
+
+def _where(name: str, metadata: Mapping[str, Any]) -> str:
+    """Human-readable identification of a record for error messages."""
+    source = metadata.get("source")
+    return f"record {name!r}" + (f" (source {source})" if source else "")
+
+
+def _as_vector(values: Any, column: str, where: str, dtype: type = np.float64) -> np.ndarray:
+    """Convert ``values`` to a read-only 1-D copy of ``dtype`` or raise DataError."""
+    try:
+        arr = np.asarray(values)
+    except (TypeError, ValueError) as exc:
+        raise DataError(f"{where}: column {column!r}: cannot convert to an array ({exc})") from exc
+    if arr.dtype.kind not in "biuf":
+        raise DataError(
+            f"{where}: column {column!r}: expected real numbers, found dtype {arr.dtype}"
+        )
+    if arr.ndim != 1:
+        raise DataError(
+            f"{where}: column {column!r}: expected a 1-D array, found shape {arr.shape}"
+        )
+    out = np.array(arr, dtype=dtype, copy=True)
+    out.flags.writeable = False
+    return out
+
+
+def _first_bad(mask: np.ndarray) -> int:
+    """Index of the first True in a boolean mask (caller knows there is one)."""
+    return int(np.argmax(mask))
+
+
+@dataclass(frozen=True, eq=False, repr=False)
+class Record:
+    """One contiguous, validated measurement of an actuator.
+
+    Parameters
+    ----------
+    t : array_like of float, shape (n,)
+        Sample times [s], finite and strictly increasing; ``n >= MIN_SAMPLES`` (4).
+    u : array_like of float, shape (n,)
+        Input, e.g. drive voltage [``units["u"]``, V by default].
+    y : array_like of float, shape (n,)
+        Output, e.g. displacement [``units["y"]``, µm by default].
+    segment : array_like of int, shape (n,), optional
+        Per-sample integer label of experiment segments (e.g. frequency blocks or
+        protocol phases). Float input is accepted only if integer-valued.
+    warmup : int, default 0
+        Number of leading samples that a model simulates (to build up its hysteretic
+        memory) but that no likelihood scores. Must leave at least 2 scored samples.
+    metadata : mapping, optional
+        Free-form facts. Recognised keys: ``frequency_hz`` (float > 0 or None),
+        ``amplitude``, ``source`` (file or provenance), ``temperature_c``. Stored as a
+        read-only mapping; lists become tuples and NumPy values Python scalars/tuples.
+    units : mapping of str to str, optional
+        Units of the columns; missing keys take :data:`DEFAULT_UNITS`.
+    name : str, default "record"
+        Identifier, unique within a :class:`Dataset`.
+
+    Raises
+    ------
+    DataError
+        If any check fails. The message names the record (and its source file when
+        known), the column, the 0-based sample index, and what was expected vs found.
+
+    Notes
+    -----
+    Arrays are stored as read-only float64 (``segment``: int64) copies. Records are
+    immutable; derive new ones with :meth:`with_` (``dataclasses.replace``) or
+    :meth:`slice`, which re-validate.
+    """
+
+    t: np.ndarray
+    u: np.ndarray
+    y: np.ndarray
+    segment: np.ndarray | None = None
+    warmup: int = 0
+    metadata: Mapping[str, Any] = field(default_factory=dict)
+    units: Mapping[str, str] = field(default_factory=_default_units)
+    name: str = "record"
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.name, str) or not self.name:
+            raise DataError(f"record name: expected a non-empty string, found {self.name!r}")
+        if not isinstance(self.metadata, Mapping):
+            raise DataError(
+                f"record {self.name!r}: metadata: expected a mapping, "
+                f"found {type(self.metadata).__name__}"
+            )
+        bad_keys = [k for k in self.metadata if not isinstance(k, str)]
+        if bad_keys:
+            raise DataError(
+                f"record {self.name!r}: metadata: expected string keys, found {bad_keys[0]!r}"
+            )
+        metadata = _freeze(self.metadata)
+        where = _where(self.name, metadata)
+
+        columns = {c: _as_vector(getattr(self, c), c, where) for c in ("t", "u", "y")}
+        n = columns["t"].size
+        for c in ("u", "y"):
+            if columns[c].size != n:
+                raise DataError(
+                    f"{where}: column {c!r}: expected {n} samples (the length of 't'), "
+                    f"found {columns[c].size}"
+                )
+        if n < MIN_SAMPLES:
+            raise DataError(
+                f"{where}: expected at least {MIN_SAMPLES} samples (MIN_SAMPLES), found {n}"
+            )
+        for c, arr in columns.items():
+            finite = np.isfinite(arr)
+            if not finite.all():
+                i = _first_bad(~finite)
+                raise DataError(
+                    f"{where}: column {c!r}, sample index {i} (0-based): "
+                    f"expected a finite value, found {float(arr[i])!r}"
+                )
+        t = columns["t"]
+        steps = np.diff(t)
+        if not (steps > 0).all():
+            i = _first_bad(steps <= 0) + 1
+            kind = "duplicate time" if steps[i - 1] == 0 else "decreasing time"
+            raise DataError(
+                f"{where}: column 't', sample index {i} (0-based): expected strictly "
+                f"increasing time (> {float(t[i - 1])!r} at index {i - 1}), "
+                f"found {float(t[i])!r} ({kind})"
+            )
+
+        segment = None
+        if self.segment is not None:
+            raw = _as_vector(self.segment, "segment", where)
+            if raw.size != n:
+                raise DataError(
+                    f"{where}: column 'segment': expected {n} samples (the length of 't'), "
+                    f"found {raw.size}"
+                )
+            integral = np.isfinite(raw) & (raw == np.round(raw))
+            if not integral.all():
+                i = _first_bad(~integral)
+                raise DataError(
+                    f"{where}: column 'segment', sample index {i} (0-based): "
+                    f"expected an integer label, found {float(raw[i])!r}"
+                )
+            segment = raw.astype(np.int64)
+            segment.flags.writeable = False
+
+        warmup = self.warmup
+        if isinstance(warmup, bool) or not isinstance(warmup, int | np.integer):
+            raise DataError(f"{where}: warmup: expected an integer, found {warmup!r}")
+        warmup = int(warmup)
+        if not 0 <= warmup <= n - 2:
+            raise DataError(
+                f"{where}: warmup: expected 0 <= warmup <= {n - 2} (at least 2 scored samples "
+                f"out of {n}), found {warmup}"
+            )
+
+        if not isinstance(self.units, Mapping):
+            raise DataError(
+                f"{where}: units: expected a mapping, found {type(self.units).__name__}"
+            )
+        units = {**DEFAULT_UNITS, **self.units}
+        for key, unit in units.items():
+            if not isinstance(key, str) or not isinstance(unit, str):
+                raise DataError(
+                    f"{where}: units: expected str -> str, found {key!r}: {unit!r}"
+                )
+
+        freq = metadata.get("frequency_hz")
+        if freq is not None:
+            ok = isinstance(freq, int | float) and not isinstance(freq, bool)
+            if not ok or not math.isfinite(freq) or freq <= 0:
+                raise DataError(
+                    f"{where}: metadata 'frequency_hz': expected a positive finite number or "
+                    f"None, found {freq!r}"
+                )
+            metadata = MappingProxyType({**metadata, "frequency_hz": float(freq)})
+
+        # frozen dataclass: object.__setattr__ is the sanctioned way to normalise fields
+        for key, value in (
+            *columns.items(),
+            ("segment", segment),
+            ("warmup", warmup),
+            ("metadata", metadata),
+            ("units", MappingProxyType(units)),
+        ):
+            object.__setattr__(self, key, value)
+
+    # -- derived quantities -------------------------------------------------------
+    @property
+    def n(self) -> int:
+        """Number of samples."""
+        return int(self.t.size)
+
+    def __len__(self) -> int:
+        return self.n
+
+    @functools.cached_property
+    def dt(self) -> float:
+        """Sampling step [s].
+
+        The mean step ``duration / (n - 1)`` when every step is within 1 % of it (uniform
+        sampling whose time stamps carry rounding jitter, where the median would be
+        biased by the rounding pattern), else the median step (robust to gaps).
+        """
+        steps = np.diff(self.t)
+        mean = self.duration / (self.n - 1)
+        if np.all(np.abs(steps - mean) <= 0.01 * mean):
+            return float(mean)
+        return float(np.median(steps))
+
+    @property
+    def fs(self) -> float:
+        """Sampling rate [Hz], ``1 / dt``."""
+        return 1.0 / self.dt
+
+    @property
+    def duration(self) -> float:
+        """``t[-1] - t[0]`` [s]."""
+        return float(self.t[-1] - self.t[0])
+
+    @property
+    def frequency_hz(self) -> float | None:
+        """Excitation frequency [Hz] from ``metadata["frequency_hz"]``, or None."""
+        return self.metadata.get("frequency_hz")
+
+    @property
+    def source(self) -> str | None:
+        """Provenance (``metadata["source"]``), or None."""
+        source = self.metadata.get("source")
+        return None if source is None else str(source)
+
+    @property
+    def scored(self) -> slice:
+        """Slice of the samples a likelihood scores (everything after the warm-up)."""
+        return slice(self.warmup, self.n)
+
+    @property
+    def scored_mask(self) -> np.ndarray:
+        """Boolean mask, shape (n,), True for scored samples."""
+        mask = np.zeros(self.n, dtype=bool)
+        mask[self.warmup :] = True
+        return mask
+
+    @property
+    def n_scored(self) -> int:
+        """Number of scored samples, ``n - warmup``."""
+        return self.n - self.warmup
+
+    @property
+    def stroke(self) -> float:
+        """Peak-to-peak output over the whole record [``units["y"]``]."""
+        return float(np.ptp(self.y))
+
+    # -- derivation -----------------------------------------------------------------
+    def with_(self, **changes: Any) -> Record:
+        """Return a re-validated copy with fields replaced (``dataclasses.replace``)."""
+        return dataclasses.replace(self, **changes)
+
+    def slice(
+        self,
+        start: int | None = None,
+        stop: int | None = None,
+        *,
+        warmup: int | None = None,
+        name: str | None = None,
+    ) -> Record:
+        """Return samples ``start:stop`` as a new Record (metadata and units kept).
+
+        Parameters
+        ----------
+        start, stop : int, optional
+            Python slice bounds in samples (negative values count from the end).
+        warmup : int, optional
+            Warm-up of the new record, counted from its **new** start. Default: the
+            parent's warm-up count, because a cut segment starts from an unknown
+            hysteretic state and needs the same burn-in as the original did.
+        name : str, optional
+            Default ``"<name>[start:stop]"``.
+        """
+        lo, hi, _ = slice(start, stop).indices(self.n)
+        hi = max(hi, lo)
+        seg = None if self.segment is None else self.segment[lo:hi]
+        return dataclasses.replace(
+            self,
+            t=self.t[lo:hi],
+            u=self.u[lo:hi],
+            y=self.y[lo:hi],
+            segment=seg,
+            warmup=self.warmup if warmup is None else warmup,
+            name=f"{self.name}[{lo}:{hi}]" if name is None else name,
+        )
+
+    def __reduce__(self) -> tuple[Any, tuple[Any, ...]]:
+        # rebuild through __init__: read-only mappings are not picklable, and
+        # multiprocessing pools (emcee, joblib) must be able to ship Records to workers
+        return (
+            Record,
+            (self.t, self.u, self.y, self.segment, self.warmup, _thaw(self.metadata),
+             dict(self.units), self.name),
+        )
+
+    # -- comparison and display --------------------------------------------------
+    def __eq__(self, other: object) -> bool:
+        if not isinstance(other, Record):
+            return NotImplemented
+        if (self.segment is None) != (other.segment is None):
+            return False
+        arrays = ("t", "u", "y") + (() if self.segment is None else ("segment",))
+        return (
+            self.name == other.name
+            and self.warmup == other.warmup
+            and dict(self.units) == dict(other.units)
+            and self.metadata == other.metadata
+            and all(np.array_equal(getattr(self, a), getattr(other, a)) for a in arrays)
+        )
+
+    __hash__ = None  # type: ignore[assignment]  # mutable-looking arrays: not hashable
+
+    def __str__(self) -> str:
+        freq = self.frequency_hz
+        f = "f=?" if freq is None else f"f={freq:g} Hz"
+        return (
+            f"Record {self.name!r}: n={self.n}, t={self.t[0]:g}..{self.t[-1]:g} "
+            f"{self.units['t']}, fs={self.fs:.6g} Hz, {f}, "
+            f"u={self.u.min():.4g}..{self.u.max():.4g} {self.units['u']}, "
+            f"stroke={self.stroke:.4g} {self.units['y']}, warmup={self.warmup}"
+        )
+
+    def __repr__(self) -> str:
+        return (
+            f"Record(name={self.name!r}, n={self.n}, warmup={self.warmup}, "
+            f"frequency_hz={self.frequency_hz!r})"
+        )
+
+
+@dataclass(frozen=True, eq=False, repr=False)
+class Dataset:
+    """An ordered, named, non-empty collection of Records with unique names.
+
+    Parameters
+    ----------
+    records : Record or iterable of Record
+        The measurements, in order. Stored as a tuple.
+    name : str, default "dataset"
+        Identifier used in reports.
+
+    Raises
+    ------
+    DataError
+        If empty, if an item is not a Record, or if two records share a name.
+    """
+
+    records: tuple[Record, ...]
+    name: str = "dataset"
+
+    def __post_init__(self) -> None:
+        records = self.records
+        if isinstance(records, Record):
+            records = (records,)
+        records = tuple(records)
+        if not isinstance(self.name, str) or not self.name:
+            raise DataError(f"dataset name: expected a non-empty string, found {self.name!r}")
+        if not records:
+            raise DataError(f"dataset {self.name!r}: expected at least one record, found none")
+        for i, rec in enumerate(records):
+            if not isinstance(rec, Record):
+                raise DataError(
+                    f"dataset {self.name!r}: item {i}: expected a Record, "
+                    f"found {type(rec).__name__}"
+                )
+        seen: dict[str, int] = {}
+        for i, rec in enumerate(records):
+            if rec.name in seen:
+                raise DataError(
+                    f"dataset {self.name!r}: expected unique record names, found {rec.name!r} "
+                    f"at positions {seen[rec.name]} and {i}"
+                )
+            seen[rec.name] = i
+        object.__setattr__(self, "records", records)
+
+    def __len__(self) -> int:
+        return len(self.records)
+
+    def __iter__(self) -> Iterator[Record]:
+        return iter(self.records)
+
+    def __getitem__(self, key: int | slice | str) -> Any:
+        """Record by position or by name; a slice gives a Dataset."""
+        if isinstance(key, str):
+            for rec in self.records:
+                if rec.name == key:
+                    return rec
+            raise KeyError(f"dataset {self.name!r} has no record named {key!r}")
+        if isinstance(key, slice):
+            return Dataset(self.records[key], name=self.name)
+        return self.records[key]
+
+    def __eq__(self, other: object) -> bool:
+        if not isinstance(other, Dataset):
+            return NotImplemented
+        return self.name == other.name and self.records == other.records
+
+    __hash__ = None  # type: ignore[assignment]
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        """Record names in order."""
+        return tuple(r.name for r in self.records)
+
+    @property
+    def n_samples(self) -> int:
+        """Total number of samples over all records."""
+        return sum(r.n for r in self.records)
+
+    @property
+    def frequencies(self) -> tuple[float, ...]:
+        """Sorted unique excitation frequencies [Hz]; records without one are ignored."""
+        return tuple(sorted({r.frequency_hz for r in self.records if r.frequency_hz is not None}))
+
+    def by_frequency(self) -> dict[float | None, Dataset]:
+        """Group records by ``frequency_hz``, ascending; records without one go under None.
+
+        Returns
+        -------
+        dict
+            ``{frequency_hz: Dataset}``, each named ``"<name>@<f>Hz"`` (``"<name>@?Hz"``
+            for the None group, which comes last).
+        """
+        groups: dict[float | None, list[Record]] = {}
+        for rec in self.records:
+            groups.setdefault(rec.frequency_hz, []).append(rec)
+        keys = sorted(k for k in groups if k is not None)
+        if None in groups:
+            keys.append(None)
+        return {
+            k: Dataset(groups[k], name=f"{self.name}@{'?' if k is None else f'{k:g}'}Hz")
+            for k in keys
+        }
+
+    def select(
+        self,
+        frequency_hz: float | Iterable[float] | None = None,
+        *,
+        names: Iterable[str] | None = None,
+        rtol: float = 1e-9,
+    ) -> Dataset:
+        """Records matching every given criterion, in the original order.
+
+        Parameters
+        ----------
+        frequency_hz : float or iterable of float, optional
+            Keep records whose ``frequency_hz`` equals one of these [Hz] within ``rtol``.
+        names : iterable of str, optional
+            Keep records with these names.
+        rtol : float, default 1e-9
+            Relative tolerance of the frequency comparison.
+
+        Raises
+        ------
+        DataError
+            If nothing matches (the message lists what is available).
+        """
+        keep = list(self.records)
+        if frequency_hz is not None:
+            wanted = (
+                [float(frequency_hz)]
+                if isinstance(frequency_hz, int | float)
+                else [float(f) for f in frequency_hz]
+            )
+            keep = [
+                r
+                for r in keep
+                if r.frequency_hz is not None
+                and any(math.isclose(r.frequency_hz, f, rel_tol=rtol) for f in wanted)
+            ]
+        if names is not None:
+            wanted_names = set(names)
+            keep = [r for r in keep if r.name in wanted_names]
+        if not keep:
+            raise DataError(
+                f"dataset {self.name!r}: no record matches frequency_hz={frequency_hz!r}, "
+                f"names={names!r}; available frequencies {list(self.frequencies)}, "
+                f"names {list(self.names)}"
+            )
+        return Dataset(keep, name=self.name)
+
+    def concat(self, *others: Dataset | Record, name: str | None = None) -> Dataset:
+        """Append the records of ``others`` (Datasets or Records); names must stay unique."""
+        records = list(self.records)
+        for other in others:
+            records.extend([other] if isinstance(other, Record) else list(other))
+        return Dataset(records, name=self.name if name is None else name)
+
+    def __str__(self) -> str:
+        width = max(8, *(len(r.name) for r in self.records))
+        lines = [
+            f"Dataset {self.name!r}: {len(self)} record(s), {self.n_samples} samples",
+            f"  {'name':<{width}} {'n':>8} {'fs [Hz]':>10} {'f [Hz]':>8} {'stroke':>12}",
+        ]
+        for r in self.records:
+            f = "-" if r.frequency_hz is None else f"{r.frequency_hz:g}"
+            stroke = f"{r.stroke:.4g} {r.units['y']}"
+            lines.append(f"  {r.name:<{width}} {r.n:>8} {r.fs:>10.6g} {f:>8} {stroke:>12}")
+        return "\n".join(lines)
+
+    def __repr__(self) -> str:
+        return f"Dataset(name={self.name!r}, records={list(self.names)!r})"
