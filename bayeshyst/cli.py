@@ -32,7 +32,7 @@ def _models_summary(names: Sequence[str]) -> list[dict[str, Any]]:
         params = []
         for p in space.params:
             params.append({"name": p.name, "shape": list(p.shape), "unit": p.unit,
-                           "prior": repr(p.prior), "description": p.description})
+                           "prior": str(p.prior), "description": p.description})
         for p in space.fixed_params:
             params.append({"name": p.name, "shape": list(p.shape), "unit": p.unit,
                            "fixed": np.asarray(space.fixed[p.name]).tolist(),
@@ -77,7 +77,7 @@ def _cmd_models(args: argparse.Namespace) -> int:
         for p in m["parameters"]:
             shape = "x".join(map(str, p["shape"])) or "scalar"
             what = p.get("prior") or f"fixed = {np.round(p['fixed'], 4).tolist()}"
-            print(f"    {p['name']:<10} {shape:<7} {p['unit']:<8} {what}  - {p['description']}")
+            print(f"    {p['name']:<16} {shape:<7} {p['unit']:<8} {what}  - {p['description']}")
         print()
     return EXIT_OK
 

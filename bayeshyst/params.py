@@ -21,7 +21,7 @@ from __future__ import annotations
 import math
 from abc import ABC, abstractmethod
 from collections.abc import Iterable, Iterator, Mapping
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field, fields, replace
 from types import MappingProxyType
 from typing import Any
 
@@ -216,6 +216,11 @@ class Prior(ABC):
         """The transform from the support to the real line."""
         return _transform_for_support(*self.support)
 
+    def __str__(self) -> str:
+        # short and readable for tables (the dataclass repr keeps full precision)
+        args = ", ".join(f"{f.name}={getattr(self, f.name):.4g}" for f in fields(self))
+        return f"{type(self).__name__}({args})"
+
     def _mask(self, x: np.ndarray, values: np.ndarray) -> np.ndarray:
         lo, hi = self.support
         inside = (x >= lo) & (x <= hi)
@@ -327,6 +332,9 @@ class LogNormal(Prior):
 
     def sample(self, rng: np.random.Generator, shape: tuple[int, ...]) -> np.ndarray:
         return rng.lognormal(self.mu, self.sigma, size=shape)
+
+    def __str__(self) -> str:
+        return f"LogNormal(median={math.exp(self.mu):.4g}, sigma={self.sigma:.4g})"
 
     def scale(self) -> float:
         return float(math.exp(self.mu) * self.sigma)
@@ -782,7 +790,7 @@ class ParamSpace:
     def __str__(self) -> str:
         rows = [("name", "shape", "unit", "prior", "description")]
         for p in self.params:
-            rows.append((p.name, str(p.shape or "()"), p.unit, repr(p.prior), p.description))
+            rows.append((p.name, str(p.shape or "()"), p.unit, str(p.prior), p.description))
         for p in self.fixed_params:
             v = self.fixed[p.name]
             val = f"fixed = {np.array2string(v, precision=4, threshold=6)}"
