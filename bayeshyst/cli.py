@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 from collections.abc import Sequence
 from typing import Any
@@ -106,6 +107,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     except (DataError, ParameterError, ModelError) as exc:
         print(f"bayeshyst {args.command}: error: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
+    except BrokenPipeError:
+        # the reader went away (``bayeshyst models | head``): not an error; point stdout
+        # at devnull so the interpreter's final flush does not raise again
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return EXIT_OK
     except KeyboardInterrupt:
         print(f"bayeshyst {args.command}: interrupted", file=sys.stderr)
         return 130
