@@ -25,7 +25,14 @@ import numpy as np
 from bayeshyst.errors import ParameterError, SimulationError
 from bayeshyst.params import ParamSpace
 
-__all__ = ["DataScales", "HysteresisModel", "Trajectory", "data_scales"]
+__all__ = [
+    "DataScales",
+    "HysteresisModel",
+    "Trajectory",
+    "check_signal",
+    "data_scales",
+    "sample_period",
+]
 
 
 @dataclass(frozen=True)
@@ -93,6 +100,32 @@ def data_scales(data: Any = None) -> DataScales:
                       str(units.get("u", "V")), str(units.get("y", "um")))
 
 
+def sample_period(data: Any = None, default: float = 1e-4) -> float:
+    """Shortest median sampling step of ``data`` (s); ``default`` without time stamps.
+
+    Parameters
+    ----------
+    data : Record, Dataset, DataScales or None
+        Anything with ``.t`` (or ``.records`` holding such).
+    default : float
+        Returned for ``None`` or data without ``t`` (s).
+    """
+    if data is None or isinstance(data, DataScales):
+        return float(default)
+    records = list(data) if hasattr(data, "records") else [data]
+    steps = []
+    for r in records:
+        t = np.asarray(getattr(r, "t", ()), dtype=float)
+        if t.size >= 2:
+            steps.append(float(np.median(np.diff(t))))
+    if not steps:
+        return float(default)
+    dt = min(steps)
+    if not (np.isfinite(dt) and dt > 0):
+        raise ParameterError(f"data time stamps must increase, median step is {dt}")
+    return dt
+
+
 @dataclass(frozen=True)
 class Trajectory:
     """The result of a forward simulation.
@@ -122,7 +155,8 @@ class Trajectory:
         return f"Trajectory(y: {shape}, state size {self.state.shape[-1]}, failed {self.n_failed})"
 
 
-def _check_signal(u: Any, t: Any) -> tuple[np.ndarray, np.ndarray]:
+def check_signal(u: Any, t: Any) -> tuple[np.ndarray, np.ndarray]:
+    """``u`` and ``t`` as C-contiguous float64, 1-D, equal length, finite; else raise."""
     u = np.ascontiguousarray(u, dtype=np.float64)
     t = np.ascontiguousarray(t, dtype=np.float64)
     if u.ndim != 1 or t.ndim != 1 or u.shape != t.shape:
@@ -241,7 +275,7 @@ class HysteresisModel(ABC):
         SimulationError
             If the simulation fails (non-finite output or state).
         """
-        u, t = _check_signal(u, t)
+        u, t = check_signal(u, t)
         tb, _ = self._batch_theta(theta, batched=False)
         s0 = (self._initial_state(tb, float(u[0])) if state0 is None
               else np.ascontiguousarray(np.asarray(state0, dtype=np.float64)[None, :]))
@@ -273,7 +307,7 @@ class HysteresisModel(ABC):
         Trajectory
             ``y (W, N)``, ``state (W, S)``, ``failed (W,)``; failed rows of ``y`` are NaN.
         """
-        u, t = _check_signal(u, t)
+        u, t = check_signal(u, t)
         tb, width = self._batch_theta(thetas, batched=True)
         if state0 is None:
             s0 = self._initial_state(tb, float(u[0]))
