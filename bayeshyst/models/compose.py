@@ -1,0 +1,201 @@
+"""Composed models: a hysteresis model followed by effect blocks (MODELS.md §7).
+
+``Composite(base, blocks)`` feeds the base model's output ``w = H[u]`` through the
+blocks in order, ``y = B_n[... B_1[w]]``: with linear dynamics after a static
+hysteresis this is the Hammerstein model of review §10 (Eq. 56–57); with creep, drift,
+delay or an output map it adds those effects to any base model. Spec strings name the
+same thing in one word: ``"bouc_wen+second_order+creep"`` (:func:`parse_spec`, which
+:func:`bayeshyst.models.get` calls for every spec containing ``+``).
+
+Parameters are namespaced: the base's under ``static.`` and each block's under its
+name (``static.w``, ``arx.kappa``, ``creep.c``); a block that appears twice gets
+``name_2`` for its second occurrence.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from bayeshyst.errors import ModelError, ParameterError
+from bayeshyst.models import registry
+from bayeshyst.models.base import HysteresisModel
+from bayeshyst.models.blocks import Creep, EffectBlock, block_class, block_names
+from bayeshyst.params import ParamSpace
+
+__all__ = ["Composite", "Hammerstein", "WithCreep", "block_names", "parse_spec"]
+
+#: Namespace of the base model's parameters.
+STATIC = "static"
+
+
+def _namespaces(blocks: Sequence[EffectBlock]) -> tuple[str, ...]:
+    seen: dict[str, int] = {}
+    out = []
+    for b in blocks:
+        seen[b.name] = seen.get(b.name, 0) + 1
+        out.append(b.name if seen[b.name] == 1 else f"{b.name}_{seen[b.name]}")
+    return tuple(out)
+
+
+@dataclass(frozen=True)
+class Composite(HysteresisModel):
+    """A base hysteresis model followed by effect blocks, itself a :class:`HysteresisModel`.
+
+    Parameters
+    ----------
+    base : HysteresisModel
+        The static (or any) hysteresis model ``u -> w``. A Composite given as base is
+        flattened: its blocks come first.
+    blocks : EffectBlock or sequence of EffectBlock
+        Applied in order to the base output.
+
+    Notes
+    -----
+    ``name`` is the spec string (``"pi_play+second_order+creep"``); ``rate_dependent``
+    holds if any part is. The state is the base state followed by each block's state
+    (block sizes are structural; the base's is the remainder). The relaxed initial
+    state is the base's relaxed state at ``u0`` and each block at its steady state for
+    the output of the part before it at ``u0``, so a record starts at rest.
+    """
+
+    base: HysteresisModel
+    blocks: tuple[EffectBlock, ...] = ()
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.base, HysteresisModel):
+            raise ModelError(f"Composite base must be a HysteresisModel, got {self.base!r}")
+        blocks = self.blocks
+        blocks = (blocks,) if isinstance(blocks, EffectBlock) else tuple(blocks)
+        bad = [b for b in blocks if not isinstance(b, EffectBlock)]
+        if bad:
+            raise ModelError(f"Composite blocks must be EffectBlocks (valid: "
+                             f"{', '.join(block_names())}), got {bad[0]!r}")
+        base = self.base
+        if isinstance(base, Composite):
+            base, blocks = base.base, base.blocks + blocks
+        object.__setattr__(self, "base", base)
+        object.__setattr__(self, "blocks", blocks)
+
+    # the registry name and flags of a composed model follow from its parts
+    @property
+    def name(self) -> str:  # type: ignore[override]
+        return "+".join([self.base.name, *(b.name for b in self.blocks)])
+
+    @property
+    def rate_dependent(self) -> bool:  # type: ignore[override]
+        return self.base.rate_dependent or any(b.rate_dependent for b in self.blocks)
+
+    @property
+    def equation(self) -> str:  # type: ignore[override]
+        parts = [self.base.equation, *(b.equation for b in self.blocks)]
+        return " -> ".join(p for p in parts if p)
+
+    @property
+    def namespaces(self) -> tuple[str, ...]:
+        """Parameter namespaces of the blocks, in order (``"creep"``, ``"creep_2"``)."""
+        return _namespaces(self.blocks)
+
+    def param_space(self, data: Any = None) -> ParamSpace:
+        spaces = {STATIC: self.base.param_space(data)}
+        for ns, block in zip(self.namespaces, self.blocks, strict=True):
+            spaces[ns] = block.param_space(data)
+        return ParamSpace.concat(spaces)
+
+    def _split(self, theta: Mapping[str, np.ndarray]) -> tuple[dict, list[dict]]:
+        return (ParamSpace.sub_theta(theta, STATIC),
+                [ParamSpace.sub_theta(theta, ns) for ns in self.namespaces])
+
+    def _initial_state(self, theta: Mapping[str, np.ndarray], u0: float) -> np.ndarray:
+        base_theta, block_thetas = self._split(theta)
+        s_base = self.base._initial_state(base_theta, u0)
+        # the base's output at rest: one sample at u0 from a copy of its relaxed state
+        w, _, _ = self.base._run(np.array([float(u0)]), np.zeros(1), base_theta,
+                                 np.array(s_base, dtype=np.float64, order="C"))
+        w0 = np.ascontiguousarray(w[:, 0])
+        states = [np.asarray(s_base, dtype=np.float64)]
+        for i, (block, th) in enumerate(zip(self.blocks, block_thetas, strict=True)):
+            s = block._initial_state(th, w0, math.nan)
+            states.append(s)
+            if i + 1 < len(self.blocks):
+                # the next block rests at this block's steady output for w0
+                out, _, _ = block._apply(np.ascontiguousarray(w0[:, None]), np.zeros(1), th, s)
+                w0 = np.ascontiguousarray(out[:, 0])
+        return np.ascontiguousarray(np.concatenate(states, axis=1))
+
+    def _run(self, u, t, theta, state0):
+        base_theta, block_thetas = self._split(theta)
+        sizes = [b.state_size for b in self.blocks]
+        n_base = state0.shape[1] - sum(sizes)
+        if n_base < 0:
+            raise ParameterError(f"{self.name}: state0 has {state0.shape[1]} entries, the "
+                                 f"blocks alone need {sum(sizes)}")
+        w, s_base, failed = self.base._run(u, t, base_theta,
+                                           np.ascontiguousarray(state0[:, :n_base]))
+        failed = np.array(failed, dtype=bool)
+        states = [s_base]
+        start = n_base
+        for block, th, size in zip(self.blocks, block_thetas, sizes, strict=True):
+            s0 = np.ascontiguousarray(state0[:, start:start + size])
+            w, s, f = block._apply(np.ascontiguousarray(w), t, th, s0)
+            failed |= f
+            states.append(s)
+            start += size
+        return w, np.ascontiguousarray(np.concatenate(states, axis=1)), failed
+
+    def __repr__(self) -> str:
+        return f"Composite({self.base!r}, {self.blocks!r})"
+
+
+def Hammerstein(static: HysteresisModel,  # capitalised: reads as a model name
+                dynamics: EffectBlock | Sequence[EffectBlock]) -> Composite:
+    """Hammerstein model: static hysteresis ``w = H[u]`` then linear dynamics ``G`` (Eq. 56–57).
+
+    Parameters
+    ----------
+    static : HysteresisModel
+        The rate-independent part (``PrandtlIshlinskii(10)``, ``BoucWen()``, ...).
+    dynamics : EffectBlock or sequence of EffectBlock
+        Typically :class:`~bayeshyst.models.blocks.ARX` or
+        :class:`~bayeshyst.models.blocks.SecondOrder` (unit DC gain).
+    """
+    return Composite(static, dynamics)
+
+
+def WithCreep(model: HysteresisModel, n_terms: int = 3, *,
+              tau_min: float | None = None, tau_max: float | None = None) -> Composite:
+    """``model`` followed by a :class:`~bayeshyst.models.blocks.Creep` bank of ``n_terms`` lags."""
+    return Composite(model, (Creep(n_terms, tau_min, tau_max),))
+
+
+def parse_spec(spec: str) -> HysteresisModel:
+    """Build a model from a spec string ``"base+block+block..."``.
+
+    The first part is a registered model name (:func:`bayeshyst.models.registry.get`,
+    default settings); the others are effect-block names (:func:`block_names`), built
+    with default settings. A spec without ``+`` is just the registered model.
+
+    Raises
+    ------
+    ModelError
+        For an empty part, a block name in first place, an unknown model or an unknown
+        block (the message lists the valid names).
+    """
+    parts = [p.strip() for p in str(spec).split("+")]
+    if any(not p for p in parts):
+        raise ModelError(f"model spec {spec!r} has an empty part; write e.g. 'pi_play+arx'")
+    head, *rest = parts
+    if head in block_names():
+        raise ModelError(f"model spec {spec!r} must start with a hysteresis model "
+                         f"({', '.join(registry.names())}), not the effect block {head!r}")
+    base = registry.get(head)
+    if not rest:
+        return base
+    return Composite(base, tuple(block_class(p)() for p in rest))
+
+
+registry.register_spec_parser(parse_spec)
