@@ -21,7 +21,7 @@ from hypothesis import strategies as st
 from scipy import signal, special
 
 from bayeshyst.errors import ModelError, ParameterError, SimulationError
-from bayeshyst.models._kernels import blocks as kernels
+from bayeshyst.models import _kernels as kernels
 from bayeshyst.models.blocks import (
     ARX,
     DEFAULT_DT,

@@ -36,14 +36,11 @@ import numpy as np
 
 from bayeshyst.errors import ModelError, ParameterError
 from bayeshyst.models._kernels.preisach import (
-    density_everett_table,
     density_everett_tables,
     everett_eval,
     memory_valid,
-    relay_everett_table,
     relay_everett_tables,
     staircase_batch,
-    staircase_one,
 )
 from bayeshyst.models.base import DataScales, HysteresisModel, data_scales
 from bayeshyst.models.pi import check_count
@@ -170,14 +167,7 @@ def _simulate(u, nodes, tables, bilinear, coef, skip, state0, max_memory):
     state = state0.copy()
     y = np.full((width, u.shape[0]), np.nan)
     failed = np.zeros(width, dtype=bool)
-    if width > 1:
-        staircase_batch(u, nodes, tables, bilinear, coef, skip, state, y, failed)
-    elif skip[0]:
-        failed[0] = True
-    else:
-        # one walker: the serial kernel, without waking numba's thread pool
-        failed[0] = staircase_one(u, nodes[0], tables[0], bilinear, coef[0, 0], coef[0, 1],
-                                  coef[0, 2], state[0], y[0])
+    staircase_batch(u, nodes, tables, bilinear, coef, skip, state, y, failed)
     return y, state, failed
 
 
@@ -316,10 +306,7 @@ class Preisach(_Staircase, HysteresisModel):
         skip = ~(np.all(np.isfinite(mu), axis=1) & np.all(np.isfinite(levels), axis=1)
                  & np.all(np.diff(levels, axis=1) > 0, axis=1) & np.isfinite(offset))
         tables = np.empty((mu.shape[0], self.n_levels + 1, self.n_levels + 1))
-        if mu.shape[0] > 1:
-            relay_everett_tables(mu, tables)
-        else:
-            relay_everett_table(mu[0], tables[0])
+        relay_everett_tables(mu, tables)
         coef = np.zeros((mu.shape[0], 3))
         if self.relay == "01":
             coef[:, 0] = offset
@@ -478,10 +465,7 @@ class PreisachDensity(_Staircase, HysteresisModel):
         tables = np.empty((width, self.n_grid + 1, self.n_grid + 1))
         ok = np.zeros(width, dtype=bool)
         dens = np.ascontiguousarray(dens)
-        if width > 1:
-            density_everett_tables(nodes, dens, lognormal, tables, ok)
-        else:
-            ok[0] = density_everett_table(nodes[0], dens[0], lognormal, tables[0])
+        density_everett_tables(nodes, dens, lognormal, tables, ok)
         return nodes, tables, np.ascontiguousarray(coef), skip | ~ok
 
     def everett_table(self, theta: Mapping[str, Any]) -> EverettTable:

@@ -8,8 +8,8 @@ sample times ``t`` (N,), per-walker parameters with a leading ``W`` axis, the st
 vector, a decreasing time axis or a non-finite output; such rows are left as NaN).
 The loop over walkers runs in parallel (``prange``) when there is enough work to pay
 for starting the threads; short calls (one walker, or the one-sample steps of numerical
-inversion) run a serial twin of the same loop, see :func:`_dispatch`. Each walker's
-time loop is sequential.
+inversion) run a serial twin of the same loop, see
+:func:`bayeshyst.models._kernels.batch_kernel`. Each walker's time loop is sequential.
 
 Continuous-time blocks share one convention. The state holds the previous input
 ``w_prev``, the previous sample time ``t_prev`` and the time step ``h_ref`` that the
@@ -29,9 +29,10 @@ import math
 import numpy as np
 from numba import njit, prange
 
+from bayeshyst.models._kernels import batch_kernel
+
 __all__ = [
     "DT_RTOL",
-    "PARALLEL_MIN_WORK",
     "arx_batch",
     "arx_polynomials",
     "asym_output_batch",
@@ -44,28 +45,6 @@ __all__ = [
 
 #: Steps equal to this relative tolerance share one discretisation (rounding of ``t``).
 DT_RTOL = 1e-9
-#: Walker-samples below which a batch runs serially: starting the thread team costs
-#: tens of microseconds on a quiet machine and a scheduler slice (milliseconds) on a
-#: busy one, which dwarfs a one-sample step.
-PARALLEL_MIN_WORK = 20_000
-
-
-def _dispatch(parallel, serial):
-    """A batched kernel that runs ``parallel`` for large batches and ``serial`` otherwise.
-
-    Both are the same loop over walkers (``prange`` vs ``range``); the choice changes
-    the speed, never the result (walkers are independent).
-    """
-
-    def kernel(w, *args):
-        run = parallel if w.shape[0] > 1 and w.size >= PARALLEL_MIN_WORK else serial
-        run(w, *args)
-
-    kernel.__doc__ = parallel.__doc__
-    kernel.__name__ = parallel.__name__.replace("_par", "_batch").lstrip("_")
-    return kernel
-
-
 @njit(cache=True)
 def _fail_row(out_row):
     for k in range(out_row.shape[0]):
@@ -183,7 +162,7 @@ def _arx_ser(w, kappa, beta, nk, state, out, failed):
         _finish(ok, out[j], failed, j)
 
 
-arx_batch = _dispatch(_arx_par, _arx_ser)
+arx_batch = batch_kernel(_arx_par, _arx_ser, work_arg=0, name="arx_batch")
 
 
 # ------------------------------------------------------------------- second order
@@ -281,7 +260,8 @@ def _second_order_ser(w, t, wn, zeta, state, out, failed):
         _finish(ok, out[j], failed, j)
 
 
-second_order_batch = _dispatch(_second_order_par, _second_order_ser)
+second_order_batch = batch_kernel(_second_order_par, _second_order_ser, work_arg=0,
+                                  name="second_order_batch")
 
 
 # ------------------------------------------------------------------ first-order lags
@@ -349,7 +329,7 @@ def _lag_bank_ser(w, t, c, tau, state, out, failed):
         _finish(ok, out[j], failed, j)
 
 
-lag_bank_batch = _dispatch(_lag_bank_par, _lag_bank_ser)
+lag_bank_batch = batch_kernel(_lag_bank_par, _lag_bank_ser, work_arg=0, name="lag_bank_batch")
 
 
 # ------------------------------------------------------------------------------ drift
@@ -395,7 +375,7 @@ def _drift_ser(w, t, g, d, t_scale, state, out, failed):
         _finish(ok, out[j], failed, j)
 
 
-drift_batch = _dispatch(_drift_par, _drift_ser)
+drift_batch = batch_kernel(_drift_par, _drift_ser, work_arg=0, name="drift_batch")
 
 
 # ------------------------------------------------------------------------------ delay
@@ -461,7 +441,7 @@ def _delay_ser(w, t, d, state, out, failed):
         _finish(ok, out[j], failed, j)
 
 
-delay_batch = _dispatch(_delay_par, _delay_ser)
+delay_batch = batch_kernel(_delay_par, _delay_ser, work_arg=0, name="delay_batch")
 
 
 # ------------------------------------------------------------------ output polynomial
@@ -525,7 +505,6 @@ def _asym_output_par(w, a, centre, half, out, failed):
         _finish(ok, out[j], failed, j)
 
 
-
 @njit(cache=True)
 def _asym_output_ser(w, a, centre, half, out, failed):
     for j in range(w.shape[0]):
@@ -533,5 +512,5 @@ def _asym_output_ser(w, a, centre, half, out, failed):
         _finish(ok, out[j], failed, j)
 
 
-
-asym_output_batch = _dispatch(_asym_output_par, _asym_output_ser)
+asym_output_batch = batch_kernel(_asym_output_par, _asym_output_ser, work_arg=0,
+                                 name="asym_output_batch")

@@ -16,6 +16,10 @@ the integrating factor gives the exact update (with ``D = s_b - s_a``,
 Nothing depends on the time step, so the rate independence of Eq. 45 is exact (bit for
 bit under any monotone time warp). The moments ``J_k`` are evaluated without
 cancellation (:func:`exp_moments`).
+
+Each model is a one-walker function (returning True if the walker failed) plus a loop
+over walkers that runs in parallel for large batches and serially otherwise
+(:func:`bayeshyst.models._kernels.batch_kernel`).
 """
 
 from __future__ import annotations
@@ -24,6 +28,8 @@ import math
 
 import numpy as np
 from numba import njit, prange
+
+from bayeshyst.models._kernels import batch_kernel
 
 __all__ = [
     "duhem_batch",
@@ -107,6 +113,8 @@ def poly_forced_step(w, sa, sb, kappa, p, m, J):
 
 @njit(cache=True)
 def _duhem_one(u, a, f, g, uc, uh, state, y):
+    if not (a >= 0.0 and uh > 0.0 and math.isfinite(a + uc + uh)):
+        return True
     nf = f.shape[0]
     ng = g.shape[0]
     m = max(nf, ng) - 1
@@ -136,7 +144,7 @@ def _duhem_one(u, a, f, g, uc, uh, state, y):
 
 
 @njit(cache=True, parallel=True)
-def duhem_batch(u, alpha, f, g, uc, uh, state, y, failed):
+def _duhem_par(u, alpha, f, g, uc, uh, state, y, failed):
     """Coleman–Hodgdon model for W parameter vectors (normalised input, see module doc).
 
     Parameters
@@ -147,14 +155,22 @@ def duhem_batch(u, alpha, f, g, uc, uh, state, y, failed):
     place; y : (W, N) output, written; failed : (W,) bool, written.
     """
     for j in prange(alpha.shape[0]):
-        if not (alpha[j] >= 0.0 and uh[j] > 0.0 and math.isfinite(alpha[j] + uc[j] + uh[j])):
-            failed[j] = True
-            continue
         failed[j] = _duhem_one(u, alpha[j], f[j], g[j], uc[j], uh[j], state[j], y[j])
 
 
 @njit(cache=True)
+def _duhem_ser(u, alpha, f, g, uc, uh, state, y, failed):
+    for j in range(alpha.shape[0]):
+        failed[j] = _duhem_one(u, alpha[j], f[j], g[j], uc[j], uh[j], state[j], y[j])
+
+
+duhem_batch = batch_kernel(_duhem_par, _duhem_ser, work_arg=-2, name="duhem_batch")
+
+
+@njit(cache=True)
 def _improved_one(u, t, k_lin, p_rate, a, b, c, uc, uh, state, y):
+    if not (b >= 0.0 and uh > 0.0 and math.isfinite(k_lin + p_rate + a + b + c + uc + uh)):
+        return True
     pp = np.empty(2)
     J = np.empty(2)
     h = state[0]
@@ -184,7 +200,7 @@ def _improved_one(u, t, k_lin, p_rate, a, b, c, uc, uh, state, y):
 
 
 @njit(cache=True, parallel=True)
-def improved_duhem_batch(u, t, k_lin, p_rate, alpha, beta, gamma, uc, uh, state, y, failed):
+def _improved_duhem_par(u, t, k_lin, p_rate, alpha, beta, gamma, uc, uh, state, y, failed):
     """Improved Duhem model ``y = k u + p du/dt - h`` for W parameter vectors.
 
     Parameters
@@ -194,10 +210,16 @@ def improved_duhem_batch(u, t, k_lin, p_rate, alpha, beta, gamma, uc, uh, state,
     failed : (W,) bool, written.
     """
     for j in prange(alpha.shape[0]):
-        ok = beta[j] >= 0.0 and uh[j] > 0.0 and math.isfinite(
-            k_lin[j] + p_rate[j] + alpha[j] + beta[j] + gamma[j] + uc[j] + uh[j])
-        if not ok:
-            failed[j] = True
-            continue
         failed[j] = _improved_one(u, t, k_lin[j], p_rate[j], alpha[j], beta[j], gamma[j],
                                   uc[j], uh[j], state[j], y[j])
+
+
+@njit(cache=True)
+def _improved_duhem_ser(u, t, k_lin, p_rate, alpha, beta, gamma, uc, uh, state, y, failed):
+    for j in range(alpha.shape[0]):
+        failed[j] = _improved_one(u, t, k_lin[j], p_rate[j], alpha[j], beta[j], gamma[j],
+                                  uc[j], uh[j], state[j], y[j])
+
+
+improved_duhem_batch = batch_kernel(_improved_duhem_par, _improved_duhem_ser, work_arg=-2,
+                                    name="improved_duhem_batch")

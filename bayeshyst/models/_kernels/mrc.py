@@ -31,6 +31,7 @@ import math
 import numpy as np
 from numba import njit, prange
 
+from bayeshyst.models._kernels import batch_kernel
 from bayeshyst.models._kernels.operators import _maxwell_one
 
 __all__ = ["loop_solve", "mrc_batch"]
@@ -119,7 +120,14 @@ def _accel(xi, v, ut, w2, zw2, c, rho, delta, qb, guess, hmax):
 
 
 @njit(cache=True)
-def _mrc_one(u, t, omega, zeta, gain, c, rho, delta, state, y, step, max_sub, rec):
+def _mrc_one(u, t, f_n, zeta, gain, c, rho, delta, state, y, step, max_sub, rec):
+    """One walker of :func:`mrc_batch`; returns True if it failed."""
+    ok = f_n > 0.0 and zeta >= 0.0 and c >= 0.0 and math.isfinite(f_n + zeta + gain + c)
+    for i in range(rho.shape[0]):
+        ok = ok and rho[i] >= 0.0 and delta[i] >= 0.0 and math.isfinite(rho[i] + delta[i])
+    if not ok:
+        return True
+    omega = 2.0 * math.pi * f_n
     n = rho.shape[0]
     xi = state[0]
     v = state[1]
@@ -195,8 +203,8 @@ def _mrc_one(u, t, omega, zeta, gain, c, rho, delta, state, y, step, max_sub, re
 
 
 @njit(cache=True, parallel=True)
-def mrc_batch(u, t, f_n, zeta, gain, coupling, rho, delta, state, y, failed, step, max_sub,
-              rec):
+def _mrc_par(u, t, f_n, zeta, gain, coupling, rho, delta, state, y, failed, step, max_sub,
+             rec):
     """MRC electromechanical model for W parameter vectors.
 
     Parameters
@@ -211,13 +219,19 @@ def mrc_batch(u, t, f_n, zeta, gain, coupling, rho, delta, state, y, failed, ste
     ``u_p``, ``Q`` and the loop residual ``G(Q) - (u + c xi)`` (V).
     """
     for j in prange(f_n.shape[0]):
-        ok = (f_n[j] > 0.0 and zeta[j] >= 0.0 and coupling[j] >= 0.0
-              and math.isfinite(f_n[j] + zeta[j] + gain[j] + coupling[j]))
-        for i in range(rho.shape[1]):
-            ok = ok and rho[j, i] >= 0.0 and delta[j, i] >= 0.0 and math.isfinite(
-                rho[j, i] + delta[j, i])
-        if not ok:
-            failed[j] = True
-            continue
-        failed[j] = _mrc_one(u, t, 2.0 * math.pi * f_n[j], zeta[j], gain[j], coupling[j],
-                             rho[j], delta[j], state[j], y[j], step, max_sub, rec[j])
+        failed[j] = _mrc_one(u, t, f_n[j], zeta[j], gain[j], coupling[j], rho[j], delta[j],
+                             state[j], y[j], step, max_sub, rec[j])
+
+
+@njit(cache=True)
+def _mrc_ser(u, t, f_n, zeta, gain, coupling, rho, delta, state, y, failed, step, max_sub,
+             rec):
+    for j in range(f_n.shape[0]):
+        failed[j] = _mrc_one(u, t, f_n[j], zeta[j], gain[j], coupling[j], rho[j], delta[j],
+                             state[j], y[j], step, max_sub, rec[j])
+
+
+# a sample costs microseconds (RK4 sub-steps, each solving the loop), hundreds of times
+# a PI sample: at 100 work units each, the switch to threads comes at about 200
+# walker-samples, ~1 ms of serial work (bayeshyst.models._kernels.PARALLEL_MIN_WORK)
+mrc_batch = batch_kernel(_mrc_par, _mrc_ser, work_arg=9, name="mrc_batch", cost=100)

@@ -8,13 +8,16 @@ Equations (MODELS.md §1–2, review Eq. 11–14, 20, 36–37)::
 Batched kernels take parameters of shape (W, n), a state of shape (W, n), and write the
 output (W, N) and the final state in place. The inner loop over operators has no
 dependence between operators, so numba vectorises it; the outer loop over walkers runs
-in parallel.
+in parallel for large batches and serially otherwise
+(:func:`bayeshyst.models._kernels.batch_kernel`).
 """
 
 from __future__ import annotations
 
 import numpy as np
 from numba import njit, prange
+
+from bayeshyst.models._kernels import batch_kernel
 
 __all__ = [
     "maxwell_slip_batch",
@@ -73,7 +76,7 @@ def _pi_play_one(u, p0, w, r, v, y):
 
 
 @njit(cache=True, parallel=True)
-def pi_play_batch(u, p0, w, r, state, y):
+def _pi_play_par(u, p0, w, r, state, y):
     """Play-PI ``y = p0 u + sum_i w_i F_{r_i}[u]`` for W parameter vectors.
 
     Parameters
@@ -86,34 +89,53 @@ def pi_play_batch(u, p0, w, r, state, y):
 
 
 @njit(cache=True)
-def _pi_stop_one(u, p0, w, r, e, u_prev, y):
+def _pi_play_ser(u, p0, w, r, state, y):
+    for j in range(w.shape[0]):
+        _pi_play_one(u, p0[j], w[j], r[j], state[j], y[j])
+
+
+pi_play_batch = batch_kernel(_pi_play_par, _pi_play_ser, work_arg=-1, name="pi_play_batch")
+
+
+@njit(cache=True)
+def _pi_stop_one(u, p0, w, r, s, y):
+    # s = [e_1 .. e_n, u_prev]: the stop integrates input increments, so it must
+    # remember the last input
     n = w.shape[0]
-    up = u_prev
+    up = s[n]
     for k in range(u.shape[0]):
         uk = u[k]
         du = uk - up
         up = uk
         acc = p0 * uk
         for i in range(n):
-            ei = e[i] + du
+            ei = s[i] + du
             ri = r[i]
             ei = ri if ei > ri else (-ri if ei < -ri else ei)
-            e[i] = ei
+            s[i] = ei
             acc += w[i] * ei
         y[k] = acc
+    s[n] = u[u.shape[0] - 1]
 
 
 @njit(cache=True, parallel=True)
-def pi_stop_batch(u, p0, w, r, state, y):
+def _pi_stop_par(u, p0, w, r, state, y):
     """Stop-PI ``y = p0 u + sum_i w_i E_{r_i}[u]`` for W parameter vectors.
 
     ``state`` is (W, n + 1): the n stop outputs followed by the previous input value
     (the stop operator integrates input increments, so it must remember the last input).
     """
-    n = w.shape[1]
     for j in prange(w.shape[0]):
-        _pi_stop_one(u, p0[j], w[j], r[j], state[j, :n], state[j, n], y[j])
-        state[j, n] = u[u.shape[0] - 1]
+        _pi_stop_one(u, p0[j], w[j], r[j], state[j], y[j])
+
+
+@njit(cache=True)
+def _pi_stop_ser(u, p0, w, r, state, y):
+    for j in range(w.shape[0]):
+        _pi_stop_one(u, p0[j], w[j], r[j], state[j], y[j])
+
+
+pi_stop_batch = batch_kernel(_pi_stop_par, _pi_stop_ser, work_arg=-1, name="pi_stop_batch")
 
 
 @njit(cache=True)
@@ -135,7 +157,7 @@ def _maxwell_one(x, k0, k, delta, xs, y):
 
 
 @njit(cache=True, parallel=True)
-def maxwell_slip_batch(x, k0, k, delta, state, y):
+def _maxwell_slip_par(x, k0, k, delta, state, y):
     """Maxwell-slip ``y = k0 x + sum_i k_i (x - x_i)`` with elasto-slide elements.
 
     ``k`` (W, n) element stiffnesses, ``delta`` (W, n) slip deflections
@@ -143,6 +165,16 @@ def maxwell_slip_batch(x, k0, k, delta, state, y):
     """
     for j in prange(k.shape[0]):
         _maxwell_one(x, k0[j], k[j], delta[j], state[j], y[j])
+
+
+@njit(cache=True)
+def _maxwell_slip_ser(x, k0, k, delta, state, y):
+    for j in range(k.shape[0]):
+        _maxwell_one(x, k0[j], k[j], delta[j], state[j], y[j])
+
+
+maxwell_slip_batch = batch_kernel(_maxwell_slip_par, _maxwell_slip_ser, work_arg=-1,
+                                  name="maxwell_slip_batch")
 
 
 def _warm() -> None:  # pragma: no cover - used by benchmarks to separate compile time

@@ -20,7 +20,8 @@ the rate-dependent play with ``c = 0`` reproduce ``pi_play_batch`` bit for bit.
 
 Batched kernels take parameters with a leading walker axis ``W``, write the output
 ``y`` (W, N) and update ``state`` (W, S) in place; the loop over walkers runs in
-parallel and nothing is allocated per sample.
+parallel for large batches and serially otherwise
+(:func:`bayeshyst.models._kernels.batch_kernel`), and nothing is allocated per sample.
 """
 
 from __future__ import annotations
@@ -29,6 +30,8 @@ import math
 
 import numpy as np
 from numba import njit, prange
+
+from bayeshyst.models._kernels import batch_kernel
 
 __all__ = [
     "ENVELOPE_CUBIC",
@@ -99,7 +102,7 @@ def _generalized_one(u, p0, w, r, bl, br, uc, uh, kind, v, y):
 
 
 @njit(cache=True, parallel=True)
-def pi_generalized_batch(u, p0, w, r, bl, br, uc, uh, kind, state, y):
+def _pi_generalized_par(u, p0, w, r, bl, br, uc, uh, kind, state, y):
     """Generalised-play PI ``y = p0 u + sum_i w_i F^γ_{r_i}[u]`` for W parameter vectors.
 
     Parameters
@@ -127,6 +130,17 @@ def pi_generalized_batch(u, p0, w, r, bl, br, uc, uh, kind, state, y):
 
 
 @njit(cache=True)
+def _pi_generalized_ser(u, p0, w, r, bl, br, uc, uh, kind, state, y):
+    for j in range(w.shape[0]):
+        _generalized_one(u, p0[j], w[j], r[j], bl[j], br[j], uc[j], uh[j], kind,
+                         state[j], y[j])
+
+
+pi_generalized_batch = batch_kernel(_pi_generalized_par, _pi_generalized_ser, work_arg=-1,
+                                    name="pi_generalized_batch")
+
+
+@njit(cache=True)
 def _asymmetric_one(u, p0, w, r, m, v, y):
     n = w.shape[0]
     for k in range(u.shape[0]):
@@ -140,7 +154,7 @@ def _asymmetric_one(u, p0, w, r, m, v, y):
 
 
 @njit(cache=True, parallel=True)
-def pi_asymmetric_batch(u, p0, w, r, m, state, y):
+def _pi_asymmetric_par(u, p0, w, r, m, state, y):
     """Unilateral-play PI ``y = p0 u + sum_i w_i max(u - r_i, min(m_i u, v_i))``.
 
     Parameters
@@ -161,6 +175,16 @@ def pi_asymmetric_batch(u, p0, w, r, m, state, y):
     """
     for j in prange(w.shape[0]):
         _asymmetric_one(u, p0[j], w[j], r[j], m[j], state[j], y[j])
+
+
+@njit(cache=True)
+def _pi_asymmetric_ser(u, p0, w, r, m, state, y):
+    for j in range(w.shape[0]):
+        _asymmetric_one(u, p0[j], w[j], r[j], m[j], state[j], y[j])
+
+
+pi_asymmetric_batch = batch_kernel(_pi_asymmetric_par, _pi_asymmetric_ser, work_arg=-1,
+                                   name="pi_asymmetric_batch")
 
 
 # error_model="numpy": a walker with an out-of-support u̇_0 = 0 must give inf/NaN that
@@ -198,7 +222,7 @@ def _rate_one(u, t, p0, w, r, c, ud0, s, y):
 
 
 @njit(cache=True, parallel=True)
-def pi_rate_batch(u, t, p0, w, r, c, ud0, state, y):
+def _pi_rate_par(u, t, p0, w, r, c, ud0, state, y):
     """Rate-dependent play PI with thresholds ``r_i (1 + c ln(1 + |u̇| / u̇_0))``.
 
     Parameters
@@ -221,6 +245,15 @@ def pi_rate_batch(u, t, p0, w, r, c, ud0, state, y):
     """
     for j in prange(w.shape[0]):
         _rate_one(u, t, p0[j], w[j], r[j], c[j], ud0[j], state[j], y[j])
+
+
+@njit(cache=True)
+def _pi_rate_ser(u, t, p0, w, r, c, ud0, state, y):
+    for j in range(w.shape[0]):
+        _rate_one(u, t, p0[j], w[j], r[j], c[j], ud0[j], state[j], y[j])
+
+
+pi_rate_batch = batch_kernel(_pi_rate_par, _pi_rate_ser, work_arg=-1, name="pi_rate_batch")
 
 
 def _warm() -> None:  # pragma: no cover - used by benchmarks to separate compile time

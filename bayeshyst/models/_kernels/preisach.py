@@ -25,9 +25,10 @@ from ``e_{n-1}`` to ``tip``. Partial sums of the Everett terms are rebuilt from 
 stored extrema at the start of every call with the same recurrence used while running,
 so a record simulated in pieces gives bit-identical output.
 
-Each kernel is a one-walker function plus a ``prange`` wrapper over walkers; callers
-use the one-walker function directly for a single walker, where waking numba's thread
-pool costs more than the work (milliseconds on a loaded machine).
+Each kernel is a one-walker function plus a loop over walkers that runs in parallel for
+large batches and serially otherwise (:func:`bayeshyst.models._kernels.batch_kernel`):
+for a single walker, waking numba's thread pool costs more than the work (milliseconds
+on a loaded machine).
 """
 
 from __future__ import annotations
@@ -36,6 +37,8 @@ import math
 
 import numpy as np
 from numba import njit, prange
+
+from bayeshyst.models._kernels import batch_kernel
 
 __all__ = [
     "density_everett_table",
@@ -129,10 +132,20 @@ def relay_everett_table(mu, tab):
 
 
 @njit(cache=True, parallel=True)
-def relay_everett_tables(mu, out):
+def _relay_everett_tables_par(mu, out):
     """:func:`relay_everett_table` for W walkers: ``mu`` (W, n_cells), ``out`` (W, L+1, L+1)."""
     for w in prange(mu.shape[0]):
         relay_everett_table(mu[w], out[w])
+
+
+@njit(cache=True)
+def _relay_everett_tables_ser(mu, out):
+    for w in range(mu.shape[0]):
+        relay_everett_table(mu[w], out[w])
+
+
+relay_everett_tables = batch_kernel(_relay_everett_tables_par, _relay_everett_tables_ser,
+                                    work_arg=1, name="relay_everett_tables")
 
 
 @njit(cache=True)
@@ -231,11 +244,21 @@ def density_everett_table(nd, dw, lognormal, tab):
 
 
 @njit(cache=True, parallel=True)
-def density_everett_tables(nodes, dens, lognormal, out, ok):
+def _density_everett_tables_par(nodes, dens, lognormal, out, ok):
     """:func:`density_everett_table` for W walkers: ``nodes`` (W, G+1), ``dens`` (W, 5),
     ``out`` (W, G+1, G+1) and ``ok`` (W,) written."""
     for w in prange(nodes.shape[0]):
         ok[w] = density_everett_table(nodes[w], dens[w], lognormal, out[w])
+
+
+@njit(cache=True)
+def _density_everett_tables_ser(nodes, dens, lognormal, out, ok):
+    for w in range(nodes.shape[0]):
+        ok[w] = density_everett_table(nodes[w], dens[w], lognormal, out[w])
+
+
+density_everett_tables = batch_kernel(_density_everett_tables_par, _density_everett_tables_ser,
+                                      work_arg=3, name="density_everett_tables")
 
 
 @njit(cache=True)
@@ -334,7 +357,7 @@ def staircase_one(u, nodes, table, bilinear, c0, c1, c2, st, y):
 
 
 @njit(cache=True, parallel=True)
-def staircase_batch(u, nodes, tables, bilinear, coef, skip, state, y, failed):
+def _staircase_par(u, nodes, tables, bilinear, coef, skip, state, y, failed):
     """Preisach output ``y = c0 + c1 u + c2 P`` for W walkers (Eq. 7–8).
 
     Parameters
@@ -351,8 +374,16 @@ def staircase_batch(u, nodes, tables, bilinear, coef, skip, state, y, failed):
     failed : (W,) bool, written: True where an output was not finite.
     """
     for w in prange(tables.shape[0]):
-        if skip[w]:
-            failed[w] = True
-            continue
-        failed[w] = staircase_one(u, nodes[w], tables[w], bilinear, coef[w, 0], coef[w, 1],
-                                   coef[w, 2], state[w], y[w])
+        failed[w] = skip[w] or staircase_one(u, nodes[w], tables[w], bilinear, coef[w, 0],
+                                             coef[w, 1], coef[w, 2], state[w], y[w])
+
+
+@njit(cache=True)
+def _staircase_ser(u, nodes, tables, bilinear, coef, skip, state, y, failed):
+    for w in range(tables.shape[0]):
+        failed[w] = skip[w] or staircase_one(u, nodes[w], tables[w], bilinear, coef[w, 0],
+                                             coef[w, 1], coef[w, 2], state[w], y[w])
+
+
+staircase_batch = batch_kernel(_staircase_par, _staircase_ser, work_arg=-2,
+                               name="staircase_batch")

@@ -1,0 +1,74 @@
+"""The serial/parallel switch shared by every batched kernel (bayeshyst.models._kernels).
+
+The choice between the ``prange`` loop and its serial twin must depend on the size of
+the work only, and must never change a bit of the result.
+"""
+
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from bayeshyst import models
+from bayeshyst.models import _kernels as kernels
+
+# the model families whose kernels go through batch_kernel (effect blocks: test_blocks)
+FAMILIES = ("pi_play", "pi_stop", "maxwell_slip", "pi_generalized", "pi_asymmetric",
+            "pi_rate", "preisach", "preisach_density", "duhem", "duhem_improved", "mrc")
+
+
+def _record(n: int = 300, fs: float = 5e3) -> SimpleNamespace:
+    t = np.arange(n) / fs
+    u = 75.0 + 70.0 * np.sin(2 * np.pi * 40 * t) * (0.7 + 0.3 * np.sin(2 * np.pi * 7 * t))
+    return SimpleNamespace(t=t, u=u, y=0.12 * u + 0.8 * np.cos(2 * np.pi * 40 * t) + 1.0)
+
+
+def test_use_parallel_needs_several_walkers_and_enough_work(monkeypatch):
+    monkeypatch.setattr(kernels, "PARALLEL_MIN_WORK", 100)
+    assert not kernels.use_parallel(1, 10**9)  # one walker: nothing to share out
+    assert not kernels.use_parallel(4, 99)
+    assert kernels.use_parallel(4, 100)
+    monkeypatch.setattr(kernels, "PARALLEL_MIN_WORK", 1000)  # read at call time
+    assert not kernels.use_parallel(4, 100)
+
+
+def test_batch_kernel_picks_by_the_size_of_the_work_argument(monkeypatch):
+    calls = []
+
+    def par(x, out):
+        """The parallel loop's doc."""
+        calls.append("parallel")
+        return "p"
+
+    def ser(x, out):
+        calls.append("serial")
+        return "s"
+
+    kernel = kernels.batch_kernel(par, ser, work_arg=-1, name="demo_batch")
+    assert kernel.__name__ == "demo_batch" and kernel.__doc__ == par.__doc__
+    assert kernel.parallel is par and kernel.serial is ser
+    monkeypatch.setattr(kernels, "PARALLEL_MIN_WORK", 50)
+    assert kernel(None, np.empty((5, 10))) == "p"
+    assert kernel(None, np.empty((5, 9))) == "s"
+    assert kernel(None, np.empty((1, 10**4))) == "s"
+    assert calls == ["parallel", "serial", "serial"]
+    heavy = kernels.batch_kernel(par, ser, work_arg=-1, name="heavy_batch", cost=10)
+    assert heavy(None, np.empty((5, 1))) == "p"  # 5 entries x 10 units each
+
+
+@pytest.mark.parametrize("name", FAMILIES)
+def test_parallel_and_serial_loops_give_identical_results(name, monkeypatch):
+    model = models.get(name)
+    rec = _record()
+    space = model.param_space(rec)
+    thetas = space.unpack(space.sample_prior(np.random.default_rng(4), 6))
+    runs = []
+    for threshold in (0, 10**12):
+        monkeypatch.setattr(kernels, "PARALLEL_MIN_WORK", threshold)
+        runs.append(model.run_batch(rec.u, rec.t, thetas))
+    par, ser = runs
+    np.testing.assert_array_equal(par.failed, ser.failed)
+    np.testing.assert_array_equal(par.y, ser.y)
+    np.testing.assert_array_equal(par.state, ser.state)
