@@ -1,0 +1,237 @@
+"""The effect-block contract :class:`EffectBlock`, its registry and the data's time scales.
+
+See :mod:`bayeshyst.models.blocks` for the conventions every block follows.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+from abc import ABC, abstractmethod
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any, ClassVar
+
+import numpy as np
+
+from bayeshyst.errors import ModelError, ParameterError, SimulationError
+from bayeshyst.models.base import Trajectory
+from bayeshyst.params import ParamSpace
+
+__all__ = [
+    "DEFAULT_DT",
+    "DEFAULT_DURATION",
+    "EffectBlock",
+    "TimeScales",
+    "block_class",
+    "block_names",
+    "check_int",
+    "new_outputs",
+    "param_columns",
+    "register_block",
+    "time_scales",
+]
+
+#: Sampling period assumed when no data is given (s): a 10 kHz piezo rig.
+DEFAULT_DT = 1e-4
+#: Record duration assumed when no data is given (s).
+DEFAULT_DURATION = 10.0
+
+
+@dataclass(frozen=True)
+class TimeScales:
+    """Sampling period ``dt`` (s, the finest median step) and ``duration`` (s, longest record)."""
+
+    dt: float = DEFAULT_DT
+    duration: float = DEFAULT_DURATION
+
+    @property
+    def fs(self) -> float:
+        """Sampling rate (Hz)."""
+        return 1.0 / self.dt
+
+
+def time_scales(data: Any = None) -> TimeScales:
+    """Time scales of a Record, a Dataset or any object with ``t``; defaults for None.
+
+    Raises
+    ------
+    ParameterError
+        If the times do not increase.
+    """
+    if data is None or not (hasattr(data, "t") or hasattr(data, "records")):
+        return TimeScales()
+    records = list(data) if hasattr(data, "records") else [data]
+    dts, durations = [], []
+    for rec in records:
+        t = np.asarray(rec.t, dtype=float)
+        if t.size >= 2:
+            dts.append(float(np.median(np.diff(t))))
+            durations.append(float(t[-1] - t[0]))
+    if not dts:
+        return TimeScales()
+    dt, duration = min(dts), max(durations)
+    if not (dt > 0 and math.isfinite(duration)):
+        raise ParameterError(f"sample times must increase; median step {dt}")
+    return TimeScales(dt, duration)
+
+
+def check_int(value: Any, what: str, minimum: int) -> None:
+    """Raise ModelError unless ``value`` is an integer ``>= minimum`` (a block setting)."""
+    if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < minimum:
+        raise ModelError(f"{what} must be an integer >= {minimum}, got {value!r}")
+
+
+# ------------------------------------------------------------------------ base class
+
+
+@dataclass(frozen=True)
+class EffectBlock(ABC):
+    """A causal single-input single-output block with explicit state.
+
+    Class attributes
+    ----------------
+    name : str
+        Name in spec strings (``"pi_play+arx"``) and the parameter namespace.
+    rate_dependent : bool
+        Whether the output depends on the time axis (or on the sample count).
+    equation : str
+        What the block implements, for docs.
+    """
+
+    name: ClassVar[str] = ""
+    rate_dependent: ClassVar[bool] = True
+    equation: ClassVar[str] = ""
+
+    @property
+    @abstractmethod
+    def state_size(self) -> int:
+        """Number of state entries ``S`` (fixed by the structural settings)."""
+
+    @abstractmethod
+    def param_space(self, data: Any = None) -> ParamSpace:
+        """Declared parameters with priors scaled from ``data`` (Record, Dataset or None)."""
+
+    @abstractmethod
+    def _initial_state(self, theta: Mapping[str, np.ndarray], w0: np.ndarray,
+                       t0: float) -> np.ndarray:
+        """Steady state (W, S) for the input ``w0`` (W,) held since forever, at time ``t0``.
+
+        ``t0`` may be NaN: the state is then taken to be at the first sample's time.
+        """
+
+    @abstractmethod
+    def _apply(self, w: np.ndarray, t: np.ndarray, theta: Mapping[str, np.ndarray],
+               state: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Apply to ``w`` (W, N) at times ``t`` (N,) from ``state`` (W, S).
+
+        Returns ``out (W, N)``, the final state ``(W, S)`` and ``failed (W,)``; the
+        arguments are not modified. ``theta`` holds float64 arrays with a leading W axis.
+        """
+
+    # ------------------------------------------------------------------ conveniences
+    @functools.cached_property
+    def _shapes(self) -> dict[str, tuple[int, ...]]:
+        space = self.param_space()
+        return {n: space[n].shape for n in space.all_names}
+
+    def _batch_theta(self, theta: Mapping[str, Any], width: int | None) -> dict:
+        missing = [n for n in self._shapes if n not in theta]
+        unknown = [n for n in theta if n not in self._shapes]
+        if missing or unknown:
+            raise ParameterError(f"{self.name}: theta is missing {missing} / has unknown "
+                                 f"{unknown}; expected {list(self._shapes)}")
+        out = {}
+        for n, shape in self._shapes.items():
+            arr = np.asarray(theta[n], dtype=np.float64)
+            arr = arr[None, ...] if width is None else arr
+            if arr.shape[1:] != shape or (width is not None and arr.shape[0] != width):
+                raise ParameterError(f"{self.name}: theta[{n!r}] has shape {np.shape(theta[n])}"
+                                     f", expected {(('W',) if width else ()) + shape}")
+            out[n] = np.ascontiguousarray(arr)
+        return out
+
+    def initial_state(self, theta: Mapping[str, Any], w0: float,
+                      t0: float = math.nan) -> np.ndarray:
+        """Steady state (S,) of one parameter vector for the input ``w0`` held since forever."""
+        tb = self._batch_theta(theta, None)
+        return self._initial_state(tb, np.array([float(w0)]), float(t0))[0]
+
+    def apply(self, w: Any, t: Any, theta: Mapping[str, Any], *,
+              state0: np.ndarray | None = None) -> Trajectory:
+        """Apply the block to one signal ``w`` (N,) at times ``t`` (N,) (s).
+
+        ``state0`` (S,) defaults to the steady state at ``w[0]``. Raises
+        :class:`SimulationError` if the parameter vector fails.
+        """
+        traj = self.apply_batch(np.asarray(w, float)[None, :], t, self._batch_theta(theta, None),
+                                state0=None if state0 is None else np.asarray(state0)[None])
+        if traj.failed[0]:
+            raise SimulationError(f"{self.name}: block failed for theta={dict(theta)}")
+        return Trajectory(traj.y[0], traj.state[0], np.asarray(False))
+
+    def apply_batch(self, w: Any, t: Any, thetas: Mapping[str, Any], *,
+                    state0: np.ndarray | None = None) -> Trajectory:
+        """Apply ``W`` parameter vectors (arrays ``(W, *shape)``) to ``w`` (W, N) or (N,)."""
+        t = np.ascontiguousarray(t, dtype=np.float64)
+        w = np.asarray(w, dtype=np.float64)
+        if thetas:
+            width = int(np.shape(next(iter(thetas.values())))[0])
+        else:  # a block without parameters: the walkers are the rows of w
+            width = w.shape[0] if w.ndim == 2 else 1
+        if (t.ndim != 1 or t.size == 0 or w.shape[-1:] != t.shape or w.ndim > 2
+                or not (np.all(np.isfinite(t)) and np.all(np.isfinite(w)))):
+            raise ParameterError(f"w {w.shape} and t {t.shape} must be finite, t 1-D and "
+                                 "non-empty, w (N,) or (W, N) with N = len(t)")
+        w = np.ascontiguousarray(np.broadcast_to(w, (width, t.size)))
+        tb = self._batch_theta(thetas, width)
+        s0 = (self._initial_state(tb, w[:, 0].copy(), math.nan) if state0 is None
+              else np.ascontiguousarray(state0, dtype=np.float64))
+        if s0.shape != (width, self.state_size):
+            raise ParameterError(f"{self.name}: state0 must have shape ({width}, "
+                                 f"{self.state_size}), got {s0.shape}")
+        y, state, failed = self._apply(w, t, tb, s0)
+        return Trajectory(y, state, failed)
+
+    def describe(self) -> str:
+        """Name, equation and the default parameter table."""
+        return f"{self.name}  ({type(self).__name__}; {self.equation})\n{self.param_space()}"
+
+
+_BLOCKS: dict[str, type[EffectBlock]] = {}
+
+
+def register_block(cls: type[EffectBlock]) -> type[EffectBlock]:
+    """Class decorator adding an effect block under its ``name``."""
+    if not cls.name or (cls.name in _BLOCKS and _BLOCKS[cls.name] is not cls):
+        raise ModelError(f"block {cls.__name__}: name {cls.name!r} is empty or taken")
+    _BLOCKS[cls.name] = cls
+    return cls
+
+
+def block_names() -> list[str]:
+    """Registered effect-block names, sorted."""
+    return sorted(_BLOCKS)
+
+
+def block_class(name: str) -> type[EffectBlock]:
+    """The block class registered under ``name``; ModelError listing the valid names."""
+    try:
+        return _BLOCKS[name]
+    except KeyError:
+        raise ModelError(f"unknown effect block {name!r}; valid blocks: "
+                         f"{', '.join(block_names())}") from None
+
+
+def new_outputs(w: np.ndarray,
+                state: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Buffers of a kernel call: output like ``w``, a C-contiguous copy of ``state``, ``failed``."""
+    return (np.empty_like(w), np.array(state, dtype=np.float64, order="C"),
+            np.zeros(w.shape[0], dtype=bool))
+
+
+def param_columns(theta: Mapping[str, np.ndarray], name: str, width: int) -> np.ndarray:
+    """A (W, n) parameter array, or (W, 0) when the block declares none of that name."""
+    if name in theta:
+        return np.ascontiguousarray(theta[name], dtype=np.float64).reshape(width, -1)
+    return np.empty((width, 0))

@@ -1,0 +1,167 @@
+"""Linear dynamics after a hysteresis model: ARX and exact second order (review Eq. 56–57)."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any, ClassVar
+
+import numpy as np
+
+from bayeshyst.errors import ParameterError
+from bayeshyst.models._kernels.blocks import arx_batch, arx_polynomials, second_order_batch
+from bayeshyst.models.blocks.base import (
+    EffectBlock,
+    check_int,
+    new_outputs,
+    param_columns,
+    register_block,
+    time_scales,
+)
+from bayeshyst.params import LogNormal, Normal, Param, ParamSpace, Uniform
+
+__all__ = ["ARX", "SecondOrder"]
+
+
+# -------------------------------------------------------------------------------- ARX
+
+
+@register_block
+@dataclass(frozen=True)
+class ARX(EffectBlock):
+    """ARX linear dynamics ``A(q^-1) y_k = B(q^-1) w_{k-nk}`` (review Eq. 56–57).
+
+    ``A = 1 + a_1 q^-1 + ... + a_na q^-na``, ``B = b_0 + ... + b_{nb-1} q^-(nb-1)``;
+    the noise term ``e`` of Eq. 56 belongs to the likelihood, not here.
+
+    Parameters
+    ----------
+    na : int
+        Order of ``A`` (0 for a finite impulse response).
+    nb : int
+        Number of ``B`` coefficients (>= 1).
+    nk : int
+        Input delay in samples.
+
+    Notes
+    -----
+    Parametrised so that **every draw is stable with unit DC gain**:
+
+    * ``kappa`` (na,) in (-1, 1): reflection coefficients, mapped to ``A`` by the
+      step-up recursion ``a^(m)_i = a^(m-1)_i + kappa_m a^(m-1)_(m-i)``,
+      ``a^(m)_m = kappa_m``. ``A`` has all roots inside the unit circle iff every
+      ``|kappa_m| < 1`` (Schur–Cohn), and every stable ``A`` has exactly one such
+      ``kappa``, so no stable filter is lost and no unstable one is proposed.
+    * ``beta`` (nb - 1,): shares of the static gain on the lagged inputs,
+      ``b = A(1) [1 - sum(beta), beta_1, ..., beta_{nb-1}]``, so ``B(1) / A(1) = 1``.
+      A free ``B`` would multiply the hysteresis gain by ``B(1)/A(1)``: only their
+      product is identifiable, and the posterior would be a ridge.
+
+    Priors: ``kappa`` uniform on (-1, 1), no preferred pole location (the logit
+    transform lets the sampler approach the unit circle, where the poles of slow
+    dynamics sampled fast lie); ``beta ~ Normal(0, 0.5)``. Coefficients are per sample:
+    the block assumes the data's uniform rate and ignores ``t``. State: the last ``na``
+    outputs and ``nk + nb - 1`` inputs, oldest first.
+    """
+
+    name: ClassVar[str] = "arx"
+    equation: ClassVar[str] = "review Eq. 56-57"
+    na: int = 2
+    nb: int = 2
+    nk: int = 0
+
+    def __post_init__(self) -> None:
+        check_int(self.na, "ARX na", 0)
+        check_int(self.nb, "ARX nb", 1)
+        check_int(self.nk, "ARX nk", 0)
+
+    @property
+    def state_size(self) -> int:
+        return self.na + self.nk + self.nb - 1
+
+    def param_space(self, data: Any = None) -> ParamSpace:
+        params = []
+        if self.na:
+            params.append(Param("kappa", Uniform(-1.0, 1.0), shape=(self.na,), unit="1",
+                                description="reflection coefficients of A (stable iff |k|<1)"))
+        if self.nb > 1:
+            params.append(Param("beta", Normal(0.0, 0.5), shape=(self.nb - 1,), unit="1",
+                                description="shares of the unit DC gain on lagged inputs"))
+        return ParamSpace(tuple(params))
+
+    def polynomials(self, theta: Mapping[str, Any]) -> tuple[np.ndarray, np.ndarray]:
+        """``(a, b)`` of one parameter vector: ``a`` (na + 1,) with ``a_0 = 1``, ``b`` (nb,).
+
+        Raises ParameterError if a reflection coefficient is outside (-1, 1).
+        """
+        tb = self._batch_theta(theta, None)
+        a, b = np.empty(self.na + 1), np.empty(self.nb)
+        kappa, beta = param_columns(tb, "kappa", 1)[0], param_columns(tb, "beta", 1)[0]
+        if not arx_polynomials(kappa, beta, a, b):
+            raise ParameterError(f"ARX: reflection coefficients must lie in (-1, 1): {theta}")
+        return a, b
+
+    def _initial_state(self, theta, w0, t0):
+        # unit DC gain: the settled output equals the held input
+        return np.repeat(np.asarray(w0, float)[:, None], self.state_size, axis=1)
+
+    def _apply(self, w, t, theta, state):
+        out, st, failed = new_outputs(w, state)
+        width = w.shape[0]
+        arx_batch(w, param_columns(theta, "kappa", width), param_columns(theta, "beta", width),
+                  self.nk, st, out, failed)
+        return out, st, failed
+
+
+# ----------------------------------------------------------------------- second order
+
+
+@register_block
+@dataclass(frozen=True)
+class SecondOrder(EffectBlock):
+    """Second-order dynamics ``G(s) = wn^2 / (s^2 + 2 zeta wn s + wn^2)``, ``wn = 2 pi f_n``.
+
+    Discretised exactly: the input is held between samples (ZOH) and the state is
+    propagated by the matrix exponential, in closed form for under-, critically and
+    over-damped ``zeta`` (MODELS.md §7). Any sampling, uniform or not, is exact: the
+    discretisation is cached per distinct step and recomputed when the step changes.
+
+    Notes
+    -----
+    Parameters: ``f_n`` (Hz), log-normal prior with median ``fs / 20`` (a tenth of the
+    data's Nyquist frequency; ``fs = 10 kHz`` without data) and a factor-e spread, so
+    about 1 % of the prior lies above Nyquist; ``zeta`` (1), log-normal with median 0.3
+    (piezo stages are lightly damped; 11 % prior mass is over-damped). ``G(0) = 1``.
+    With ZOH the output at ``t_k`` depends on inputs up to ``w_{k-1}`` only (strictly
+    proper). State: ``[y, dy/dt, w_prev, t_prev, h_ref]``.
+    """
+
+    name: ClassVar[str] = "second_order"
+    equation: ClassVar[str] = "wn^2/(s^2 + 2 zeta wn s + wn^2), exact ZOH"
+
+    @property
+    def state_size(self) -> int:
+        return 5
+
+    def param_space(self, data: Any = None) -> ParamSpace:
+        fs = time_scales(data).fs
+        return ParamSpace((
+            Param("f_n", LogNormal.from_median(fs / 20.0, 1.0), unit="Hz",
+                  description="natural frequency (prior median a tenth of Nyquist)"),
+            Param("zeta", LogNormal.from_median(0.3, 1.0), unit="1",
+                  description="damping ratio"),
+        ))
+
+    def _initial_state(self, theta, w0, t0):
+        s = np.zeros((w0.shape[0], 5))
+        s[:, 0] = w0
+        s[:, 2] = w0
+        s[:, 3] = t0
+        s[:, 4] = np.nan
+        return s
+
+    def _apply(self, w, t, theta, state):
+        out, st, failed = new_outputs(w, state)
+        wn = 2.0 * np.pi * np.ascontiguousarray(theta["f_n"], dtype=np.float64)
+        second_order_batch(w, t, wn, np.ascontiguousarray(theta["zeta"]), st, out, failed)
+        return out, st, failed
