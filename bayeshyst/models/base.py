@@ -22,15 +22,18 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from bayeshyst.errors import ParameterError, SimulationError
+from bayeshyst.errors import ModelError, ParameterError, SimulationError
 from bayeshyst.params import ParamSpace
 
 __all__ = [
     "DataScales",
     "HysteresisModel",
     "Trajectory",
+    "batch_theta",
+    "check_count",
     "check_signal",
     "data_scales",
+    "kernel_buffers",
     "sample_period",
 ]
 
@@ -155,6 +158,103 @@ class Trajectory:
         return f"Trajectory(y: {shape}, state size {self.state.shape[-1]}, failed {self.n_failed})"
 
 
+def check_count(n: Any, what: str = "n_operators", minimum: int = 1) -> None:
+    """Raise ModelError unless ``n`` is an integer ``>= minimum`` (a structural count).
+
+    Parameters
+    ----------
+    n : Any
+        The setting (``bool`` is refused: ``True`` is not a count).
+    what : str
+        Its name, for the message.
+    minimum : int
+        Smallest valid value.
+    """
+    if isinstance(n, bool) or not isinstance(n, int | np.integer) or n < minimum:
+        raise ModelError(f"{what} must be an integer >= {minimum}, got {n!r}")
+
+
+def batch_theta(owner: str, shapes: Mapping[str, tuple[int, ...]], theta: Mapping[str, Any],
+                *, batched: bool) -> tuple[dict[str, np.ndarray], int | None]:
+    """Validate parameter values and give them a leading walker axis.
+
+    Shared by models and effect blocks: the kernels take every parameter as a
+    C-contiguous, writable float64 array with a leading ``W`` axis.
+
+    Parameters
+    ----------
+    owner : str
+        Name of the model or block, for error messages.
+    shapes : mapping
+        Declared shape of every parameter (free and fixed), by name.
+    theta : mapping
+        Values by name: one parameter vector (``batched=False``, shapes as declared) or
+        ``W`` of them (``batched=True``, each with a leading ``W`` axis).
+    batched : bool
+        Whether ``theta`` already has the walker axis.
+
+    Returns
+    -------
+    out : dict
+        ``name -> ndarray (W, *shape)``; arrays that already qualify are not copied.
+    width : int or None
+        ``W``; None when nothing is declared.
+
+    Raises
+    ------
+    ParameterError
+        For a missing or unknown name, a wrong shape, or unequal walker counts.
+    """
+    missing = [n for n in shapes if n not in theta]
+    unknown = [n for n in theta if n not in shapes]
+    if missing or unknown:
+        raise ParameterError(f"{owner}: theta is missing {missing} / has unknown {unknown}; "
+                             f"expected {list(shapes)}")
+    out: dict[str, np.ndarray] = {}
+    width = None
+    for name, shape in shapes.items():
+        arr = np.asarray(theta[name], dtype=np.float64)
+        if not batched:
+            arr = arr[None, ...]
+        if arr.shape[1:] != shape:
+            want = ("(W, " if batched else "(") + ", ".join(map(str, shape)) + ")"
+            raise ParameterError(f"{owner}: theta[{name!r}] has shape "
+                                 f"{np.shape(theta[name])}, expected {want}")
+        if width is None:
+            width = arr.shape[0]
+        elif arr.shape[0] != width:
+            raise ParameterError(f"{owner}: theta[{name!r}] has {arr.shape[0]} rows, "
+                                 f"other parameters have {width}")
+        # fixed values are read-only arrays; numba types those separately, so a copy
+        # keeps one compiled specialisation per kernel
+        out[name] = arr if arr.flags.writeable and arr.flags.c_contiguous else arr.copy()
+    return out, None if width is None else int(width)
+
+
+def kernel_buffers(state0: np.ndarray,
+                   n_samples: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Buffers of one batched kernel call, in the order ``_run`` returns them.
+
+    Parameters
+    ----------
+    state0 : ndarray, shape (W, S)
+        State before the first sample; not modified.
+    n_samples : int
+        Number of samples ``N``.
+
+    Returns
+    -------
+    y : ndarray, shape (W, N)
+        Uninitialised output.
+    state : ndarray, shape (W, S)
+        C-contiguous float64 copy of ``state0``, for the kernel to update in place.
+    failed : ndarray of bool, shape (W,)
+        All False.
+    """
+    state = np.array(state0, dtype=np.float64, order="C")
+    return np.empty((state.shape[0], n_samples)), state, np.zeros(state.shape[0], dtype=bool)
+
+
 def check_signal(u: Any, t: Any) -> tuple[np.ndarray, np.ndarray]:
     """``u`` and ``t`` as C-contiguous float64, 1-D, equal length, finite; else raise."""
     u = np.ascontiguousarray(u, dtype=np.float64)
@@ -222,33 +322,8 @@ class HysteresisModel(ABC):
         return {name: space[name].shape for name in space.all_names}
 
     def _batch_theta(self, theta: Mapping[str, Any], batched: bool) -> tuple[dict, int]:
-        shapes = self._shapes
-        missing = [n for n in shapes if n not in theta]
-        unknown = [n for n in theta if n not in shapes]
-        if missing or unknown:
-            raise ParameterError(
-                f"{self.name}: theta is missing {missing} / has unknown {unknown}; "
-                f"expected {list(shapes)}"
-            )
-        out: dict[str, np.ndarray] = {}
-        width = None
-        for name, shape in shapes.items():
-            arr = np.asarray(theta[name], dtype=np.float64)
-            if not batched:
-                arr = arr[None, ...]
-            if arr.shape[1:] != shape:
-                want = ("(W, " if batched else "(") + ", ".join(map(str, shape)) + ")"
-                raise ParameterError(f"{self.name}: theta[{name!r}] has shape "
-                                     f"{np.shape(theta[name])}, expected {want}")
-            if width is None:
-                width = arr.shape[0]
-            elif arr.shape[0] != width:
-                raise ParameterError(f"{self.name}: theta[{name!r}] has {arr.shape[0]} rows, "
-                                     f"other parameters have {width}")
-            # fixed values are read-only arrays; numba types those separately, so a copy
-            # keeps one compiled specialisation per kernel
-            out[name] = arr if arr.flags.writeable and arr.flags.c_contiguous else arr.copy()
-        return out, int(width if width is not None else 1)
+        out, width = batch_theta(self.name, self._shapes, theta, batched=batched)
+        return out, 1 if width is None else width
 
     def initial_state(self, theta: Mapping[str, Any], u0: float) -> np.ndarray:
         """The relaxed state before the first sample, for input value ``u0``, shape (S,)."""

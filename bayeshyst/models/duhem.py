@@ -19,7 +19,13 @@ from numpy.polynomial import Polynomial
 
 from bayeshyst.errors import ModelError, ParameterError
 from bayeshyst.models._kernels.duhem import duhem_batch, improved_duhem_batch
-from bayeshyst.models.base import DataScales, HysteresisModel, data_scales, sample_period
+from bayeshyst.models.base import (
+    DataScales,
+    HysteresisModel,
+    data_scales,
+    kernel_buffers,
+    sample_period,
+)
 from bayeshyst.models.registry import register
 from bayeshyst.params import LogNormal, Normal, Param, ParamSpace
 
@@ -139,10 +145,7 @@ class Duhem(HysteresisModel):
                          np.full(s0.shape, u0)], axis=1)
 
     def _run(self, u, t, theta, state0):
-        state = state0.copy()
-        w = state.shape[0]
-        y = np.empty((w, u.shape[0]))
-        failed = np.zeros(w, dtype=bool)
+        y, state, failed = kernel_buffers(state0, u.shape[0])
         duhem_batch(u, theta["alpha"], theta["f"], theta["g"], theta["u_centre"],
                     theta["u_half"], state, y, failed)
         state[failed] = np.nan
@@ -261,10 +264,7 @@ class ImprovedDuhem(HysteresisModel):
 
     def _run(self, u, t, theta, state0):
         _check_time(t, state0, 2)
-        state = state0.copy()
-        w = state.shape[0]
-        y = np.empty((w, u.shape[0]))
-        failed = np.zeros(w, dtype=bool)
+        y, state, failed = kernel_buffers(state0, u.shape[0])
         improved_duhem_batch(u, t, theta["k"], theta["p"], theta["alpha"], theta["beta"],
                              theta["gamma"], theta["u_centre"], theta["u_half"], state, y,
                              failed)

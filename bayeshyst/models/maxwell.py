@@ -9,8 +9,8 @@ from typing import Any, ClassVar
 import numpy as np
 
 from bayeshyst.models._kernels.operators import maxwell_slip_batch
-from bayeshyst.models.base import HysteresisModel, data_scales
-from bayeshyst.models.pi import check_count, default_thresholds
+from bayeshyst.models.base import HysteresisModel, check_count, data_scales, kernel_buffers
+from bayeshyst.models.pi import default_thresholds
 from bayeshyst.models.registry import register
 from bayeshyst.params import Normal, Param, ParamSpace, Uniform
 
@@ -79,7 +79,6 @@ class MaxwellSlip(HysteresisModel):
         return np.full((theta["k"].shape[0], self.n_elements), u0)
 
     def _run(self, u, t, theta, state0):
-        state = state0.copy()
-        y = np.empty((state.shape[0], u.shape[0]))
+        y, state, failed = kernel_buffers(state0, u.shape[0])
         maxwell_slip_batch(u, theta["k0"], theta["k"], theta["delta"], state, y)
-        return y, state, np.zeros(state.shape[0], dtype=bool)
+        return y, state, failed

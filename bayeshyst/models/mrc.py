@@ -11,8 +11,15 @@ import numpy as np
 
 from bayeshyst.errors import ModelError, ParameterError, SimulationError
 from bayeshyst.models._kernels.mrc import mrc_batch
-from bayeshyst.models.base import HysteresisModel, check_signal, data_scales, sample_period
-from bayeshyst.models.pi import check_count, default_thresholds
+from bayeshyst.models.base import (
+    HysteresisModel,
+    check_count,
+    check_signal,
+    data_scales,
+    kernel_buffers,
+    sample_period,
+)
+from bayeshyst.models.pi import default_thresholds
 from bayeshyst.models.registry import register
 from bayeshyst.params import HalfNormal, LogNormal, Normal, Param, ParamSpace, Uniform
 
@@ -138,11 +145,8 @@ class MRCElectromechanical(HysteresisModel):
         # NaN rows (walkers that failed earlier) are left to the kernel, which flags them
         if np.any(state0[:, -1] >= t[0]):
             raise ParameterError(f"t[0] = {t[0]} is not after the state's last sample time")
-        state = state0.copy()
-        w = state.shape[0]
-        y = np.empty((w, u.shape[0]))
-        failed = np.zeros(w, dtype=bool)
-        rec = np.empty((w, 3, n_rec))
+        y, state, failed = kernel_buffers(state0, u.shape[0])
+        rec = np.empty((state.shape[0], 3, n_rec))
         mrc_batch(u, t, theta["f_n"], theta["zeta"], theta["gain"], theta["coupling"],
                   theta["rho"], theta["delta"], state, y, failed, float(self.step),
                   int(self.max_substeps), rec)

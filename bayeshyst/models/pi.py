@@ -11,9 +11,15 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from bayeshyst.errors import ModelError, ParameterError
+from bayeshyst.errors import ParameterError
 from bayeshyst.models._kernels.operators import pi_play_batch, pi_stop_batch
-from bayeshyst.models.base import DataScales, HysteresisModel, data_scales
+from bayeshyst.models.base import (
+    DataScales,
+    HysteresisModel,
+    check_count,
+    data_scales,
+    kernel_buffers,
+)
 from bayeshyst.models.registry import register
 from bayeshyst.params import Normal, Param, ParamSpace, Uniform
 
@@ -38,12 +44,6 @@ def default_thresholds(n: int, scales: DataScales) -> np.ndarray:
     cycle.
     """
     return np.arange(1, n + 1) * scales.u_span / (2.0 * (n + 1))
-
-
-def check_count(n: int, what: str = "n_operators") -> None:
-    """Raise ModelError unless ``n`` is an integer >= 1 (a structural count)."""
-    if isinstance(n, bool) or not isinstance(n, int | np.integer) or n < 1:
-        raise ModelError(f"{what} must be an integer >= 1, got {n!r}")
 
 
 def operator_space(n: int, scales: DataScales, *, linear: str) -> ParamSpace:
@@ -165,10 +165,9 @@ class PrandtlIshlinskii(LinearInWeights, HysteresisModel):
         return np.full((theta["w"].shape[0], self.n_operators), u0)
 
     def _run(self, u, t, theta, state0):
-        state = state0.copy()
-        y = np.empty((state.shape[0], u.shape[0]))
+        y, state, failed = kernel_buffers(state0, u.shape[0])
         pi_play_batch(u, theta["p0"], theta["w"], theta["r"], state, y)
-        return y, state, np.zeros(state.shape[0], dtype=bool)
+        return y, state, failed
 
     def inverse_theta(self, theta: Mapping[str, Any]) -> PIInverse:
         """The exact inverse (review ref. [52]) as play- and stop-PI parameters."""
@@ -343,7 +342,6 @@ class PrandtlIshlinskiiStop(LinearInWeights, HysteresisModel):
         return s
 
     def _run(self, u, t, theta, state0):
-        state = state0.copy()
-        y = np.empty((state.shape[0], u.shape[0]))
+        y, state, failed = kernel_buffers(state0, u.shape[0])
         pi_stop_batch(u, theta["p0"], theta["w"], theta["r"], state, y)
-        return y, state, np.zeros(state.shape[0], dtype=bool)
+        return y, state, failed

@@ -25,8 +25,15 @@ from bayeshyst.models._kernels.pi_variants import (
     pi_generalized_batch,
     pi_rate_batch,
 )
-from bayeshyst.models.base import DataScales, HysteresisModel, Trajectory, data_scales
-from bayeshyst.models.pi import LinearInWeights, check_count, default_thresholds, operator_space
+from bayeshyst.models.base import (
+    DataScales,
+    HysteresisModel,
+    Trajectory,
+    check_count,
+    data_scales,
+    kernel_buffers,
+)
+from bayeshyst.models.pi import LinearInWeights, default_thresholds, operator_space
 from bayeshyst.models.registry import register
 from bayeshyst.params import HalfNormal, LogNormal, Normal, Param, ParamSpace
 
@@ -209,8 +216,7 @@ class GeneralizedPrandtlIshlinskii(LinearInWeights, HysteresisModel):
         return ok
 
     def _run(self, u, t, theta, state0):
-        state = state0.copy()
-        y = np.empty((state.shape[0], u.shape[0]))
+        y, state, _ = kernel_buffers(state0, u.shape[0])
         pi_generalized_batch(u, theta["p0"], theta["w"], theta["r"], theta["b_l"],
                              theta["b_r"], theta["u_c"], theta["u_h"],
                              ENVELOPES[self.envelope], state, y)
@@ -324,8 +330,7 @@ class AsymmetricPrandtlIshlinskii(LinearInWeights, HysteresisModel):
         return np.ascontiguousarray(np.maximum(lo, np.minimum(hi, 0.5 * (lo + hi))))
 
     def _run(self, u, t, theta, state0):
-        state = state0.copy()
-        y = np.empty((state.shape[0], u.shape[0]))
+        y, state, _ = kernel_buffers(state0, u.shape[0])
         m = self._slopes(theta)
         pi_asymmetric_batch(u, theta["p0"], theta["w"], theta["r"], m, state, y)
         failed = ~np.all(m > 0, axis=1) | _not_finite(y, state)
@@ -410,8 +415,7 @@ class RateDependentPrandtlIshlinskii(LinearInWeights, HysteresisModel):
         if np.any(has_prev & ~(t[0] > state0[:, n + 1])):
             raise ParameterError(f"{self.name}: t[0] = {t[0]} is not after the time of the "
                                  "state's previous sample; continue with later times")
-        state = state0.copy()
-        y = np.empty((state.shape[0], u.shape[0]))
+        y, state, _ = kernel_buffers(state0, u.shape[0])
         c, ud0 = theta["c"], theta["udot0"]
         pi_rate_batch(u, t, theta["p0"], theta["w"], theta["r"], c, ud0, state, y)
         failed = ~((c >= 0) & (ud0 > 0)) | _not_finite(y, state)

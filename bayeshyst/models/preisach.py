@@ -42,8 +42,7 @@ from bayeshyst.models._kernels.preisach import (
     relay_everett_tables,
     staircase_batch,
 )
-from bayeshyst.models.base import DataScales, HysteresisModel, data_scales
-from bayeshyst.models.pi import check_count
+from bayeshyst.models.base import DataScales, HysteresisModel, check_count, data_scales
 from bayeshyst.models.registry import register
 from bayeshyst.params import LogNormal, Normal, Param, ParamSpace, Uniform
 

@@ -15,7 +15,7 @@ from typing import Any, ClassVar
 import numpy as np
 
 from bayeshyst.errors import ModelError, ParameterError, SimulationError
-from bayeshyst.models.base import Trajectory
+from bayeshyst.models.base import Trajectory, batch_theta, sample_period
 from bayeshyst.params import ParamSpace
 
 __all__ = [
@@ -25,8 +25,6 @@ __all__ = [
     "TimeScales",
     "block_class",
     "block_names",
-    "check_int",
-    "new_outputs",
     "param_columns",
     "register_block",
     "time_scales",
@@ -54,6 +52,9 @@ class TimeScales:
 def time_scales(data: Any = None) -> TimeScales:
     """Time scales of a Record, a Dataset or any object with ``t``; defaults for None.
 
+    ``dt`` is :func:`~bayeshyst.models.base.sample_period` (the finest median step);
+    records of fewer than two samples do not count.
+
     Raises
     ------
     ParameterError
@@ -62,24 +63,14 @@ def time_scales(data: Any = None) -> TimeScales:
     if data is None or not (hasattr(data, "t") or hasattr(data, "records")):
         return TimeScales()
     records = list(data) if hasattr(data, "records") else [data]
-    dts, durations = [], []
-    for rec in records:
-        t = np.asarray(rec.t, dtype=float)
-        if t.size >= 2:
-            dts.append(float(np.median(np.diff(t))))
-            durations.append(float(t[-1] - t[0]))
-    if not dts:
+    times = [np.asarray(rec.t, dtype=float) for rec in records]
+    durations = [float(t[-1] - t[0]) for t in times if t.size >= 2]
+    if not durations:
         return TimeScales()
-    dt, duration = min(dts), max(durations)
-    if not (dt > 0 and math.isfinite(duration)):
-        raise ParameterError(f"sample times must increase; median step {dt}")
+    dt, duration = sample_period(data), max(durations)
+    if not math.isfinite(duration):
+        raise ParameterError(f"sample times must be finite; a record lasts {duration}")
     return TimeScales(dt, duration)
-
-
-def check_int(value: Any, what: str, minimum: int) -> None:
-    """Raise ModelError unless ``value`` is an integer ``>= minimum`` (a block setting)."""
-    if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < minimum:
-        raise ModelError(f"{what} must be an integer >= {minimum}, got {value!r}")
 
 
 # ------------------------------------------------------------------------ base class
@@ -135,26 +126,14 @@ class EffectBlock(ABC):
         space = self.param_space()
         return {n: space[n].shape for n in space.all_names}
 
-    def _batch_theta(self, theta: Mapping[str, Any], width: int | None) -> dict:
-        missing = [n for n in self._shapes if n not in theta]
-        unknown = [n for n in theta if n not in self._shapes]
-        if missing or unknown:
-            raise ParameterError(f"{self.name}: theta is missing {missing} / has unknown "
-                                 f"{unknown}; expected {list(self._shapes)}")
-        out = {}
-        for n, shape in self._shapes.items():
-            arr = np.asarray(theta[n], dtype=np.float64)
-            arr = arr[None, ...] if width is None else arr
-            if arr.shape[1:] != shape or (width is not None and arr.shape[0] != width):
-                raise ParameterError(f"{self.name}: theta[{n!r}] has shape {np.shape(theta[n])}"
-                                     f", expected {(('W',) if width else ()) + shape}")
-            out[n] = np.ascontiguousarray(arr)
-        return out
+    def _batch_theta(self, theta: Mapping[str, Any],
+                     batched: bool) -> tuple[dict, int | None]:
+        return batch_theta(self.name, self._shapes, theta, batched=batched)
 
     def initial_state(self, theta: Mapping[str, Any], w0: float,
                       t0: float = math.nan) -> np.ndarray:
         """Steady state (S,) of one parameter vector for the input ``w0`` held since forever."""
-        tb = self._batch_theta(theta, None)
+        tb, _ = self._batch_theta(theta, batched=False)
         return self._initial_state(tb, np.array([float(w0)]), float(t0))[0]
 
     def apply(self, w: Any, t: Any, theta: Mapping[str, Any], *,
@@ -164,7 +143,8 @@ class EffectBlock(ABC):
         ``state0`` (S,) defaults to the steady state at ``w[0]``. Raises
         :class:`SimulationError` if the parameter vector fails.
         """
-        traj = self.apply_batch(np.asarray(w, float)[None, :], t, self._batch_theta(theta, None),
+        tb, _ = self._batch_theta(theta, batched=False)
+        traj = self.apply_batch(np.asarray(w, float)[None, :], t, tb,
                                 state0=None if state0 is None else np.asarray(state0)[None])
         if traj.failed[0]:
             raise SimulationError(f"{self.name}: block failed for theta={dict(theta)}")
@@ -175,16 +155,14 @@ class EffectBlock(ABC):
         """Apply ``W`` parameter vectors (arrays ``(W, *shape)``) to ``w`` (W, N) or (N,)."""
         t = np.ascontiguousarray(t, dtype=np.float64)
         w = np.asarray(w, dtype=np.float64)
-        if thetas:
-            width = int(np.shape(next(iter(thetas.values())))[0])
-        else:  # a block without parameters: the walkers are the rows of w
-            width = w.shape[0] if w.ndim == 2 else 1
         if (t.ndim != 1 or t.size == 0 or w.shape[-1:] != t.shape or w.ndim > 2
                 or not (np.all(np.isfinite(t)) and np.all(np.isfinite(w)))):
             raise ParameterError(f"w {w.shape} and t {t.shape} must be finite, t 1-D and "
                                  "non-empty, w (N,) or (W, N) with N = len(t)")
+        tb, width = self._batch_theta(thetas, batched=True)
+        if width is None:  # a block without parameters: the walkers are the rows of w
+            width = w.shape[0] if w.ndim == 2 else 1
         w = np.ascontiguousarray(np.broadcast_to(w, (width, t.size)))
-        tb = self._batch_theta(thetas, width)
         s0 = (self._initial_state(tb, w[:, 0].copy(), math.nan) if state0 is None
               else np.ascontiguousarray(state0, dtype=np.float64))
         if s0.shape != (width, self.state_size):
@@ -221,13 +199,6 @@ def block_class(name: str) -> type[EffectBlock]:
     except KeyError:
         raise ModelError(f"unknown effect block {name!r}; valid blocks: "
                          f"{', '.join(block_names())}") from None
-
-
-def new_outputs(w: np.ndarray,
-                state: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Buffers of a kernel call: output like ``w``, a C-contiguous copy of ``state``, ``failed``."""
-    return (np.empty_like(w), np.array(state, dtype=np.float64, order="C"),
-            np.zeros(w.shape[0], dtype=bool))
 
 
 def param_columns(theta: Mapping[str, np.ndarray], name: str, width: int) -> np.ndarray:

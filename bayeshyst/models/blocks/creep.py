@@ -10,10 +10,9 @@ import numpy as np
 
 from bayeshyst.errors import ModelError
 from bayeshyst.models._kernels.blocks import lag_bank_batch
+from bayeshyst.models.base import check_count, kernel_buffers
 from bayeshyst.models.blocks.base import (
     EffectBlock,
-    check_int,
-    new_outputs,
     param_columns,
     register_block,
     time_scales,
@@ -77,7 +76,7 @@ class Creep(EffectBlock):
     tau_max: float | None = None
 
     def __post_init__(self) -> None:
-        check_int(self.n_terms, "creep n_terms", 1)
+        check_count(self.n_terms, "creep n_terms", minimum=1)
         for v in (self.tau_min, self.tau_max):
             if v is not None and not (math.isfinite(v) and v > 0):
                 raise ModelError(f"creep time constants must be positive and finite, got {v}")
@@ -120,7 +119,7 @@ class Creep(EffectBlock):
         return _lag_state(w0, self.n_terms, t0)
 
     def _apply(self, w, t, theta, state):
-        out, st, failed = new_outputs(w, state)
+        out, st, failed = kernel_buffers(state, w.shape[1])
         width = w.shape[0]
         lag_bank_batch(w, t, param_columns(theta, "c", width),
                        param_columns(theta, "tau", width), st, out, failed)
@@ -166,7 +165,7 @@ class FractionalCreep(EffectBlock):
     per_decade: float = 4.0
 
     def __post_init__(self) -> None:
-        check_int(self.n_modes, "creep_fractional n_modes", 3)
+        check_count(self.n_modes, "creep_fractional n_modes", minimum=3)
         if not (math.isfinite(self.per_decade) and self.per_decade > 0):
             raise ModelError(f"per_decade must be positive, got {self.per_decade!r}")
 
@@ -205,7 +204,7 @@ class FractionalCreep(EffectBlock):
         return _lag_state(w0, self.n_modes, t0)
 
     def _apply(self, w, t, theta, state):
-        out, st, failed = new_outputs(w, state)
+        out, st, failed = kernel_buffers(state, w.shape[1])
         taus, weights, _ = self.modes(theta["tau"], theta["lam"])
         c = np.ascontiguousarray(np.asarray(theta["gain"], float)[:, None] * weights)
         # invalid rows carry NaN time constants, which the kernel flags as failed

@@ -10,10 +10,9 @@ import numpy as np
 
 from bayeshyst.errors import ParameterError
 from bayeshyst.models._kernels.blocks import arx_batch, arx_polynomials, second_order_batch
+from bayeshyst.models.base import check_count, kernel_buffers
 from bayeshyst.models.blocks.base import (
     EffectBlock,
-    check_int,
-    new_outputs,
     param_columns,
     register_block,
     time_scales,
@@ -71,9 +70,9 @@ class ARX(EffectBlock):
     nk: int = 0
 
     def __post_init__(self) -> None:
-        check_int(self.na, "ARX na", 0)
-        check_int(self.nb, "ARX nb", 1)
-        check_int(self.nk, "ARX nk", 0)
+        check_count(self.na, "ARX na", minimum=0)
+        check_count(self.nb, "ARX nb", minimum=1)
+        check_count(self.nk, "ARX nk", minimum=0)
 
     @property
     def state_size(self) -> int:
@@ -94,7 +93,7 @@ class ARX(EffectBlock):
 
         Raises ParameterError if a reflection coefficient is outside (-1, 1).
         """
-        tb = self._batch_theta(theta, None)
+        tb, _ = self._batch_theta(theta, batched=False)
         a, b = np.empty(self.na + 1), np.empty(self.nb)
         kappa, beta = param_columns(tb, "kappa", 1)[0], param_columns(tb, "beta", 1)[0]
         if not arx_polynomials(kappa, beta, a, b):
@@ -106,7 +105,7 @@ class ARX(EffectBlock):
         return np.repeat(np.asarray(w0, float)[:, None], self.state_size, axis=1)
 
     def _apply(self, w, t, theta, state):
-        out, st, failed = new_outputs(w, state)
+        out, st, failed = kernel_buffers(state, w.shape[1])
         width = w.shape[0]
         arx_batch(w, param_columns(theta, "kappa", width), param_columns(theta, "beta", width),
                   self.nk, st, out, failed)
@@ -161,7 +160,7 @@ class SecondOrder(EffectBlock):
         return s
 
     def _apply(self, w, t, theta, state):
-        out, st, failed = new_outputs(w, state)
+        out, st, failed = kernel_buffers(state, w.shape[1])
         wn = 2.0 * np.pi * np.ascontiguousarray(theta["f_n"], dtype=np.float64)
         second_order_batch(w, t, wn, np.ascontiguousarray(theta["zeta"]), st, out, failed)
         return out, st, failed

@@ -8,11 +8,9 @@ from typing import Any, ClassVar
 import numpy as np
 
 from bayeshyst.models._kernels.blocks import asym_output_batch, delay_batch, drift_batch
-from bayeshyst.models.base import data_scales
+from bayeshyst.models.base import check_count, data_scales, kernel_buffers
 from bayeshyst.models.blocks.base import (
     EffectBlock,
-    check_int,
-    new_outputs,
     param_columns,
     register_block,
     time_scales,
@@ -52,7 +50,7 @@ class Drift(EffectBlock):
     order: int = 1
 
     def __post_init__(self) -> None:
-        check_int(self.order, "drift order", 1)
+        check_count(self.order, "drift order", minimum=1)
 
     @property
     def state_size(self) -> int:
@@ -75,7 +73,7 @@ class Drift(EffectBlock):
         return np.full((w0.shape[0], 1), t0)
 
     def _apply(self, w, t, theta, state):
-        out, st, failed = new_outputs(w, state)
+        out, st, failed = kernel_buffers(state, w.shape[1])
         width = w.shape[0]
         drift_batch(w, t, param_columns(theta, "g", width), param_columns(theta, "d", width),
                     np.ascontiguousarray(theta["t_scale"], dtype=np.float64).reshape(width),
@@ -107,7 +105,7 @@ class Delay(EffectBlock):
     max_delay_samples: int = 10
 
     def __post_init__(self) -> None:
-        check_int(self.max_delay_samples, "max_delay_samples", 1)
+        check_count(self.max_delay_samples, "max_delay_samples", minimum=1)
 
     @property
     def state_size(self) -> int:
@@ -125,7 +123,7 @@ class Delay(EffectBlock):
         return s
 
     def _apply(self, w, t, theta, state):
-        out, st, failed = new_outputs(w, state)
+        out, st, failed = kernel_buffers(state, w.shape[1])
         delay_batch(w, t, np.ascontiguousarray(theta["d"], dtype=np.float64), st, out, failed)
         return out, st, failed
 
@@ -164,7 +162,7 @@ class AsymmetricOutput(EffectBlock):
     order: int = 3
 
     def __post_init__(self) -> None:
-        check_int(self.order, "asym_output order", 2)
+        check_count(self.order, "asym_output order", minimum=2)
 
     @property
     def state_size(self) -> int:
@@ -187,7 +185,7 @@ class AsymmetricOutput(EffectBlock):
         return np.empty((w0.shape[0], 0))
 
     def _apply(self, w, t, theta, state):
-        out, st, failed = new_outputs(w, state)
+        out, st, failed = kernel_buffers(state, w.shape[1])
         width = w.shape[0]
         a = np.ascontiguousarray(np.column_stack(
             [np.asarray(theta[f"a{i}"], float).reshape(width) for i in range(2, self.order + 1)]))
