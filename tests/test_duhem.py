@@ -118,7 +118,7 @@ def test_duhem_is_linear_in_f_and_g():
     u, t = INPUTS["random_walk"]
     model = Duhem(3, 1)
     theta = _duhem_theta()
-    phi = model.regressors(u, theta)
+    phi = model.regressors(u, u, theta)
     coef = np.concatenate([theta["f"], theta["g"]])
     np.testing.assert_allclose(phi @ coef, model.simulate(u, t, theta), rtol=0, atol=1e-12)
 

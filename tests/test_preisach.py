@@ -128,14 +128,15 @@ def test_regressors_reproduce_output(relay):
     model = P.Preisach(6, relay=relay)
     theta = random_weights(rng, model)
     u, t = signal(rng, "sine", 200)
-    phi = model.regressors(u, theta)
+    phi = model.regressors(u, np.arange(u.size, dtype=float), theta)
     assert phi.shape == (200, 1 + model.n_cells)
     assert set(np.unique(phi[:, 1:])) <= ({0.0, 1.0} if relay == "01" else {-1.0, 1.0})
     coef = np.concatenate([[theta["offset"]], theta["mu"]])
     np.testing.assert_allclose(phi @ coef, model.simulate(u, t, theta), atol=1e-12)
     # from a given state: the regressors of the second half of the record
     mid = model.run(u[:100], t[:100], theta)
-    phi2 = model.regressors(u[100:], theta, state0=mid.state)
+    phi2 = model.regressors(u[100:], np.arange(u.size - 100, dtype=float), theta,
+                            state0=mid.state)
     np.testing.assert_allclose(phi2 @ coef, model.simulate(u, t, theta)[100:], atol=1e-12)
 
 

@@ -28,6 +28,7 @@ from bayeshyst.params import ParamSpace
 __all__ = [
     "DataScales",
     "HysteresisModel",
+    "LinearInParams",
     "Trajectory",
     "batch_theta",
     "check_count",
@@ -285,6 +286,7 @@ class HysteresisModel(ABC):
     rate_dependent: ClassVar[bool] = False
     equation: ClassVar[str] = ""
     has_inverse: ClassVar[bool] = False
+    has_output_offset: ClassVar[bool] = False
 
     # ------------------------------------------------------------------ subclass API
     @abstractmethod
@@ -413,3 +415,56 @@ class HysteresisModel(ABC):
     def __str__(self) -> str:
         return repr(self)
 
+
+class LinearInParams:
+    """Mixin for models whose output is linear in some of their parameters.
+
+    With every other parameter held fixed, ``y = Phi @ beta`` where ``beta`` stacks the
+    (flattened) parameters named in ``linear_params``. The conjugate posterior and
+    least-squares starts use :meth:`regressors`.
+    """
+
+    linear_params: ClassVar[tuple[str, ...]] = ()
+    name: ClassVar[str]
+    _shapes: dict[str, tuple[int, ...]]
+    simulate_batch: Any
+
+    def regressors(self, u: Any, t: Any, theta: Mapping[str, Any], *,
+                   state0: np.ndarray | None = None) -> np.ndarray:
+        """Design matrix ``Phi`` (N, P) with ``simulate(u, t, theta) == Phi @ beta``.
+
+        Parameters
+        ----------
+        u, t : array_like, shape (N,)
+            Input (V) and times (s).
+        theta : mapping
+            Values of every parameter not in ``linear_params`` (those are ignored if
+            present).
+        state0 : ndarray, shape (S,), optional
+            State before the first sample. Only valid where the state does not depend
+            on the linear parameters (operator models); default relaxed at ``u[0]``.
+
+        Returns
+        -------
+        ndarray, shape (N, P)
+            Column ``j`` is the output with ``beta = e_j``: one batched simulation.
+        """
+        shapes = self._shapes
+        lin = self.linear_params
+        need = [k for k in shapes if k not in lin]
+        missing = [k for k in need if k not in theta]
+        unknown = [k for k in theta if k not in shapes]
+        if missing or unknown:
+            raise ParameterError(f"{self.name}: theta is missing {missing} / has unknown "
+                                 f"{unknown}; expected {need}")
+        sizes = [int(np.prod(shapes[n], dtype=int)) for n in lin]
+        width = sum(sizes)
+        basis = np.eye(width)
+        thetas = {n: np.broadcast_to(np.asarray(theta[n], dtype=float), (width, *shapes[n]))
+                  for n in need}
+        start = 0
+        for n, size in zip(lin, sizes, strict=True):
+            thetas[n] = basis[:, start:start + size].reshape(width, *shapes[n])
+            start += size
+        s0 = None if state0 is None else np.tile(np.asarray(state0, dtype=float), (width, 1))
+        return np.ascontiguousarray(self.simulate_batch(u, t, thetas, state0=s0).T)

@@ -22,6 +22,7 @@ from bayeshyst.models._kernels.duhem import duhem_batch, improved_duhem_batch
 from bayeshyst.models.base import (
     DataScales,
     HysteresisModel,
+    LinearInParams,
     data_scales,
     kernel_buffers,
     sample_period,
@@ -69,7 +70,7 @@ def _check_time(t: np.ndarray, state0: np.ndarray, col: int) -> None:
 
 @register
 @dataclass(frozen=True)
-class Duhem(HysteresisModel):
+class Duhem(LinearInParams, HysteresisModel):
     """Coleman–Hodgdon (classical Duhem) model, review Eq. 45:
 
     .. math::  \\dot w = \\alpha |\\dot s| (f(s) - w) + \\dot s\\, g(s), \\qquad y = w,
@@ -110,6 +111,10 @@ class Duhem(HysteresisModel):
     """
 
     name: ClassVar[str] = "duhem"
+    # f's constant term shifts w one-for-one (w starts at f(s0)): an output offset
+    has_output_offset: ClassVar[bool] = True
+    # for fixed alpha the output (from the relaxed start w0 = f(s0)) is linear in [f, g]
+    linear_params: ClassVar[tuple[str, ...]] = ("f", "g")
     equation: ClassVar[str] = "review Eq. 45"
     rate_dependent: ClassVar[bool] = False
     f_order: int = 3
@@ -172,30 +177,6 @@ class Duhem(HysteresisModel):
         f_v = Polynomial(np.asarray(theta["f"], float))(s)
         g_v = Polynomial(np.asarray(theta["g"], float))(s) / h
         return float(theta["alpha"]) / h, f_v, g_v
-
-    def regressors(self, u: Any, theta: Mapping[str, Any]) -> np.ndarray:
-        """Design matrix with ``simulate(u, t, theta) == Phi @ [f, g]`` for fixed ``alpha``.
-
-        Parameters
-        ----------
-        u : array_like, shape (N,)
-            Input (V).
-        theta : mapping
-            ``alpha`` and the normalisation are used; ``f`` and ``g`` are ignored.
-
-        Returns
-        -------
-        ndarray, shape (N, f_order + g_order + 2)
-            Column ``j`` is the output for the ``j``-th unit coefficient vector (``f``
-            first, then ``g``), from the relaxed start. One batched kernel call.
-        """
-        u = np.ascontiguousarray(u, dtype=float)
-        nf, ng = self.f_order + 1, self.g_order + 1
-        eye = np.eye(nf + ng)
-        thetas = {k: np.full(nf + ng, float(theta[k])) for k in ("alpha", "u_centre", "u_half")}
-        thetas["f"] = eye[:, :nf]
-        thetas["g"] = eye[:, nf:]
-        return self.simulate_batch(u, u, thetas).T
 
 
 @register

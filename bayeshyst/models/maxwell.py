@@ -9,7 +9,13 @@ from typing import Any, ClassVar
 import numpy as np
 
 from bayeshyst.models._kernels.operators import maxwell_slip_batch
-from bayeshyst.models.base import HysteresisModel, check_count, data_scales, kernel_buffers
+from bayeshyst.models.base import (
+    HysteresisModel,
+    LinearInParams,
+    check_count,
+    data_scales,
+    kernel_buffers,
+)
 from bayeshyst.models.pi import default_thresholds
 from bayeshyst.models.registry import register
 from bayeshyst.params import Normal, Param, ParamSpace, Uniform
@@ -19,7 +25,7 @@ __all__ = ["MaxwellSlip"]
 
 @register
 @dataclass(frozen=True)
-class MaxwellSlip(HysteresisModel):
+class MaxwellSlip(LinearInParams, HysteresisModel):
     """Generalised Maxwell-slip model (review Eq. 36–37, MODELS.md §1, §4).
 
     Element ``i`` is a spring of stiffness ``k_i`` and a slider with breakaway force
@@ -47,6 +53,7 @@ class MaxwellSlip(HysteresisModel):
     """
 
     name: ClassVar[str] = "maxwell_slip"
+    linear_params: ClassVar[tuple[str, ...]] = ("k0", "k")
     equation: ClassVar[str] = "review Eq. 36-37"
     n_elements: int = 10
 

@@ -16,6 +16,7 @@ from bayeshyst.models._kernels.operators import pi_play_batch, pi_stop_batch
 from bayeshyst.models.base import (
     DataScales,
     HysteresisModel,
+    LinearInParams,
     check_count,
     data_scales,
     kernel_buffers,
@@ -66,62 +67,13 @@ def operator_space(n: int, scales: DataScales, *, linear: str) -> ParamSpace:
     )
 
 
-class LinearInWeights:
-    """Mixin: the design matrix of a PI-type model that is linear in ``[p0, w]``.
+class LinearInWeights(LinearInParams):
+    """PI-type models: linear in ``[p0, w]`` for fixed thresholds and shape parameters.
 
-    Used with :class:`HysteresisModel` subclasses that have ``n_operators``.
+    Column 0 of :meth:`regressors` is ``u``, column ``i`` operator ``i``'s output.
     """
 
-    name: ClassVar[str]
-    n_operators: int
-    _shapes: dict[str, tuple[int, ...]]
-    simulate_batch: Any
-
-    def regressors(self, u: Any, t: Any, theta: Mapping[str, Any], *,
-                   state0: np.ndarray | None = None) -> np.ndarray:
-        """Design matrix ``Phi`` (N, n + 1) with ``y = Phi @ [p0, w]``.
-
-        Parameters
-        ----------
-        u : array_like, shape (N,)
-            Input (V).
-        t : array_like, shape (N,)
-            Sample times (s); only the rate-dependent model reads them.
-        theta : mapping
-            Values of every parameter except ``p0`` and ``w`` (those are ignored if
-            present): thresholds and shape parameters are held fixed.
-        state0 : ndarray, shape (S,), optional
-            State before the first sample; default relaxed at ``u[0]``.
-
-        Returns
-        -------
-        ndarray, shape (N, n + 1)
-            Column 0 is ``u``, column ``i`` the output of operator ``i`` (V).
-
-        Raises
-        ------
-        ParameterError
-            If ``theta`` lacks a parameter or has an unknown one.
-        SimulationError
-            If the shape parameters are outside their support.
-        """
-        shapes = self._shapes
-        need = [k for k in shapes if k not in ("p0", "w")]
-        missing = [k for k in need if k not in theta]
-        unknown = [k for k in theta if k not in shapes]
-        if missing or unknown:
-            raise ParameterError(f"{self.name}: theta is missing {missing} / has unknown "
-                                 f"{unknown}; expected {need}")
-        k = self.n_operators + 1
-        # one batched run with unit weights: walker 0 returns u, walker i operator i
-        basis = np.eye(k)
-        thetas = {name: np.broadcast_to(np.asarray(theta[name], dtype=float),
-                                        (k, *shapes[name])) for name in need}
-        thetas["p0"] = basis[:, 0]
-        thetas["w"] = basis[:, 1:]
-        s0 = None if state0 is None else np.tile(np.asarray(state0, dtype=float), (k, 1))
-        y = self.simulate_batch(u, t, thetas, state0=s0)
-        return np.ascontiguousarray(y.T)
+    linear_params: ClassVar[tuple[str, ...]] = ("p0", "w")
 
 
 @register

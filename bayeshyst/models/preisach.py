@@ -42,7 +42,13 @@ from bayeshyst.models._kernels.preisach import (
     relay_everett_tables,
     staircase_batch,
 )
-from bayeshyst.models.base import DataScales, HysteresisModel, check_count, data_scales
+from bayeshyst.models.base import (
+    DataScales,
+    HysteresisModel,
+    LinearInParams,
+    check_count,
+    data_scales,
+)
 from bayeshyst.models.registry import register
 from bayeshyst.params import LogNormal, Normal, Param, ParamSpace, Uniform
 
@@ -226,7 +232,7 @@ class _Staircase:
 
 @register
 @dataclass(frozen=True)
-class Preisach(_Staircase, HysteresisModel):
+class Preisach(LinearInParams, _Staircase, HysteresisModel):
     """Discrete Preisach model: a triangular grid of weighted relays.
 
     .. math::  y_k = c + \\sum_{i \\ge j} \\mu_{ij} \\gamma_{q_i q_j}[u]_k
@@ -262,6 +268,9 @@ class Preisach(_Staircase, HysteresisModel):
     """
 
     name: ClassVar[str] = "preisach"
+    has_output_offset: ClassVar[bool] = True
+    # for fixed levels, y = [1, relay outputs] @ [offset, mu] (regressors: Eq. 3)
+    linear_params: ClassVar[tuple[str, ...]] = ("offset", "mu")
     equation: ClassVar[str] = "review Eq. 1-4, 7-8"
     _bilinear: ClassVar[bool] = False
     n_levels: int = 12
@@ -330,25 +339,6 @@ class Preisach(_Staircase, HysteresisModel):
         i, j = np.tril_indices(self.n_levels)
         return q[i], q[j]
 
-    def regressors(self, u: Any, theta: Mapping[str, Any], *,
-                   state0: np.ndarray | None = None) -> np.ndarray:
-        """Design matrix ``Phi`` (N, 1 + n_cells) with ``y = Phi @ [offset, mu]``.
-
-        Column 0 is ones; column ``1 + c`` is relay ``c``'s output (0/1 or ±1) for the
-        fixed ``theta["levels"]``. Used by the conjugate posterior of the weights.
-        """
-        u = np.ascontiguousarray(u, dtype=float)
-        nc = self.n_cells
-        levels = np.broadcast_to(np.asarray(theta["levels"], float), (nc, self.n_levels))
-        unit = {"offset": np.zeros(nc), "mu": np.eye(nc), "levels": levels}
-        s0 = None if state0 is None else np.tile(np.asarray(state0, float), (nc, 1))
-        # one unit-weight walker per relay: the kernel's output is that relay's value
-        y = self.run_batch(u, np.arange(u.size, dtype=float), unit, state0=s0).y
-        cols = np.empty((u.size, nc + 1))
-        cols[:, 0] = 1.0
-        cols[:, 1:] = y.T
-        return cols
-
 
 @register
 @dataclass(frozen=True)
@@ -387,6 +377,7 @@ class PreisachDensity(_Staircase, HysteresisModel):
     """
 
     name: ClassVar[str] = "preisach_density"
+    has_output_offset: ClassVar[bool] = True
     equation: ClassVar[str] = "review Eq. 3-4, 7-8"
     _bilinear: ClassVar[bool] = True
     n_grid: int = 64

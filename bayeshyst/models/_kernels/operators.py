@@ -14,7 +14,6 @@ in parallel for large batches and serially otherwise
 
 from __future__ import annotations
 
-import numpy as np
 from numba import njit, prange
 
 from bayeshyst.models._kernels import batch_kernel
@@ -175,9 +174,3 @@ def _maxwell_slip_ser(x, k0, k, delta, state, y):
 
 maxwell_slip_batch = batch_kernel(_maxwell_slip_par, _maxwell_slip_ser, work_arg=-1,
                                   name="maxwell_slip_batch")
-
-
-def _warm() -> None:  # pragma: no cover - used by benchmarks to separate compile time
-    u = np.linspace(0.0, 1.0, 8)
-    y = np.empty((1, 8))
-    pi_play_batch(u, np.ones(1), np.ones((1, 2)), np.ones((1, 2)), np.zeros((1, 2)), y)

@@ -28,7 +28,6 @@ from __future__ import annotations
 
 import math
 
-import numpy as np
 from numba import njit, prange
 
 from bayeshyst.models._kernels import batch_kernel
@@ -254,14 +253,3 @@ def _pi_rate_ser(u, t, p0, w, r, c, ud0, state, y):
 
 
 pi_rate_batch = batch_kernel(_pi_rate_par, _pi_rate_ser, work_arg=-1, name="pi_rate_batch")
-
-
-def _warm() -> None:  # pragma: no cover - used by benchmarks to separate compile time
-    u = np.linspace(0.0, 1.0, 8)
-    t = np.arange(8.0)
-    one, ones = np.ones(1), np.ones((1, 2))
-    y = np.empty((1, 8))
-    pi_generalized_batch(u, one, ones, ones, one, one, one, one, ENVELOPE_CUBIC,
-                         np.zeros((1, 2)), y)
-    pi_asymmetric_batch(u, one, ones, ones, ones, np.zeros((1, 2)), y)
-    pi_rate_batch(u, t, one, ones, ones, one, one, np.zeros((1, 5)), y)

@@ -1,0 +1,237 @@
+"""Maximum a posteriori point and its Laplace covariance, the start of every sampler run.
+
+The search runs in the unconstrained space ``z`` (so bounds never bind) and uses the
+batched posterior throughout: a screen of prior draws, an optional differential
+evolution (hysteresis posteriors such as Bouc–Wen's are multimodal and ridge-shaped),
+then quasi-Newton polishing from the best distinct candidates with central-difference
+gradients evaluated as one batch. The Hessian at the optimum (finite differences, one
+batch) gives the Laplace covariance that spreads the initial walkers along the
+posterior's own ridges.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from scipy import optimize
+
+from bayeshyst.errors import ParameterError
+from bayeshyst.inference.posterior import Posterior
+
+__all__ = ["MAPResult", "find_map", "initial_ensemble", "laplace_covariance"]
+
+_BIG = 1e300  # stands for -log p = +inf inside the optimisers (they cannot take inf)
+
+
+@dataclass(frozen=True)
+class MAPResult:
+    """The MAP estimate.
+
+    Attributes
+    ----------
+    z : ndarray, shape (ndim,)
+        Unconstrained MAP point.
+    theta : dict
+        Named physical values at ``z``.
+    log_prob : float
+        Log posterior density at ``z`` (up to the normalising constant).
+    covariance : ndarray, shape (ndim, ndim)
+        Laplace covariance of ``z`` (inverse Hessian of ``-log p``).
+    laplace_ok : bool
+        Whether the Hessian was positive definite; if not, negative or zero curvature
+        directions were given the prior's width instead (reported, not hidden).
+    n_evals : int
+        Posterior evaluations spent.
+    candidates : tuple of float
+        Log densities of the distinct local optima found (best first): several nearly
+        equal values mean a multimodal or flat posterior.
+    """
+
+    z: np.ndarray
+    theta: dict[str, Any]
+    log_prob: float
+    covariance: np.ndarray
+    laplace_ok: bool
+    n_evals: int
+    candidates: tuple[float, ...] = field(default_factory=tuple)
+
+    def __str__(self) -> str:
+        lines = [f"MAP: log p = {self.log_prob:.6g} ({self.n_evals} evaluations, "
+                 f"{len(self.candidates)} local optima; Laplace "
+                 f"{'ok' if self.laplace_ok else 'regularised'})"]
+        for k, v in self.theta.items():
+            lines.append(f"  {k:<20} {np.array2string(np.asarray(v), precision=5)}")
+        return "\n".join(lines)
+
+
+def _neg(post: Posterior, z: np.ndarray) -> np.ndarray:
+    lp = post.log_prob_batch(np.atleast_2d(z))
+    return np.where(np.isfinite(lp), -lp, _BIG)
+
+
+def _steps(z: np.ndarray) -> np.ndarray:
+    return 1e-4 * np.maximum(1.0, np.abs(z))
+
+
+def _value_and_grad(post: Posterior, z: np.ndarray) -> tuple[float, np.ndarray]:
+    h = _steps(z)
+    eye = np.diag(h)
+    pts = np.vstack([z[None, :], z + eye, z - eye])
+    f = _neg(post, pts)
+    grad = (f[1:1 + z.size] - f[1 + z.size:]) / (2 * h)
+    if not np.all(np.isfinite(grad)) or np.any(np.abs(f) >= _BIG):
+        grad = np.where(np.isfinite(grad) & (np.abs(grad) < 1e150), grad, 0.0)
+    return float(f[0]), grad
+
+
+def laplace_covariance(post: Posterior, z: np.ndarray) -> tuple[np.ndarray, bool]:
+    """Inverse Hessian of ``-log p`` at ``z`` by central differences (one batch).
+
+    Returns the covariance and whether the Hessian was positive definite. Directions
+    of non-positive curvature get the prior's local width, so the result is always a
+    usable covariance; ``False`` says it had to be regularised.
+    """
+    n = z.size
+    h = 10 * _steps(z)
+    pts = [z]
+    for i in range(n):
+        for j in range(i, n):
+            for si, sj in ((1, 1), (1, -1), (-1, 1), (-1, -1)):
+                p = z.copy()
+                p[i] += si * h[i]
+                p[j] += sj * h[j]
+                pts.append(p)
+    f = _neg(post, np.asarray(pts))
+    hess = np.empty((n, n))
+    k = 1
+    for i in range(n):
+        for j in range(i, n):
+            pp, pm, mp, mm = f[k:k + 4]
+            k += 4
+            hess[i, j] = hess[j, i] = (pp - pm - mp + mm) / (4 * h[i] * h[j])
+    hess = 0.5 * (hess + hess.T)
+    prior_var = post.space.prior_scale_z(z) ** 2
+    if not np.all(np.isfinite(hess)):
+        return np.diag(prior_var), False
+    vals, vecs = np.linalg.eigh(hess)
+    ok = bool(np.all(vals > 0))
+    if not ok:
+        floor = 1.0 / float(np.max(prior_var))
+        vals = np.where(vals > 0, vals, floor)
+    cov = (vecs / vals) @ vecs.T
+    return 0.5 * (cov + cov.T), ok
+
+
+def find_map(
+    post: Posterior,
+    *,
+    seed: int | np.random.Generator = 0,
+    n_screen: int = 256,
+    n_starts: int = 4,
+    global_search: bool = True,
+    de_maxiter: int = 60,
+    x0: np.ndarray | None = None,
+) -> MAPResult:
+    """Maximum a posteriori point in ``z`` with its Laplace covariance.
+
+    Parameters
+    ----------
+    post : Posterior
+    seed : int or Generator
+        Randomness of the screen and the differential evolution.
+    n_screen : int
+        Prior draws evaluated (one batch) to pick starting points.
+    n_starts : int
+        Distinct starting points polished with L-BFGS-B.
+    global_search : bool
+        Run a short differential evolution over the central 99 % of the prior (in
+        ``z``) first; its best point joins the starts.
+    de_maxiter : int
+        Generations of the differential evolution.
+    x0 : ndarray, shape (ndim,), optional
+        An extra starting point (e.g. a least-squares fit).
+
+    Raises
+    ------
+    ParameterError
+        If no point with finite posterior density is found.
+    """
+    rng = seed if isinstance(seed, np.random.Generator) else np.random.default_rng(seed)
+    n0 = post.counts.evaluations
+    space = post.space
+    cand = space.sample_prior(rng, n_screen)
+    if x0 is not None:
+        cand = np.vstack([np.asarray(x0, dtype=float)[None, :], cand])
+    f = _neg(post, cand)
+    if global_search:
+        lo, hi = np.quantile(space.sample_prior(rng, 2000), [0.005, 0.995], axis=0)
+        hi = np.where(hi > lo, hi, lo + 1.0)
+        best_screen = cand[np.argsort(f)[: 5 * space.ndim]]
+        init = np.clip(best_screen, lo, hi)
+        res = optimize.differential_evolution(
+            lambda zz: _neg(post, np.asarray(zz).T), list(zip(lo, hi, strict=True)),
+            maxiter=de_maxiter, popsize=max(5, 15 if space.ndim < 8 else 8), tol=1e-8,
+            init=init if init.shape[0] >= 5 else "latinhypercube",
+            seed=int(rng.integers(2**31 - 1)), polish=False, vectorized=True,
+            updating="deferred")
+        cand = np.vstack([res.x[None, :], cand])
+        f = np.concatenate([[res.fun], f])
+    order = np.argsort(f)
+    starts: list[np.ndarray] = []
+    for i in order:
+        if f[i] >= _BIG or len(starts) >= n_starts:
+            break
+        # distinct starts: not within a prior-scale ball of an earlier one
+        scale = space.prior_scale_z(cand[i])
+        if all(np.max(np.abs(cand[i] - s) / scale) > 0.1 for s in starts):
+            starts.append(cand[i])
+    if not starts:
+        raise ParameterError(
+            f"no parameter vector with finite posterior density among {cand.shape[0]} "
+            f"prior draws of {post!r}: the data and the priors do not overlap, or every "
+            "simulation failed"
+        )
+    optima = []
+    for s in starts:
+        res = optimize.minimize(lambda zz: _value_and_grad(post, zz), s, jac=True,
+                                method="L-BFGS-B", options={"maxiter": 2000, "gtol": 1e-8})
+        optima.append((float(res.fun), res.x))
+    optima.sort(key=lambda p: p[0])
+    best_f, best_z = optima[0]
+    if best_f >= _BIG:
+        raise ParameterError(f"MAP search for {post!r} found no finite posterior density")
+    cov, ok = laplace_covariance(post, best_z)
+    distinct = sorted({round(-v, 6) for v, _ in optima if v < _BIG}, reverse=True)
+    return MAPResult(best_z, space.unpack(best_z), -best_f, cov, ok,
+                     post.counts.evaluations - n0, tuple(distinct))
+
+
+def initial_ensemble(
+    post: Posterior, start: MAPResult, n_walkers: int, rng: np.random.Generator,
+    *, spread: float = 1.0, max_tries: int = 50,
+) -> np.ndarray:
+    """Walkers drawn from the Laplace approximation at the MAP, all with finite density.
+
+    Parameters
+    ----------
+    spread : float
+        Multiplier of the Laplace standard deviations.
+    """
+    n = post.ndim
+    chol = np.linalg.cholesky(start.covariance + 1e-12 * np.eye(n))
+    out = np.empty((n_walkers, n))
+    filled = 0
+    for _ in range(max_tries):
+        need = n_walkers - filled
+        draws = start.z + spread * rng.standard_normal((2 * need, n)) @ chol.T
+        good = draws[np.isfinite(post.log_prob_batch(draws))][:need]
+        out[filled:filled + good.shape[0]] = good
+        filled += good.shape[0]
+        if filled == n_walkers:
+            return out
+        spread *= 0.5  # the Laplace ball pokes outside the support: shrink it
+    raise ParameterError(f"could not place {n_walkers} walkers with finite density around "
+                         f"the MAP of {post!r} (got {filled})")
+

@@ -1,0 +1,317 @@
+"""The posterior density of a model's parameters given measured records.
+
+``log p(z | data) = log p(z) + sum_records sum_scored log p(y_k | yhat_k(theta), noise)``
+
+where ``yhat`` is the **free-run** simulation of each whole record from the model's
+relaxed state at its first input (warm-up samples are simulated but not scored) plus an
+observation offset when the model has none of its own. The vectorised
+:meth:`Posterior.log_prob_batch` evaluates a whole emcee ensemble with one batched
+simulation per record; it is what the sampler calls.
+"""
+
+from __future__ import annotations
+
+import copy
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from bayeshyst.data.record import Dataset, Record
+from bayeshyst.data.segment import cycle_labels
+from bayeshyst.errors import DataError, ParameterError
+from bayeshyst.likelihoods import Likelihood, get_likelihood
+from bayeshyst.models import get as get_model
+from bayeshyst.models.base import HysteresisModel
+from bayeshyst.params import Normal, Param, ParamSpace
+
+__all__ = ["EvalCounts", "Posterior", "Unit"]
+
+OBS, NOISE = "obs", "noise"
+
+
+@dataclass(frozen=True)
+class Unit:
+    """One left-out unit for cross-validation: a cycle of one record.
+
+    Attributes
+    ----------
+    record : str
+        Record name.
+    index : int
+        Cycle number within the record (0-based).
+    start, stop : int
+        Sample range ``[start, stop)`` within the record (scored samples only).
+    frequency_hz : float or None
+        The record's excitation frequency.
+    """
+
+    record: str
+    index: int
+    start: int
+    stop: int
+    frequency_hz: float | None
+
+
+@dataclass(frozen=True)
+class EvalCounts:
+    """How many log-probability evaluations ran, and how many failed.
+
+    ``prior_rejected``: outside the prior support (no simulation run);
+    ``failed``: the simulation failed or gave a non-finite likelihood (counted, and
+    the point given ``-inf``).
+    """
+
+    evaluations: int
+    prior_rejected: int
+    failed: int
+
+    def __str__(self) -> str:
+        return (f"{self.evaluations} evaluations, {self.failed} failed simulations, "
+                f"{self.prior_rejected} outside the prior")
+
+
+def _cycle_units(record: Record) -> list[tuple[int, int]]:
+    """Scored sample ranges, one per input cycle.
+
+    Partial cycles at the ends of the scored part join their neighbouring whole cycle
+    so that the units partition the scored samples; a record without whole cycles
+    (steps, holds, random inputs) is one unit.
+    """
+    start, stop = record.scored.start or 0, record.n
+    try:
+        labels = cycle_labels(record)
+    except DataError:
+        return [(start, stop)]
+    labels = labels[start:stop]
+    ids = np.unique(labels[labels >= 0])
+    if ids.size == 0:
+        return [(start, stop)]
+    bounds = [start + int(np.flatnonzero(labels == i)[0]) for i in ids] + [stop]
+    bounds[0] = start
+    return [(bounds[j], bounds[j + 1]) for j in range(len(ids))]
+
+
+class Posterior:
+    """Posterior of a model's parameters (and noise, and offset) given data.
+
+    Parameters
+    ----------
+    model : HysteresisModel or str
+        The forward model, or a model spec string (``"bouc_wen+second_order"``).
+    data : Dataset or Record
+        Measured records; each is simulated from its first sample.
+    likelihood : Likelihood or str
+        ``"gaussian"`` (default), ``"student_t"`` or ``"ar1"``.
+    space : ParamSpace, optional
+        The model's parameter space; default ``model.param_space(data)`` (priors
+        scaled from the data). Edit it (``fix``/``replace``) to change priors.
+    offset : bool, optional
+        Add an observation offset ``obs.offset`` (output unit). Default: when the
+        model has no output offset of its own (``model.has_output_offset``) — a
+        measured displacement's zero is arbitrary.
+    beta : float
+        Power of the likelihood, ``p(z) L(z)^beta``: 1 is the posterior, 0 the prior
+        alone (no simulation is run), values between temper it.
+
+    Notes
+    -----
+    Parameter names: the model's (``k``, ``alpha``; ``static.w`` for compositions),
+    ``obs.offset`` and ``noise.<name>``. The object is picklable (for process pools);
+    its evaluation counters are per process.
+    """
+
+    def __init__(
+        self,
+        model: HysteresisModel | str,
+        data: Dataset | Record,
+        likelihood: Likelihood | str = "gaussian",
+        *,
+        space: ParamSpace | None = None,
+        offset: bool | None = None,
+        beta: float = 1.0,
+    ) -> None:
+        if not (np.isfinite(beta) and 0.0 <= beta <= 1.0):
+            raise ParameterError(f"beta (likelihood power) must be in [0, 1], got {beta}")
+        self.beta = float(beta)
+        self.model = get_model(model) if isinstance(model, str) else model
+        if isinstance(data, Record):
+            data = Dataset((data,), name=data.name)
+        if not isinstance(data, Dataset):
+            raise DataError(f"data must be a Dataset or Record, got {type(data).__name__}")
+        self.data = data
+        self.likelihood = get_likelihood(likelihood)
+        self.model_space = space if space is not None else self.model.param_space(data)
+        if offset is None:
+            offset = not bool(getattr(self.model, "has_output_offset", False))
+        self.offset = bool(offset)
+        parts = [self.model_space]
+        if self.offset:
+            y = np.concatenate([r.y for r in data])
+            span = float(np.ptp(y))
+            parts.append(ParamSpace((Param(
+                "offset", Normal(float(np.mean(y)), 2.0 * span), unit=data[0].units.get("y", ""),
+                description="observation offset added to the model output"),)).prefixed(OBS))
+        parts.append(self.likelihood.param_space(data).prefixed(NOISE))
+        self.space = ParamSpace.concat(parts)
+        self._model_names = self.model_space.all_names
+        self._noise_names = tuple(n for n in self.space.all_names if n.startswith(NOISE + "."))
+        self.units: list[Unit] = []
+        self._records = []
+        for rec in data:
+            s0 = rec.scored.start or 0
+            spans = _cycle_units(rec)
+            first = len(self.units)
+            for i, (a, b) in enumerate(spans):
+                self.units.append(Unit(rec.name, i, a, b, rec.frequency_hz))
+            self._records.append({
+                "u": np.ascontiguousarray(rec.u), "t": np.ascontiguousarray(rec.t),
+                "y": np.ascontiguousarray(rec.y[s0:]), "s0": s0,
+                "unit_starts": np.array([a - s0 for a, _ in spans]), "unit_first": first,
+            })
+        self._n_evals = 0
+        self._n_prior = 0
+        self._n_failed = 0
+
+    # ------------------------------------------------------------------ bookkeeping
+    @property
+    def ndim(self) -> int:
+        """Dimension of the unconstrained vector ``z``."""
+        return self.space.ndim
+
+    @property
+    def n_units(self) -> int:
+        """Number of cycles (cross-validation units) over all records."""
+        return len(self.units)
+
+    @property
+    def counts(self) -> EvalCounts:
+        """Evaluation counters of this process."""
+        return EvalCounts(self._n_evals, self._n_prior, self._n_failed)
+
+    def fix(self, name: str, value: Any) -> Posterior:
+        """A copy of this posterior with parameter ``name`` held at ``value``.
+
+        Any parameter can be fixed (``"noise.sigma"``, ``"obs.offset"``, a model
+        parameter); the copy's counters start at zero.
+        """
+        new = copy.copy(self)
+        new.space = self.space.fix(name, value)
+        new.reset_counts()
+        return new
+
+    def reset_counts(self) -> None:
+        """Zero the evaluation counters."""
+        self._n_evals = self._n_prior = self._n_failed = 0
+
+    def __getstate__(self) -> dict[str, Any]:
+        return dict(self.__dict__)
+
+    def __repr__(self) -> str:
+        temper = "" if self.beta == 1.0 else f", beta={self.beta}"
+        return (f"Posterior(model={self.model.name!r}, likelihood={self.likelihood.name!r}, "
+                f"records={len(self.data)}, ndim={self.ndim}{temper})")
+
+    # ------------------------------------------------------------------ evaluation
+    def _split_theta(self, theta: Mapping[str, Any]) -> tuple[dict, dict, Any]:
+        model_theta = {k: theta[k] for k in self._model_names}
+        noise = {k[len(NOISE) + 1:]: theta[k] for k in self._noise_names}
+        off = theta.get(f"{OBS}.offset", 0.0) if self.offset else 0.0
+        return model_theta, noise, off
+
+    def _pointwise(self, z: np.ndarray) -> tuple[list[np.ndarray], np.ndarray, np.ndarray]:
+        """Per-record pointwise log-likelihood for the walkers inside the prior.
+
+        Returns the list of (W_in, N_scored) arrays, the mask of walkers inside the prior
+        (W,), and the mask of those whose simulation failed (W_in,).
+        """
+        lp = np.atleast_1d(self.space.log_prior(z))
+        inside = np.isfinite(lp)
+        zi = z[inside]
+        if zi.shape[0] == 0:
+            return [], inside, np.zeros(0, dtype=bool)
+        model_theta, noise, off = self._split_theta(self.space.unpack(zi))
+        failed = np.zeros(zi.shape[0], dtype=bool)
+        out = []
+        off = np.asarray(off, dtype=float).reshape(-1, 1) if self.offset else 0.0
+        noise = {k: np.asarray(v, dtype=float) for k, v in noise.items()}
+        for rec in self._records:
+            traj = self.model.run_batch(rec["u"], rec["t"], model_theta)
+            yhat = traj.y[:, rec["s0"]:] + off
+            with np.errstate(invalid="ignore", over="ignore"):
+                pw = self.likelihood.pointwise(rec["y"] - yhat, noise)
+            failed |= traj.failed | ~np.all(np.isfinite(pw), axis=1)
+            out.append(pw)
+        return out, inside, failed
+
+    def log_prob_batch(self, z: np.ndarray) -> np.ndarray:
+        """Log posterior density (up to a constant) of ``W`` points.
+
+        Parameters
+        ----------
+        z : ndarray, shape (W, ndim)
+
+        Returns
+        -------
+        ndarray, shape (W,)
+            Finite or ``-inf`` (outside the prior, or a failed simulation); never NaN.
+        """
+        z = np.atleast_2d(np.asarray(z, dtype=float))
+        if z.shape[1] != self.ndim:
+            raise ParameterError(f"z must have {self.ndim} columns, got {z.shape}")
+        lp = np.atleast_1d(self.space.log_prior(z)).astype(float)
+        self._n_evals += z.shape[0]
+        if self.beta == 0.0:
+            self._n_prior += int(np.count_nonzero(~np.isfinite(lp)))
+            return np.where(np.isfinite(lp), lp, -np.inf)
+        pws, inside, failed = self._pointwise(z)
+        self._n_prior += int(np.count_nonzero(~inside))
+        if pws:
+            ll = np.sum([pw.sum(axis=1) for pw in pws], axis=0)
+            ll[failed] = -np.inf
+            self._n_failed += int(np.count_nonzero(failed))
+            lp[inside] += self.beta * ll
+        lp[~np.isfinite(lp)] = -np.inf
+        return lp
+
+    def log_prob(self, z: np.ndarray) -> float:
+        """Log posterior density of one point ``z`` (ndim,): a float or ``-inf``."""
+        return float(self.log_prob_batch(np.asarray(z, dtype=float)[None, :])[0])
+
+    __call__ = log_prob_batch
+
+    def log_likelihood_units(self, z: np.ndarray) -> np.ndarray:
+        """Log-likelihood of each unit (cycle) for ``W`` points.
+
+        Returns
+        -------
+        ndarray, shape (W, n_units)
+            ``-inf`` rows for points outside the prior or with failed simulations.
+        """
+        z = np.atleast_2d(np.asarray(z, dtype=float))
+        out = np.full((z.shape[0], self.n_units), -np.inf)
+        pws, inside, failed = self._pointwise(z)
+        if not pws:
+            return out
+        cols = []
+        for rec, pw in zip(self._records, pws, strict=True):
+            cols.append(np.add.reduceat(pw, rec["unit_starts"], axis=1))
+        block = np.concatenate(cols, axis=1)
+        block[failed] = -np.inf
+        out[inside] = block
+        return out
+
+    def predict(self, z: np.ndarray) -> list[np.ndarray]:
+        """Noise-free predictions (offset included) for ``W`` points, per record.
+
+        Returns
+        -------
+        list of ndarray, each (W, N_record)
+            Full records (warm-up included); failed rows are NaN.
+        """
+        z = np.atleast_2d(np.asarray(z, dtype=float))
+        model_theta, _, off = self._split_theta(self.space.unpack(z))
+        off = np.asarray(off, dtype=float).reshape(-1, 1) if self.offset else 0.0
+        return [self.model.run_batch(r["u"], r["t"], model_theta).y + off
+                for r in self._records]

@@ -1,0 +1,157 @@
+"""MCMC: convergence diagnostics, prior recovery, conjugate oracle, determinism, resume."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import arviz as az
+import emcee
+import numpy as np
+import pytest
+from scipy import stats
+
+from bayeshyst.inference.conjugate import conjugate_posterior
+from bayeshyst.inference.convergence import (
+    ess_bulk,
+    ess_tail,
+    hdi,
+    integrated_time,
+    rhat,
+)
+from bayeshyst.inference.optimize import find_map
+from bayeshyst.inference.posterior import Posterior
+from bayeshyst.inference.sampling import chunk_boundaries, sample_posterior
+from tests.synthetic import pi_data
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _ar_chains(phi, m=6, n=800, seed=0, shift=0.0):
+    rng = np.random.default_rng(seed)
+    x = np.zeros((m, n))
+    e = rng.normal(size=(m, n))
+    for k in range(1, n):
+        x[:, k] = phi * x[:, k - 1] + e[:, k]
+    x[0] += shift
+    return x
+
+
+@pytest.mark.parametrize(("phi", "shift"), [(0.0, 0.0), (0.6, 0.0), (0.95, 0.0), (0.5, 1.0)])
+def test_rhat_and_ess_agree_with_arviz(phi, shift):
+    x = _ar_chains(phi, shift=shift)
+    assert rhat(x) == pytest.approx(float(az.rhat(x)), rel=1e-10)
+    assert ess_bulk(x) == pytest.approx(float(az.ess(x, method="bulk")), rel=1e-8)
+    assert ess_tail(x) == pytest.approx(float(az.ess(x, method="tail")), rel=1e-8)
+
+
+def test_integrated_time_agrees_with_emcee_and_hdi_with_arviz():
+    rng = np.random.default_rng(3)
+    walk = np.cumsum(rng.normal(size=(3000, 16, 2)), axis=0)
+    chain = 0.02 * walk + rng.normal(size=(3000, 16, 2))
+    np.testing.assert_allclose(integrated_time(chain),
+                               emcee.autocorr.integrated_time(chain, tol=0), rtol=1e-10)
+    x = rng.gamma(2.0, size=5000)
+    np.testing.assert_allclose(hdi(x, 0.9), az.hdi(x, hdi_prob=0.9), rtol=1e-12)
+
+
+def test_chunk_boundaries_are_fixed_and_cover_the_budget():
+    assert chunk_boundaries(100, 1000) == [100, 200, 300, 450, 675, 1000]
+    assert chunk_boundaries(500, 300) == [300]
+
+
+def test_prior_only_sampling_reproduces_the_prior():
+    # beta = 0: the sampler must return the prior; this checks every transform and
+    # log-Jacobian on the way (K-S per parameter against the prior's cdf)
+    model, rec, _ = pi_data()
+    post = Posterior(model, rec, beta=0.0)
+    start = find_map(post, seed=0, global_search=False, n_screen=64, n_starts=1)
+    # start from the prior itself: the Laplace ball of a flat-ish prior is the prior
+    res = sample_posterior(post, seed=1, max_steps=3000, first_chunk=500, start=start)
+    theta = res.theta()
+    thin = max(1, int(res.convergence.tau_max))
+    for p in post.space.params:
+        x = np.asarray(theta[p.name]).reshape(theta[p.name].shape[0], -1)[::thin * 8, 0]
+        assert stats.kstest(x, p.prior.cdf).pvalue > 1e-3, p.name
+
+
+def test_emcee_agrees_with_the_conjugate_posterior_of_pi_weights():
+    model, rec, theta = pi_data(n_ops=3, sigma=0.05)
+    fixed = Posterior(model, rec).fix("noise.sigma", 0.05)  # known sigma, as the closed form
+    exact = conjugate_posterior(fixed)
+    res = sample_posterior(fixed, seed=2, max_steps=8000, first_chunk=1000)
+    assert res.converged, res.convergence
+    draws = res.flat_z  # Normal priors -> identity transforms: z is the value
+    ess = res.convergence.ess_bulk_min
+    se = exact.sd / np.sqrt(ess)
+    np.testing.assert_array_less(np.abs(draws.mean(axis=0) - exact.mean), 5 * se)
+    # covariance: standard deviations within 10 %, correlations within 0.05
+    sd = draws.std(axis=0, ddof=1)
+    np.testing.assert_allclose(sd, exact.sd, rtol=0.1)
+    corr = np.corrcoef(draws.T)
+    ref = exact.cov / np.outer(exact.sd, exact.sd)
+    np.testing.assert_allclose(corr, ref, atol=0.05)
+    # and the truth is inside the 99.9 % ellipsoid of the exact posterior
+    truth = np.concatenate([[theta["p0"]], theta["w"], [0.4]])
+    d = truth - exact.mean
+    assert d @ np.linalg.solve(exact.cov, d) < stats.chi2.ppf(0.999, truth.size)
+
+
+def _small_run(checkpoint=None, seed=5):
+    model, rec, _ = pi_data(n_ops=2, n=600, warmup=100)
+    post = Posterior(model, rec)
+    start = find_map(post, seed=0, global_search=False, n_screen=64, n_starts=1)
+    return sample_posterior(post, seed=seed, max_steps=400, first_chunk=100, start=start,
+                            checkpoint=checkpoint, min_ess=1e9)
+
+
+def test_same_seed_same_chains_other_seed_other_chains():
+    a, b, c = _small_run(seed=5), _small_run(seed=5), _small_run(seed=6)
+    np.testing.assert_array_equal(a.chains, b.chains)
+    assert not np.array_equal(a.chains, c.chains)
+    assert not a.converged and "ESS" in str(a.convergence)  # min_ess=1e9 cannot be met
+
+
+def test_resume_after_sigkill_gives_the_uninterrupted_draws(tmp_path):
+    ck = tmp_path / "run.h5"
+    child = textwrap.dedent(f"""
+        import os, signal, sys
+        sys.path.insert(0, {str(ROOT)!r})
+        import tests.test_sampling as T
+        from bayeshyst.inference.posterior import Posterior
+        calls = {{"n": 0}}
+        orig = Posterior.log_prob_batch
+        def killing(self, z):
+            calls["n"] += 1
+            if calls["n"] == 700:  # mid-run, with unflushed steps in memory
+                os.kill(os.getpid(), signal.SIGKILL)
+            return orig(self, z)
+        Posterior.log_prob_batch = killing
+        T._small_run(checkpoint={str(ck)!r})
+    """)
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    proc = subprocess.run([sys.executable, "-c", child], env=env, capture_output=True, text=True)
+    assert proc.returncode == -signal.SIGKILL, proc.stderr[-2000:]
+    import h5py
+
+    with h5py.File(ck, "r") as f:
+        done = [int(f[f"ensemble_{e}"].attrs["iteration"]) for e in range(2)]
+    assert 0 < min(done) and max(done) < 400  # it really stopped part-way
+    resumed = _small_run(checkpoint=ck)
+    whole = _small_run()
+    assert resumed.convergence.n_steps == whole.convergence.n_steps
+    np.testing.assert_array_equal(resumed.chains, whole.chains)
+    np.testing.assert_array_equal(resumed.log_prob, whole.log_prob)
+
+
+def test_checkpoint_of_another_run_is_refused(tmp_path):
+    from bayeshyst.errors import ParameterError
+
+    ck = tmp_path / "run.h5"
+    _small_run(checkpoint=ck, seed=5)
+    with pytest.raises(ParameterError, match="different run"):
+        _small_run(checkpoint=ck, seed=6)
