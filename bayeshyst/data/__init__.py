@@ -8,11 +8,15 @@
   :func:`split_by_frequency` -- cycles and frequency blocks
   (:mod:`bayeshyst.data.segment`);
 * ``load_*`` -- the measured sets in the shared data folder
-  (:mod:`bayeshyst.data.measured`).
+  (:mod:`bayeshyst.data.measured`);
+* :class:`VirtualActuator`, :func:`bundle` -- the documented simulator with known
+  truth and the bundled datasets (:mod:`bayeshyst.data.virtual`), excitation signals
+  (:mod:`bayeshyst.data.excitation`).
 """
 
 from __future__ import annotations
 
+from bayeshyst.data import excitation
 from bayeshyst.data.io import load, read_csv, read_mat, read_npz, write_csv, write_npz
 from bayeshyst.data.measured import (
     load_micromanipulator_reference,
@@ -32,23 +36,44 @@ from bayeshyst.data.segment import (
     split_by_frequency,
     split_cycles,
 )
+from bayeshyst.data.virtual import (
+    BUNDLE_FREQUENCIES_HZ,
+    BUNDLE_SEED,
+    STROKE_UM,
+    VirtualActuator,
+    bundle,
+    creep_per_decade,
+    hysteresis_only,
+    hysteresis_percent,
+    loop_width,
+)
 
 __all__ = [
+    "BUNDLE_FREQUENCIES_HZ",
+    "BUNDLE_SEED",
     "DEFAULT_UNITS",
     "MIN_SAMPLES",
+    "STROKE_UM",
     "CycleSplit",
     "Dataset",
     "Record",
     "Table",
+    "VirtualActuator",
+    "bundle",
+    "creep_per_decade",
     "cycle_labels",
     "default_prominence",
     "estimate_frequency",
+    "excitation",
     "find_reversals",
+    "hysteresis_only",
+    "hysteresis_percent",
     "load",
     "load_micromanipulator_reference",
     "load_mr_damper",
     "load_piezo_actuator_150v",
     "load_piezo_micromanipulator",
+    "loop_width",
     "read_csv",
     "read_mat",
     "read_npz",

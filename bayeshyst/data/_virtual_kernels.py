@@ -1,0 +1,600 @@
+"""Effects and numba time loops of the virtual actuator (:mod:`bayeshyst.data.virtual`).
+
+This is a private, independent implementation: it shares no code with
+:mod:`bayeshyst.models`, so that tests of the models compare two different codes.
+The effect dataclasses defined here (parameters, their numerics and ``truth()``) are
+public through :mod:`bayeshyst.data.virtual`, which assembles them into the actuator.
+
+Preisach memory
+---------------
+The memory of the Preisach part is the staircase of alternating dominant extrema
+``ext[0..depth-1]``: ``ext[0]`` is a floor below the Preisach plane (the virgin state
+"came up from negative saturation"), ``ext[depth-1]`` is the current input, and
+consecutive entries alternate between minima and maxima with shrinking amplitude.
+``acc[k]`` is the output contributed by the closed segments ``ext[0] -> ... -> ext[k]``;
+the output is ``acc[depth-2]`` plus the running segment. A rising segment
+``m -> M`` contributes ``+E(M, m)``, a falling one ``M -> m`` contributes ``-E(M, m)``,
+with ``E(alpha, beta)`` the Everett function of 0/1 relays (mass of the triangle
+``beta <= b <= a <= alpha``). Wiping-out: when the input passes the extremum two steps
+back, the minor loop is closed and both entries are removed. Only the memory
+structure, not the tabulated ``E``, gives wiping-out and return-point memory, so both
+hold exactly.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import scipy.linalg
+from numba import njit
+
+from bayeshyst.errors import ParameterError
+
+__all__ = [
+    "STROKE_UM",
+    "AR1Noise",
+    "LogCreep",
+    "PreisachHysteresis",
+    "SecondOrder",
+    "SensorDelay",
+    "ThermalDrift",
+    "ar1",
+    "preisach_offset",
+    "run_chain",
+    "static_path",
+]
+
+
+@njit(cache=True)
+def _everett(table, lo, step, a, b):
+    """Bilinear interpolation of the tabulated Everett function, arguments clamped."""
+    n = table.shape[0]
+    hi = lo + step * (n - 1)
+    a = min(max(a, lo), hi)
+    b = min(max(b, lo), hi)
+    xa = (a - lo) / step
+    xb = (b - lo) / step
+    ia = min(int(xa), n - 2)
+    ib = min(int(xb), n - 2)
+    fa = xa - ia
+    fb = xb - ib
+    return ((1.0 - fa) * ((1.0 - fb) * table[ia, ib] + fb * table[ia, ib + 1])
+            + fa * ((1.0 - fb) * table[ia + 1, ib] + fb * table[ia + 1, ib + 1]))
+
+
+@njit(cache=True)
+def _segment(table, lo, step, start, end):
+    """Output contributed by a monotone input segment ``start -> end``."""
+    if end >= start:
+        return _everett(table, lo, step, end, start)
+    return -_everett(table, lo, step, start, end)
+
+
+@njit(cache=True)
+def _push(ext, acc, depth, u, table, lo, step):
+    """Feed input ``u`` to the staircase memory; return the new depth.
+
+    The caller guarantees room for one more entry (``depth < ext.shape[0]``); every
+    entry beyond the first two is a reversal of the input path, and a path that is
+    monotone between the ``n`` record samples has at most ``n`` of them.
+    """
+    last = ext[depth - 1]
+    if u == last:
+        return depth
+    rising = last > ext[depth - 2]
+    if (u > last) == rising:
+        ext[depth - 1] = u
+        # wiping-out: passing the same-type extremum two entries back closes a minor
+        # loop; index depth-3 >= 1 keeps the floor ext[0] (it is never passed anyway)
+        while depth >= 4 and ((rising and u >= ext[depth - 3])
+                              or (not rising and u <= ext[depth - 3])):
+            depth -= 2
+            ext[depth - 1] = u
+        return depth
+    acc[depth - 1] = acc[depth - 2] + _segment(table, lo, step, ext[depth - 2], last)
+    ext[depth] = u
+    return depth + 1
+
+
+@njit(cache=True)
+def _output(ext, acc, depth, table, lo, step):
+    return acc[depth - 2] + _segment(table, lo, step, ext[depth - 2], ext[depth - 1])
+
+
+@njit(cache=True)
+def _new_memory(u0, lo, hi, capacity):
+    # fixed capacity: growing arrays inside the time loop costs reference counting
+    # on every sample, even when no growth happens
+    ext = np.empty(capacity)
+    acc = np.zeros(capacity)
+    ext[0] = lo - 1.0  # floor strictly below every clamped input
+    ext[1] = min(max(u0, lo), hi)
+    return ext, acc, 2
+
+
+@njit(cache=True)
+def static_path(u, table, lo, step):
+    """Preisach output (0/1 relays, virgin state from below) along the input path ``u``.
+
+    Parameters
+    ----------
+    u : ndarray, shape (n,)
+        Input samples [V]; clamped to the tabulated plane.
+    table : ndarray, shape (m, m)
+        Everett function on the grid ``lo + step * arange(m)`` (rows alpha, cols beta).
+    lo, step : float
+        Grid origin and spacing [V].
+
+    Returns
+    -------
+    ndarray, shape (n,)
+        Preisach output [um] after each sample (no offset, no linear part).
+    """
+    hi = lo + step * (table.shape[0] - 1)
+    out = np.empty(u.shape[0])
+    ext, acc, depth = _new_memory(u[0], lo, hi, u.shape[0] + 3)
+    for k in range(u.shape[0]):
+        depth = _push(ext, acc, depth, min(max(u[k], lo), hi), table, lo, step)
+        out[k] = _output(ext, acc, depth, table, lo, step)
+    return out
+
+
+@njit(cache=True)
+def run_chain(t, u, q, t_start, h, n_grid, table, lo, step, offset, gain, hyst_on,
+              lag_a, lag_b, lag_c, dyn_on, phi, gam0, gam1):
+    """Static hysteresis -> creep lag bank -> second-order dynamics on a uniform grid.
+
+    Parameters
+    ----------
+    t, u : ndarray, shape (n,)
+        Record times [s] (strictly increasing) and input [V]; the input is linear
+        between samples and held at ``u[0]`` before ``t[0]``.
+    q : ndarray, shape (n,)
+        Fractional grid index of each output sample (integer-valued when the sample
+        falls on the grid); nondecreasing.
+    t_start, h : float
+        Input time of grid point 0 [s] and grid step [s].
+    n_grid : int
+        Number of grid points.
+    table : ndarray, shape (m, m)
+        Everett table; ``lo``, ``step`` its origin and spacing [V].
+    offset : float
+        Preisach output subtracted so that the virgin actuator reads 0 at 0 V [um].
+    gain : float
+        Reversible linear part [um/V].
+    hyst_on : bool
+        Include the Preisach part.
+    lag_a, lag_b, lag_c : ndarray, shape (L,)
+        Creep lags ``exp(-h/tau)``, first-order-hold ramp factors
+        ``1 - tau (1 - a) / h`` and weights; ``L = 0`` disables creep.
+    dyn_on : bool
+        Include the second-order dynamics.
+    phi : ndarray, shape (2, 2)
+        State transition over one grid step (state: position [um], velocity [um/s]).
+    gam0, gam1 : ndarray, shape (2,)
+        First-order-hold input matrices: a step adds ``gam0 z_prev + gam1 (z - z_prev)``.
+
+    Returns
+    -------
+    ndarray, shape (n,)
+        Displacement at the output samples [um], before drift and noise.
+    """
+    n = t.shape[0]
+    hi = lo + step * (table.shape[0] - 1)
+    n_lag = lag_a.shape[0]
+    y = np.empty(n)
+    x = np.empty(n_lag)
+    ext, acc, depth = _new_memory(u[0], lo, hi, n + 3)
+    p = 0  # last record sample at or before the current grid time
+    i = 0  # next output sample
+    w_prev = 0.0
+    z_prev = 0.0
+    pos = 0.0
+    vel = 0.0
+    out_prev = 0.0
+    for j in range(n_grid):
+        tau = t_start + j * h
+        # tolerance: grid times carry rounding; a sample within 1e-6 grid steps is reached
+        while p + 1 < n and t[p + 1] <= tau + 1e-6 * h:
+            p += 1
+            if hyst_on:
+                # the record's samples are the vertices of the piecewise-linear input:
+                # a reversal between grid points must still enter the memory
+                depth = _push(ext, acc, depth, min(max(u[p], lo), hi), table, lo, step)
+        if tau <= t[p] or p + 1 >= n:
+            uj = u[p]
+        else:
+            uj = u[p] + (u[p + 1] - u[p]) * (tau - t[p]) / (t[p + 1] - t[p])
+            # rounding must not step outside the segment: the input stays monotone
+            # between record samples, which bounds the memory depth by n
+            uj = min(max(uj, min(u[p], u[p + 1])), max(u[p], u[p + 1]))
+        w = gain * uj
+        if hyst_on:
+            depth = _push(ext, acc, depth, min(max(uj, lo), hi), table, lo, step)
+            w += _output(ext, acc, depth, table, lo, step) - offset
+        z = w
+        if j == 0:
+            # relaxed start: every lag has settled on the initial displacement
+            for m in range(n_lag):
+                x[m] = w
+        else:
+            for m in range(n_lag):
+                x[m] = lag_a[m] * x[m] + (1.0 - lag_a[m]) * w_prev + lag_b[m] * (w - w_prev)
+        for m in range(n_lag):
+            z += lag_c[m] * x[m]
+        if dyn_on:
+            if j == 0:
+                pos = z
+                vel = 0.0
+            else:
+                dz = z - z_prev
+                p_new = (phi[0, 0] * pos + phi[0, 1] * vel + gam0[0] * z_prev
+                         + gam1[0] * dz)
+                vel = phi[1, 0] * pos + phi[1, 1] * vel + gam0[1] * z_prev + gam1[1] * dz
+                pos = p_new
+            out = pos
+        else:
+            out = z
+        while i < n and q[i] <= j:
+            frac = q[i] - (j - 1)
+            y[i] = out if frac >= 1.0 else out_prev + frac * (out - out_prev)
+            i += 1
+        w_prev = w
+        z_prev = z
+        out_prev = out
+    while i < n:  # rounding can leave the last target a hair past the grid
+        y[i] = out_prev
+        i += 1
+    return y
+
+
+@njit(cache=True)
+def ar1(white, phi, rms):
+    """Stationary AR(1) sequence ``e_k = phi e_{k-1} + s w_k`` with RMS ``rms``.
+
+    ``white`` (n,) are standard normal draws, ``|phi| < 1``, ``rms`` in um; returns (n,).
+    """
+    e = np.empty(white.shape[0])
+    s = rms * math.sqrt(1.0 - phi * phi)
+    prev = 0.0
+    for k in range(white.shape[0]):
+        # e_0 from the stationary law, so the first sample is not special
+        prev = rms * white[k] if k == 0 else phi * prev + s * white[k]
+        e[k] = prev
+    return e
+
+
+# ---------------------------------------------------------------- effect parameters
+#: Nominal quasi-static stroke of the default actuator, 0 -> 150 V major loop [um].
+STROKE_UM = 40.0
+
+
+def _check(owner: str, name: str, value: float, lo: float = 0.0, *, strict: bool = True,
+           hi: float = math.inf) -> None:
+    ok = isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value)
+    if not ok or value < lo or (strict and value == lo) or value >= hi:
+        bound = f"> {lo}" if strict else f">= {lo}"
+        upper = "" if hi == math.inf else f" and < {hi}"
+        raise ParameterError(f"{owner}.{name}: expected a finite number {bound}{upper}, "
+                             f"got {value!r}")
+
+
+def _asdict(obj: Any) -> dict[str, Any]:
+    return {f.name: (list(v) if isinstance(v := getattr(obj, f.name), tuple) else v)
+            for f in dataclasses.fields(obj)}
+
+
+@dataclass(frozen=True)
+class PreisachHysteresis:
+    """Preisach operator of 0/1 relays with a smooth, skewed density.
+
+    In the mean/half-width coordinates ``m = (alpha + beta) / 2``, ``r = (alpha - beta)/2``
+    the relay density is ``mass_um * N(m; center_v, center_sd_v) * LN(r | m)``, where
+    ``LN`` is a log-normal in ``r`` with median
+    ``halfwidth_v * exp(halfwidth_slope * (m - center_v) / center_sd_v)`` and log-sd
+    ``halfwidth_log_sd``. The centre below mid-range and the half-width growing with
+    ``m`` make the loop asymmetric (not point-symmetric). In ``(alpha, beta)`` the
+    density is half of that (Jacobian 2). It is truncated to the triangle
+    ``plane_v[0] <= beta <= alpha <= plane_v[1]``; inputs outside are clamped (the
+    Preisach part saturates). The virgin state is "input risen from below the plane",
+    and the output is offset so that the virgin actuator reads 0 um at 0 V.
+
+    Parameters
+    ----------
+    mass_um : float, default 18.5
+        Mass of the untruncated density [um] (the default plane keeps 97.6 % of it:
+        the largest possible swing of the Preisach part).
+    center_v : float, default 60.0
+        Mean of the relay centres ``m`` [V].
+    center_sd_v : float, default 45.0
+        Standard deviation of ``m`` [V].
+    halfwidth_v : float, default 13.0
+        Median relay half-width ``r`` at ``m = center_v`` [V].
+    halfwidth_log_sd : float, default 0.6
+        Standard deviation of ``ln r`` [-].
+    halfwidth_slope : float, default 0.3
+        Growth of ``ln(median r)`` per ``center_sd_v`` of ``m`` [-] (asymmetry).
+    plane_v : (float, float), default (-50, 200)
+        Input range of the Preisach plane [V].
+    table_step_v : float, default 0.5
+        Grid step of the tabulated Everett function [V] (cells integrated by 3x3
+        Gauss-Legendre, bilinear interpolation between nodes).
+    """
+
+    mass_um: float = 18.5
+    center_v: float = 60.0
+    center_sd_v: float = 45.0
+    halfwidth_v: float = 13.0
+    halfwidth_log_sd: float = 0.6
+    halfwidth_slope: float = 0.3
+    plane_v: tuple[float, float] = (-50.0, 200.0)
+    table_step_v: float = 0.5
+
+    def __post_init__(self) -> None:
+        me = type(self).__name__
+        _check(me, "mass_um", self.mass_um, strict=False)
+        _check(me, "center_v", self.center_v, -math.inf)
+        for name in ("center_sd_v", "halfwidth_v", "halfwidth_log_sd", "table_step_v"):
+            _check(me, name, getattr(self, name))
+        _check(me, "halfwidth_slope", self.halfwidth_slope, -math.inf)
+        lo, hi = (float(v) for v in self.plane_v)
+        if not (math.isfinite(lo) and math.isfinite(hi) and hi - lo >= 4 * self.table_step_v):
+            raise ParameterError(f"{me}.plane_v: expected finite (lo, hi) with hi - lo >= "
+                                 f"4 table steps, got {self.plane_v!r}")
+        object.__setattr__(self, "plane_v", (lo, hi))
+
+    def density(self, alpha: np.ndarray, beta: np.ndarray) -> np.ndarray:
+        """Relay density ``mu(alpha, beta)`` [um/V^2], zero off the truncated triangle.
+
+        Parameters
+        ----------
+        alpha, beta : array_like of float
+            Up and down switching thresholds [V] (broadcast together).
+
+        Returns
+        -------
+        ndarray
+        """
+        a, b = np.broadcast_arrays(np.asarray(alpha, float), np.asarray(beta, float))
+        m = 0.5 * (a + b)
+        r = 0.5 * (a - b)
+        lo, hi = self.plane_v
+        inside = (r > 0) & (b >= lo) & (a <= hi)
+        rs = np.where(inside, r, 1.0)
+        zm = (m - self.center_v) / self.center_sd_v
+        med = self.halfwidth_v * np.exp(self.halfwidth_slope * zm)
+        zr = np.log(rs / med) / self.halfwidth_log_sd
+        pdf = (np.exp(-0.5 * zm * zm) / (self.center_sd_v * math.sqrt(2 * math.pi))
+               * np.exp(-0.5 * zr * zr) / (rs * self.halfwidth_log_sd * math.sqrt(2 * math.pi)))
+        return np.where(inside, 0.5 * self.mass_um * pdf, 0.0)
+
+    def everett(self) -> tuple[np.ndarray, float, float]:
+        """Tabulated Everett function ``E(alpha_i, beta_j)`` (read-only, cached).
+
+        Returns
+        -------
+        table : ndarray, shape (K+1, K+1)
+            Relay mass of ``{beta_j <= b <= a <= alpha_i}`` [um].
+        lo, step : float
+            Node ``i`` is at ``lo + i * step`` [V].
+        """
+        return _everett_table(self)
+
+    def truth(self) -> dict[str, Any]:
+        """Parameters and the density formula, JSON-serialisable."""
+        return {
+            **_asdict(self),
+            "relay": "0/1 (on at u >= alpha, off at u <= beta)",
+            "density": "mass_um * N(m; center_v, center_sd_v) * LogNormal(r; median="
+                       "halfwidth_v*exp(halfwidth_slope*(m-center_v)/center_sd_v), "
+                       "sigma=halfwidth_log_sd), m=(alpha+beta)/2, r=(alpha-beta)/2",
+            "initial_state": "input risen from below the plane; output 0 at 0 V",
+            # rounded: a derived number, kept stable across platforms' last bits
+            "offset_um": round(preisach_offset(self), 9),
+        }
+
+
+@functools.lru_cache(maxsize=8)
+def _everett_table(hyst: PreisachHysteresis) -> tuple[np.ndarray, float, float]:
+    lo, hi = hyst.plane_v
+    k = max(4, round((hi - lo) / hyst.table_step_v))
+    step = (hi - lo) / k
+    nodes = lo + step * np.arange(k + 1)
+    x, wts = np.polynomial.legendre.leggauss(3)
+    pts = 0.5 * step * (x + 1.0)  # Gauss points inside a cell, from its lower edge
+    wq = 0.25 * step * step * np.outer(wts, wts)
+    cells = np.zeros((k, k))  # cells[a-cell, b-cell]
+    for p in range(3):
+        for s in range(3):
+            a = nodes[:-1, None] + pts[p]
+            b = nodes[None, :-1] + pts[s]
+            cells += wq[p, s] * hyst.density(a, b)
+    # diagonal cells straddle alpha = beta; the density vanishes there (log-normal in
+    # r), so the masked Gauss rule above is accurate without a triangle rule
+    table = np.zeros((k + 1, k + 1))
+    table[1:, :k] = np.cumsum(np.cumsum(cells[:, ::-1], axis=1)[:, ::-1], axis=0)
+    table.flags.writeable = False
+    return table, float(lo), float(step)
+
+
+@functools.lru_cache(maxsize=8)
+def preisach_offset(hyst: PreisachHysteresis) -> float:
+    """Preisach output of the virgin actuator at 0 V [um], subtracted from every output."""
+    table, lo, step = _everett_table(hyst)
+    return float(static_path(np.zeros(1), table, lo, step)[0])
+
+
+@dataclass(frozen=True)
+class LogCreep:
+    """Creep: a bank of first-order lags that approximates ``1 + gamma log10(t)``.
+
+    ``z = w + sum_j c_j x_j`` with ``tau_j dx_j/dt = w - x_j``, ``tau_j`` log-spaced
+    from ``tau_min_s`` to ``tau_max_s`` at ``lags_per_decade`` per decade and equal
+    weights ``c_j = per_decade / lags_per_decade``; between ~3 tau_min and
+    ~tau_max / 3 a held step creeps by ``per_decade`` of the static step per decade.
+
+    Parameters
+    ----------
+    per_decade : float, default 0.015
+        Creep per decade of time, fraction of the static displacement [-].
+    tau_min_s, tau_max_s : float, default 0.01, 1000
+        Shortest and longest lag time constant [s].
+    lags_per_decade : int, default 2
+        Lag density; 2 keeps the log-time ripple below ~1 %.
+    """
+
+    per_decade: float = 0.015
+    tau_min_s: float = 0.01
+    tau_max_s: float = 1000.0
+    lags_per_decade: int = 2
+
+    def __post_init__(self) -> None:
+        me = type(self).__name__
+        _check(me, "per_decade", self.per_decade, strict=False)
+        _check(me, "tau_min_s", self.tau_min_s)
+        _check(me, "tau_max_s", self.tau_max_s, self.tau_min_s, strict=False)
+        if not isinstance(self.lags_per_decade, int) or self.lags_per_decade < 1:
+            raise ParameterError(f"{me}.lags_per_decade: expected an int >= 1, "
+                                 f"got {self.lags_per_decade!r}")
+
+    @property
+    def taus_s(self) -> np.ndarray:
+        """Lag time constants [s], shape (L,)."""
+        decades = math.log10(self.tau_max_s / self.tau_min_s)
+        n = max(1, round(decades * self.lags_per_decade) + 1)
+        return np.logspace(math.log10(self.tau_min_s), math.log10(self.tau_max_s), n)
+
+    @property
+    def weights(self) -> np.ndarray:
+        """Lag weights ``c_j`` [-], shape (L,)."""
+        return np.full(self.taus_s.size, self.per_decade / self.lags_per_decade)
+
+    def truth(self) -> dict[str, Any]:
+        """Parameters, time constants and weights, JSON-serialisable."""
+        return {**_asdict(self), "tau_s": self.taus_s.tolist(),
+                "weights": self.weights.tolist(),
+                "form": "z = w + sum_j c_j x_j, tau_j x_j' = w - x_j, relaxed start"}
+
+
+@dataclass(frozen=True)
+class SecondOrder:
+    """Second-order dynamics ``wn^2 / (s^2 + 2 zeta wn s + wn^2)`` (unit DC gain).
+
+    Parameters
+    ----------
+    resonance_hz : float, default 1500
+        Undamped natural frequency ``wn / 2 pi`` [Hz].
+    damping : float, default 0.07
+        Damping ratio ``zeta`` [-], in (0, 1).
+    """
+
+    resonance_hz: float = 1500.0
+    damping: float = 0.07
+
+    def __post_init__(self) -> None:
+        _check(type(self).__name__, "resonance_hz", self.resonance_hz)
+        _check(type(self).__name__, "damping", self.damping, hi=1.0)
+
+    def discretise(self, h: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Exact first-order-hold discretisation over a step ``h`` [s].
+
+        Returns
+        -------
+        phi : ndarray, shape (2, 2)
+            State transition (state: position [um], velocity [um/s]).
+        gam0, gam1 : ndarray, shape (2,)
+            Step update ``x+ = phi x + gam0 z_k + gam1 (z_{k+1} - z_k)``.
+        """
+        wn = 2 * math.pi * self.resonance_hz
+        # augmented state [x, v, z, dz/dt] with z linear in time: one expm is exact
+        aug = np.zeros((4, 4))
+        aug[0, 1] = 1.0
+        aug[1, 0] = -wn * wn
+        aug[1, 1] = -2 * self.damping * wn
+        aug[1, 2] = wn * wn
+        aug[2, 3] = 1.0
+        e = scipy.linalg.expm(aug * h)
+        return e[:2, :2].copy(), e[:2, 2].copy(), e[:2, 3] / h
+
+    def truth(self) -> dict[str, Any]:
+        """Parameters, JSON-serialisable."""
+        return {**_asdict(self), "discretisation": "exact first-order hold"}
+
+
+@dataclass(frozen=True)
+class ThermalDrift:
+    """Slow thermal drift ``y -> (1 + gain_per_s s) y + offset_um_per_s s``, ``s = t - t[0]``.
+
+    Parameters
+    ----------
+    offset_um_per_s : float, default 0.02
+        Offset rate [um/s] (0.05 % of :data:`STROKE_UM` per second).
+    gain_per_s : float, default 2e-4
+        Relative sensitivity change per second [1/s] (0.02 %/s).
+    """
+
+    offset_um_per_s: float = 0.02
+    gain_per_s: float = 2e-4
+
+    def __post_init__(self) -> None:
+        _check(type(self).__name__, "offset_um_per_s", self.offset_um_per_s, -math.inf)
+        _check(type(self).__name__, "gain_per_s", self.gain_per_s, -math.inf)
+
+    def truth(self) -> dict[str, Any]:
+        """Parameters, JSON-serialisable."""
+        return {**_asdict(self), "reference": "record start t[0]"}
+
+
+@dataclass(frozen=True)
+class SensorDelay:
+    """Pure sensor delay.
+
+    Parameters
+    ----------
+    delay_s : float, default 50e-6
+        Delay [s] (one sample at 20 kHz), fractional samples allowed.
+    """
+
+    delay_s: float = 50e-6
+
+    def __post_init__(self) -> None:
+        _check(type(self).__name__, "delay_s", self.delay_s, strict=False)
+
+    def truth(self) -> dict[str, Any]:
+        """Parameters, JSON-serialisable."""
+        return _asdict(self)
+
+
+@dataclass(frozen=True)
+class AR1Noise:
+    """Stationary AR(1) sensor noise per record sample, ``e_k = phi e_{k-1} + s w_k``.
+
+    Parameters
+    ----------
+    rms_um : float, default 0.04
+        Stationary standard deviation [um] (0.1 % of :data:`STROKE_UM`).
+    phi : float, default 0.8
+        Lag-1 coefficient per record sample [-], ``|phi| < 1``.
+    """
+
+    rms_um: float = 0.04
+    phi: float = 0.8
+
+    def __post_init__(self) -> None:
+        _check(type(self).__name__, "rms_um", self.rms_um, strict=False)
+        _check(type(self).__name__, "phi", self.phi, -1.0, hi=1.0)
+
+    def sample(self, n: int, rng: np.random.Generator | int) -> np.ndarray:
+        """Draw ``n`` samples [um] from ``rng`` (a Generator or a seed)."""
+        white = np.random.default_rng(rng).standard_normal(n)
+        return ar1(white, float(self.phi), float(self.rms_um))
+
+    def truth(self) -> dict[str, Any]:
+        """Parameters, JSON-serialisable."""
+        return {**_asdict(self), "innovation_sd_um": self.rms_um * math.sqrt(1 - self.phi**2),
+                "start": "stationary"}
