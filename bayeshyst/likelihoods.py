@@ -73,6 +73,12 @@ class Likelihood(ABC):
             Terms whose sum over the record is its log-likelihood.
         """
 
+    @abstractmethod
+    def sample(self, theta: Mapping[str, np.ndarray], n: int,
+               rng: np.random.Generator) -> np.ndarray:
+        """Noise draws ``(W, n)`` for the noise parameters ``theta`` (each ``(W,)``):
+        what the posterior predictive adds to a simulated output."""
+
     def __str__(self) -> str:
         return self.name
 
@@ -95,6 +101,10 @@ class Gaussian(Likelihood):
     def pointwise(self, resid: np.ndarray, theta: Mapping[str, np.ndarray]) -> np.ndarray:
         sigma = np.asarray(theta["sigma"], dtype=float)[:, None]
         return -0.5 * (resid / sigma) ** 2 - np.log(sigma) - 0.5 * _LOG_2PI
+
+    def sample(self, theta, n, rng):
+        sigma = np.asarray(theta["sigma"], dtype=float)[:, None]
+        return sigma * rng.standard_normal((sigma.shape[0], int(n)))
 
 
 @dataclass(frozen=True)
@@ -123,6 +133,11 @@ class StudentT(Likelihood):
         const = (special.gammaln(0.5 * (nu + 1.0)) - special.gammaln(0.5 * nu)
                  - 0.5 * np.log(nu * math.pi) - np.log(sigma))
         return const - 0.5 * (nu + 1.0) * np.log1p((resid / sigma) ** 2 / nu)
+
+    def sample(self, theta, n, rng):
+        sigma = np.asarray(theta["sigma"], dtype=float)[:, None]
+        nu = np.asarray(theta["nu"], dtype=float)[:, None]
+        return sigma * rng.standard_t(nu, size=(sigma.shape[0], int(n)))
 
 
 @dataclass(frozen=True)
@@ -158,6 +173,18 @@ class AR1(Likelihood):
         s_innov = sigma * np.sqrt(1.0 - phi**2)
         innov = resid[:, 1:] - phi * resid[:, :-1]
         out[:, 1:] = -0.5 * (innov / s_innov) ** 2 - np.log(s_innov) - 0.5 * _LOG_2PI
+        return out
+
+    def sample(self, theta, n, rng):
+        sigma = np.asarray(theta["sigma"], dtype=float)
+        phi = np.asarray(theta["phi"], dtype=float)
+        w = sigma.shape[0]
+        eta = rng.standard_normal((w, int(n)))
+        out = np.empty((w, int(n)))
+        out[:, 0] = sigma * eta[:, 0]  # stationary start
+        s_innov = sigma * np.sqrt(1.0 - phi**2)
+        for k in range(1, int(n)):
+            out[:, k] = phi * out[:, k - 1] + s_innov * eta[:, k]
         return out
 
 

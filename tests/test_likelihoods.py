@@ -130,3 +130,23 @@ def test_posterior_accepts_dataset_and_spec_string_and_pickles():
     clone = pickle.loads(pickle.dumps(post))
     z = post.space.sample_prior(np.random.default_rng(0), 2)
     np.testing.assert_array_equal(clone.log_prob_batch(z), post.log_prob_batch(z))
+
+
+@pytest.mark.parametrize(("lik", "theta"), [
+    (Gaussian(), {"sigma": np.array([0.5])}),
+    (StudentT(), {"sigma": np.array([0.5]), "nu": np.array([4.0])}),
+    (AR1(), {"sigma": np.array([0.5]), "phi": np.array([0.8])}),
+])
+def test_noise_draws_follow_the_likelihood(lik, theta):
+    # the sampler and the density describe the same distribution: K-S of the draws
+    # against the marginal cdf, and for AR(1) the lag-1 autocorrelation
+    e = lik.sample(theta, 20_000, np.random.default_rng(0))[0]
+    if isinstance(lik, StudentT):
+        cdf = stats.t(df=4.0, scale=0.5).cdf
+    else:
+        cdf = stats.norm(scale=0.5).cdf
+    sub = e[::10] if isinstance(lik, AR1) else e  # thin the correlated draws
+    assert stats.kstest(sub, cdf).pvalue > 1e-3
+    if isinstance(lik, AR1):
+        r1 = np.corrcoef(e[:-1], e[1:])[0, 1]
+        assert abs(r1 - 0.8) < 3 * (1 - 0.8**2) / np.sqrt(e.size)
