@@ -94,11 +94,11 @@ def measure(name: str, sizes: list[int], repeats: int, batch: int) -> dict:
 def measure_interpreted(name: str, n: int) -> float:
     """ns per sample of the same kernel with numba disabled, in a subprocess."""
     code = (
-        "import json,sys,time;sys.path.insert(0,%r);"
+        f"import json,sys,time;sys.path.insert(0,{str(ROOT)!r});"
         "from benchmarks.bench_kernels import _setup,_signal;"
-        "m,s,z=_setup(%r);th=s.unpack(z);u,t=_signal(%d);"
+        f"m,s,z=_setup({name!r});th=s.unpack(z);u,t=_signal({n});"
         "t0=time.perf_counter();m.simulate(u,t,th);"
-        "print(json.dumps((time.perf_counter()-t0)/%d*1e9))" % (str(ROOT), name, n, n)
+        f"print(json.dumps((time.perf_counter()-t0)/{n}*1e9))"
     )
     env = {**os.environ, "NUMBA_DISABLE_JIT": "1", "PYTHONPATH": str(ROOT)}
     res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,

@@ -7,7 +7,16 @@
 from __future__ import annotations
 
 # importing the family modules registers their models
-from bayeshyst.models import compose, duhem, maxwell, mrc, pi, pi_variants, preisach  # noqa: F401
+from bayeshyst.models import (  # noqa: F401  (importing registers the models)
+    bouc_wen,
+    compose,
+    duhem,
+    maxwell,
+    mrc,
+    pi,
+    pi_variants,
+    preisach,
+)
 from bayeshyst.models.base import DataScales, HysteresisModel, Trajectory, data_scales
 from bayeshyst.models.maxwell import MaxwellSlip
 from bayeshyst.models.pi import (
