@@ -1,0 +1,553 @@
+"""Conversion of sampling results to ``arviz.InferenceData``, netCDF files, LOO and WAIC.
+
+This is the only module of bayeshyst that imports arviz. Everything it hands back to
+the rest of the package (and to users who do not want arviz objects) is a plain frozen
+dataclass: :class:`ElpdResult` for PSIS-LOO and WAIC, :class:`GroupElpd` for their
+sums over groups of cycles (per excitation frequency, per record).
+
+What goes into the InferenceData, and why it is thinned
+-------------------------------------------------------
+The left-out unit of cross-validation is one input cycle (:attr:`Posterior.units`),
+so ``log_likelihood`` holds one value per cycle and draw. Each of those values costs a
+forward simulation of every record, so the conversion keeps ``draws_per_chain`` draws
+(evenly spaced in steps) of every walker of every ensemble: a few thousand draws in
+all, plenty for PSIS-LOO. The full chains stay in :class:`SamplingResult` and in the
+sampler's HDF5 checkpoint; convergence was judged on all of them (the report is copied
+into ``sample_stats.attrs``).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import uuid
+import warnings
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import arviz as az
+import numpy as np
+import xarray as xr
+
+from bayeshyst.errors import ParameterError
+from bayeshyst.inference.posterior import NOISE, Posterior
+from bayeshyst.inference.sampling import SamplingResult
+from bayeshyst.params import ParamSpace
+
+__all__ = [
+    "PARETO_K_BAD",
+    "ElpdResult",
+    "GroupElpd",
+    "elpd_by_group",
+    "load_netcdf",
+    "loo",
+    "save_netcdf",
+    "to_inference_data",
+    "waic",
+]
+
+PARETO_K_BAD = 0.7
+"""Pareto shape above which PSIS-LOO of a unit is unreliable (Vehtari et al. 2024)."""
+
+_BATCH = 512  # draws per batched log-likelihood evaluation
+
+
+# ---------------------------------------------------------------------------- results
+@dataclass(frozen=True, eq=False)
+class ElpdResult:
+    """Expected log pointwise predictive density of a fit (PSIS-LOO or WAIC).
+
+    Attributes
+    ----------
+    method : {"loo", "waic"}
+    elpd : float
+        Estimated elpd (log scale: larger is better).
+    se : float
+        Its standard error.
+    p : float
+        Effective number of parameters (``p_loo`` or ``p_waic``).
+    pointwise : ndarray, shape (n_units,)
+        elpd of each cycle.
+    pareto_k : ndarray, shape (n_units,) or None
+        Pareto shape of each cycle's importance weights (LOO only).
+    n_units : int
+        Number of left-out units (cycles).
+    n_samples : int
+        Posterior draws used.
+    warnings : tuple of str
+        Everything that makes the number less trustworthy, in plain words (Pareto k
+        above :data:`PARETO_K_BAD`, WAIC variance warning, sampling not converged).
+    """
+
+    method: str
+    elpd: float
+    se: float
+    p: float
+    pointwise: np.ndarray
+    pareto_k: np.ndarray | None
+    n_units: int
+    n_samples: int
+    warnings: tuple[str, ...] = ()
+
+    @property
+    def reliable(self) -> bool:
+        """True when there is no warning."""
+        return not self.warnings
+
+    def __str__(self) -> str:
+        head = (f"elpd_{self.method} = {self.elpd:.2f} (se {self.se:.2f}), "
+                f"p_{self.method} = {self.p:.2f}; {self.n_units} cycles, "
+                f"{self.n_samples} draws")
+        if self.pareto_k is not None and self.pareto_k.size:
+            head += f"; max Pareto k {float(np.max(self.pareto_k)):.2f}"
+        return "\n".join([head, *(f"  warning: {w}" for w in self.warnings)])
+
+
+@dataclass(frozen=True)
+class GroupElpd:
+    """elpd summed over the cycles of one group (one frequency, one record).
+
+    ``se`` is ``sqrt(n * var(pointwise))`` as for the total, and NaN for a group of a
+    single cycle (one value says nothing about its own spread).
+    """
+
+    coord: str
+    value: Any
+    n_units: int
+    elpd: float
+    se: float
+    max_pareto_k: float
+
+    def __str__(self) -> str:
+        value = "unknown" if _is_nan(self.value) else f"{self.value}"
+        se = "n/a (one cycle)" if math.isnan(self.se) else f"{self.se:.2f}"
+        k = "" if math.isnan(self.max_pareto_k) else f", max Pareto k {self.max_pareto_k:.2f}"
+        return (f"{self.coord} = {value}: elpd {self.elpd:.2f} (se {se}), "
+                f"{self.n_units} cycles{k}")
+
+
+def _is_nan(value: Any) -> bool:
+    return isinstance(value, float) and math.isnan(value)
+
+
+# -------------------------------------------------------------------- InferenceData
+def _check_pair(post: Posterior, result: SamplingResult) -> None:
+    if not isinstance(post, Posterior):
+        raise ParameterError(f"post must be a Posterior, got {type(post).__name__}")
+    if not isinstance(result, SamplingResult):
+        raise ParameterError(f"result must be a SamplingResult, got {type(result).__name__}")
+    if post.space != result.space:
+        raise ParameterError("the result was not sampled from this posterior: their "
+                             "parameter spaces differ")
+
+
+def _positive_int(value: Any, what: str) -> int:
+    if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < 1:
+        raise ParameterError(f"{what} must be a positive integer, got {value!r}")
+    return int(value)
+
+
+def _thin_index(n_steps: int, n_keep: int) -> np.ndarray:
+    """``n_keep`` step indices spread evenly over ``n_steps`` (all when fewer)."""
+    if n_keep >= n_steps:
+        return np.arange(n_steps)
+    return np.unique(np.round(np.linspace(0, n_steps - 1, n_keep)).astype(int))
+
+
+def _value_vars(space: ParamSpace, theta: dict[str, np.ndarray], lead: tuple[int, ...],
+                lead_dims: tuple[str, ...]) -> dict[str, xr.Variable]:
+    """Free parameters as xarray variables (vector ones get ``<name>_dim_<i>`` dims)."""
+    out = {}
+    for p in space.params:
+        value = np.asarray(theta[p.name], dtype=float).reshape((*lead, *p.shape))
+        dims = lead_dims + tuple(f"{p.name}_dim_{i}" for i in range(len(p.shape)))
+        out[p.name] = xr.Variable(dims, value, attrs={"unit": p.unit,
+                                                      "description": p.description})
+    return out
+
+
+def _unit_of(post: Posterior, key: str) -> str:
+    units = sorted({r.units.get(key, "") for r in post.data})
+    return units[0] if len(units) == 1 else ",".join(units)
+
+
+def _obs_layout(post: Posterior) -> dict[str, np.ndarray]:
+    """Per-observation record index, name, scored flag and cycle (-1 in warm-up)."""
+    record, names, scored, cycle = [], [], [], []
+    for i, rec in enumerate(post.data):
+        record.append(np.full(rec.n, i, dtype=np.int64))
+        names.append(np.full(rec.n, rec.name, dtype=object))
+        scored.append(np.asarray(rec.scored_mask, dtype=bool))
+        c = np.full(rec.n, -1, dtype=np.int64)
+        for j, unit in enumerate(post.units):
+            if unit.record == rec.name:
+                c[unit.start:unit.stop] = j
+        cycle.append(c)
+    return {"record": np.concatenate(record), "name": np.concatenate(names).astype(str),
+            "scored": np.concatenate(scored), "cycle": np.concatenate(cycle)}
+
+
+def _report_attrs(post: Posterior, result: SamplingResult, thin: np.ndarray) -> dict[str, Any]:
+    conv = result.convergence
+    counts = result.counts
+    return {
+        "model": result.model,
+        "likelihood": result.likelihood,
+        "seed": int(result.seed),
+        "runtime_s": float(result.runtime_s),
+        "beta": float(post.beta),
+        "converged": int(conv.converged),
+        "convergence": str(conv),
+        "convergence_reasons": "; ".join(conv.reasons),
+        "rhat_max": float(conv.rhat_max),
+        "ess_bulk_min": float(conv.ess_bulk_min),
+        "ess_tail_min": float(conv.ess_tail_min),
+        "tau_max": float(conv.tau_max),
+        "n_steps": int(conv.n_steps),
+        "burn": int(conv.burn),
+        "n_ensembles": int(result.chains.shape[0]),
+        "n_walkers": int(result.chains.shape[2]),
+        "n_kept_steps": int(result.chains.shape[1]),
+        "kept_step_index": thin.astype(np.int64),
+        "evaluations": int(counts.evaluations),
+        "failed_simulations": int(counts.failed),
+        "prior_rejected": int(counts.prior_rejected),
+        "acceptance_mean": float(np.mean(result.acceptance)),
+        "map_log_prob": float(result.start.log_prob),
+        "map_z": np.asarray(result.start.z, dtype=float),
+        "settings": json.dumps(result.settings, default=str, sort_keys=True),
+    }
+
+
+def to_inference_data(
+    post: Posterior,
+    result: SamplingResult,
+    *,
+    draws_per_chain: int = 30,
+    n_predictive: int = 200,
+    seed: int = 0,
+) -> az.InferenceData:
+    """Everything about a fit as an ``arviz.InferenceData`` (netCDF-ready).
+
+    Parameters
+    ----------
+    post : Posterior
+        The posterior that ``result`` sampled.
+    result : SamplingResult
+        Its draws.
+    draws_per_chain : int
+        Draws kept per walker, evenly spaced over the kept steps. Each draw costs one
+        simulation (its per-cycle log-likelihood), so keep ``E * W * draws_per_chain``
+        to a few thousand; the full chains live in ``result`` and in the checkpoint.
+    n_predictive : int
+        Posterior-predictive draws (``result.draws(n_predictive, seed=seed)``).
+    seed : int
+        Seeds the choice of predictive draws and their noise.
+
+    Returns
+    -------
+    arviz.InferenceData
+        Groups (dims in brackets):
+
+        ``posterior``
+            Free parameters in physical units [chain, draw, (``<name>_dim_0``)];
+            every walker of every ensemble is a chain (``chain = e * W + w``, coords
+            ``ensemble`` and ``walker``); ``draw`` is the step after burn-in.
+        ``sample_stats``
+            ``lp`` (log posterior) [chain, draw], ``walker_acceptance`` [chain];
+            attrs: convergence report, evaluation counts, runtime, seed, model,
+            likelihood, settings.
+        ``log_likelihood``
+            ``y`` [chain, draw, cycle]: log-likelihood of each cycle, coords
+            ``cycle_record``, ``cycle_index``, ``cycle_frequency_hz`` (NaN if unknown);
+            ``arviz.loo`` leaves out one cycle at a time.
+        ``posterior_predictive``
+            ``y`` [chain (1), draw, obs]: noise-free prediction plus a noise draw
+            from the likelihood, over every sample of every record (warm-up included).
+        ``observed_data``
+            ``y`` [obs], coord ``obs_record``.
+        ``constant_data``
+            ``t``, ``u``, ``record`` (index into ``attrs["records"]``), ``scored``
+            (False in warm-up), ``cycle`` (index into ``cycle``, -1 in warm-up) [obs].
+
+    Raises
+    ------
+    ParameterError
+        If ``result`` was not sampled from ``post`` or a count is not positive.
+    """
+    _check_pair(post, result)
+    draws_per_chain = _positive_int(draws_per_chain, "draws_per_chain")
+    n_predictive = _positive_int(n_predictive, "n_predictive")
+    n_ens, n_steps, n_walk, ndim = result.chains.shape
+    thin = _thin_index(n_steps, draws_per_chain)
+    n_chain, n_draw = n_ens * n_walk, thin.size
+    # (E, D, W, ndim) -> (E, W, D, ndim) -> (chain, draw, ndim)
+    z = result.chains[:, thin].transpose(0, 2, 1, 3).reshape(n_chain, n_draw, ndim)
+    lp = result.log_prob[:, thin].transpose(0, 2, 1).reshape(n_chain, n_draw)
+    flat = z.reshape(-1, ndim)
+    theta = post.space.unpack(flat)
+    loglik = np.concatenate([post.log_likelihood_units(flat[i:i + _BATCH])
+                             for i in range(0, flat.shape[0], _BATCH)])
+    loglik = loglik.reshape(n_chain, n_draw, post.n_units)
+
+    chain_coords = {
+        "chain": np.arange(n_chain),
+        "draw": (result.convergence.burn + thin).astype(np.int64),
+        "ensemble": ("chain", np.repeat(np.arange(n_ens), n_walk)),
+        "walker": ("chain", np.tile(np.arange(n_walk), n_ens)),
+    }
+    posterior = xr.Dataset(_value_vars(post.space, theta, (n_chain, n_draw),
+                                       ("chain", "draw")), coords=chain_coords)
+    posterior.attrs["fixed"] = json.dumps({k: np.asarray(v).tolist()
+                                           for k, v in post.space.fixed.items()})
+    sample_stats = xr.Dataset(
+        {"lp": (("chain", "draw"), lp),
+         "walker_acceptance": ("chain", result.acceptance.reshape(n_chain))},
+        coords=chain_coords, attrs=_report_attrs(post, result, thin))
+
+    units = post.units
+    cycle_coords = {
+        "cycle": np.arange(post.n_units),
+        "cycle_record": ("cycle", np.array([u.record for u in units], dtype=str)),
+        "cycle_index": ("cycle", np.array([u.index for u in units], dtype=np.int64)),
+        "cycle_frequency_hz": ("cycle", np.array(
+            [math.nan if u.frequency_hz is None else float(u.frequency_hz) for u in units])),
+    }
+    log_likelihood = xr.Dataset({"y": (("chain", "draw", "cycle"), loglik)},
+                                coords={**chain_coords, **cycle_coords},
+                                attrs={"failed_draws": int(np.sum(~np.isfinite(loglik)))})
+
+    layout = _obs_layout(post)
+    obs_coords = {"obs": np.arange(layout["record"].size), "obs_record": ("obs", layout["name"])}
+    y_unit = _unit_of(post, "y")
+    zp = result.draws(n_predictive, seed=seed)
+    rng = np.random.default_rng(seed)
+    theta_p = post.space.unpack(zp)
+    noise = {k[len(NOISE) + 1:]: np.asarray(theta_p[k], dtype=float)
+             for k in post._noise_names}
+    pred = np.concatenate([yhat + post.likelihood.sample(noise, yhat.shape[1], rng)
+                           for yhat in post.predict(zp)], axis=1)
+    predictive = xr.Dataset(
+        {"y": (("chain", "draw", "obs"), pred[None], {"unit": y_unit})},
+        coords={"chain": [0], "draw": np.arange(pred.shape[0]), **obs_coords},
+        attrs={"seed": int(seed), "failed_draws": int(np.sum(np.isnan(pred).any(axis=1)))})
+
+    observed = xr.Dataset(
+        {"y": ("obs", np.concatenate([r.y for r in post.data]), {"unit": y_unit})},
+        coords=obs_coords)
+    constant = xr.Dataset(
+        {"t": ("obs", np.concatenate([r.t for r in post.data]), {"unit": _unit_of(post, "t")}),
+         "u": ("obs", np.concatenate([r.u for r in post.data]), {"unit": _unit_of(post, "u")}),
+         "record": ("obs", layout["record"]),
+         "scored": ("obs", layout["scored"]),
+         "cycle": ("obs", layout["cycle"])},
+        coords=obs_coords,
+        attrs={"records": json.dumps([r.name for r in post.data]),
+               "record_frequency_hz": json.dumps([r.frequency_hz for r in post.data])})
+
+    return az.InferenceData(
+        posterior=posterior, sample_stats=sample_stats, log_likelihood=log_likelihood,
+        posterior_predictive=predictive, observed_data=observed, constant_data=constant,
+        attrs={"model": result.model, "likelihood": result.likelihood,
+               "bayeshyst_converged": int(result.convergence.converged)})
+
+
+# -------------------------------------------------------------------------- netCDF
+def save_netcdf(idata: az.InferenceData, path: str | os.PathLike[str]) -> Path:
+    """Write ``idata`` to a netCDF file atomically.
+
+    The data go to a temporary file in the same folder, which then replaces ``path``
+    (``os.replace``): a reader never sees a half-written file, and a failure leaves no
+    temporary file behind.
+
+    Parameters
+    ----------
+    idata : arviz.InferenceData
+    path : path-like
+        Target file (its folder is created if needed).
+
+    Returns
+    -------
+    Path
+        ``path``.
+    """
+    if not isinstance(idata, az.InferenceData):
+        raise ParameterError(f"idata must be an InferenceData, got {type(idata).__name__}")
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.{uuid.uuid4().hex}.tmp")
+    try:
+        idata.to_netcdf(tmp)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    return path
+
+
+def load_netcdf(path: str | os.PathLike[str]) -> az.InferenceData:
+    """Read an InferenceData written by :func:`save_netcdf` (loaded into memory).
+
+    Raises
+    ------
+    FileNotFoundError
+        If ``path`` does not exist.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"no netCDF file at {path}")
+    return az.from_netcdf(path)
+
+
+# --------------------------------------------------------------------- LOO and WAIC
+def _sampling_warnings(idata: az.InferenceData) -> list[str]:
+    stats = getattr(idata, "sample_stats", None)
+    if stats is not None and "converged" in stats.attrs and not int(stats.attrs["converged"]):
+        reasons = stats.attrs.get("convergence_reasons", "") or "see the convergence report"
+        out = [f"sampling did not converge ({reasons})"]
+    else:
+        out = []
+    failed = int(idata.log_likelihood.attrs.get("failed_draws", 0))
+    if failed:
+        out.append(f"{failed} log-likelihood values are -inf (failed simulations at "
+                   f"kept draws): the elpd is not meaningful")
+    return out
+
+
+def _n_samples(idata: az.InferenceData) -> int:
+    ll = idata.log_likelihood["y"]
+    return int(ll.sizes["chain"] * ll.sizes["draw"])
+
+
+def _check_idata(idata: Any) -> None:
+    if not isinstance(idata, az.InferenceData):
+        raise ParameterError(f"idata must be an InferenceData, got {type(idata).__name__}")
+    if "log_likelihood" not in idata.groups() or "y" not in idata.log_likelihood:
+        raise ParameterError("idata has no log_likelihood group with a variable 'y' "
+                             "(build it with to_inference_data)")
+
+
+def _caught(caught: list[warnings.WarningMessage], skip: str | None = None) -> list[str]:
+    """Distinct messages of caught warnings, minus those containing ``skip``."""
+    out = []
+    for w in caught:
+        msg = " ".join(str(w.message).split())
+        if (skip is None or skip not in msg) and msg not in out:
+            out.append(msg)
+    return out
+
+
+def loo(idata: az.InferenceData) -> ElpdResult:
+    """PSIS-LOO with one cycle left out at a time.
+
+    Parameters
+    ----------
+    idata : arviz.InferenceData
+        From :func:`to_inference_data` (or :func:`load_netcdf`).
+
+    Returns
+    -------
+    ElpdResult
+        ``warnings`` names the cycles with Pareto k > 0.7 (their LOO estimate is
+        unreliable: refit without them, or use more draws / a more robust model) and
+        those above the sample-size threshold ``min(1 - 1/log10(S), 0.7)``.
+    """
+    _check_idata(idata)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        res = az.loo(idata, pointwise=True, var_name="y", scale="log")
+    k = np.asarray(res.pareto_k, dtype=float).ravel()
+    msgs = _sampling_warnings(idata)
+    labels = _cycle_labels(idata)
+    bad = np.flatnonzero(k > PARETO_K_BAD)
+    if bad.size:
+        names = ", ".join(labels[i] for i in bad[:8]) + (", ..." if bad.size > 8 else "")
+        msgs.append(f"{bad.size} of {k.size} cycles have Pareto k > {PARETO_K_BAD} "
+                    f"(max {k.max():.2f}): PSIS-LOO is unreliable for {names}")
+    good_k = float(res.good_k)
+    mid = np.flatnonzero((k > good_k) & (k <= PARETO_K_BAD))
+    if mid.size and good_k < PARETO_K_BAD:
+        msgs.append(f"{mid.size} cycles have Pareto k > {good_k:.2f}, the threshold for "
+                    f"{_n_samples(idata)} draws: more draws per chain would help")
+    msgs += _caught(caught, "Estimated shape parameter of Pareto")
+    return ElpdResult("loo", float(res.elpd_loo), float(res.se), float(res.p_loo),
+                      np.asarray(res.loo_i, dtype=float).ravel(), k, int(res.n_data_points),
+                      int(res.n_samples), tuple(msgs))
+
+
+def waic(idata: az.InferenceData) -> ElpdResult:
+    """WAIC with cycles as the pointwise units (``pareto_k`` is None).
+
+    The variance warning of arviz (posterior variance of a cycle's log predictive
+    density above 0.4) is passed on in ``warnings``; prefer :func:`loo`.
+    """
+    _check_idata(idata)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        res = az.waic(idata, pointwise=True, var_name="y", scale="log")
+    msgs = _sampling_warnings(idata) + _caught(caught)
+    if bool(res.warning) and not any("0.4" in m for m in msgs):
+        msgs.append("the posterior variance of a cycle's log predictive density exceeds 0.4: "
+                    "WAIC may be unreliable, use loo")
+    return ElpdResult("waic", float(res.elpd_waic), float(res.se), float(res.p_waic),
+                      np.asarray(res.waic_i, dtype=float).ravel(), None,
+                      int(res.n_data_points), int(res.n_samples), tuple(msgs))
+
+
+def _cycle_labels(idata: az.InferenceData) -> list[str]:
+    ll = idata.log_likelihood
+    if "cycle_record" in ll.coords and "cycle_index" in ll.coords:
+        return [f"{r}#{int(i)}" for r, i in zip(ll["cycle_record"].values,
+                                                ll["cycle_index"].values, strict=True)]
+    return [f"cycle {i}" for i in range(ll["y"].shape[-1])]
+
+
+def elpd_by_group(
+    idata: az.InferenceData,
+    coord: str = "cycle_frequency_hz",
+    *,
+    result: ElpdResult | None = None,
+) -> tuple[GroupElpd, ...]:
+    """Pointwise elpd summed over groups of cycles.
+
+    Parameters
+    ----------
+    idata : arviz.InferenceData
+    coord : str
+        A coordinate of the ``cycle`` dim: ``"cycle_frequency_hz"`` (default; records
+        of unknown frequency form one NaN group) or ``"cycle_record"``.
+    result : ElpdResult, optional
+        A :func:`loo` (or :func:`waic`) result of ``idata``, to avoid recomputing it.
+
+    Returns
+    -------
+    tuple of GroupElpd
+        One per distinct value, sorted (NaN last). ``se = sqrt(n var(elpd_i))``,
+        NaN for a single-cycle group.
+    """
+    _check_idata(idata)
+    ll = idata.log_likelihood
+    if coord not in ll.coords or ll[coord].dims != ("cycle",):
+        have = [c for c in ll.coords if ll[c].dims == ("cycle",) and c != "cycle"]
+        raise ParameterError(f"coord {coord!r} is not a coordinate of the cycles; have {have}")
+    res = loo(idata) if result is None else result
+    values = ll[coord].values
+    if res.pointwise.size != values.size:
+        raise ParameterError(f"result has {res.pointwise.size} units, idata {values.size}")
+    is_float = np.issubdtype(values.dtype, np.floating)
+    nan = np.isnan(values) if is_float else np.zeros(values.size, dtype=bool)
+    if is_float:
+        keys = [float(v) for v in np.unique(values[~nan])]
+    else:  # record names: in the order of the records
+        keys = list(dict.fromkeys(values.tolist()))
+    out = []
+    for key, mask in [(k, ~nan & (values == k)) for k in keys] + (
+            [(math.nan, nan)] if nan.any() else []):
+        e = res.pointwise[mask]
+        n = int(mask.sum())
+        se = float(np.sqrt(n * np.var(e))) if n > 1 else math.nan
+        kmax = float(np.max(res.pareto_k[mask])) if res.pareto_k is not None else math.nan
+        out.append(GroupElpd(coord, key, n, float(np.sum(e)), se, kmax))
+    return tuple(out)

@@ -1,0 +1,525 @@
+"""Figures of a fit: hysteresis loops with predictive bands, traces, corner plot, residuals.
+
+This is the only module of bayeshyst that imports matplotlib. Figures are built with
+the object-oriented API on an Agg canvas (``matplotlib.figure.Figure`` +
+``FigureCanvasAgg``): pyplot is never imported, so no global figure registry, no
+window and nothing to close — a figure is freed as soon as it is no longer
+referenced, and the interactive backend of the caller's session is left alone.
+
+Every public function writes one PNG **atomically** (a temporary file in the same
+folder, then ``os.replace``) and returns its path; bad input raises
+:class:`~bayeshyst.errors.ParameterError` before anything is written, and a failure
+while writing leaves no file behind. A run that has not converged says so in red in
+the title of every figure. The ``_build_*`` functions return the Figure itself (for
+tests and for callers that compose their own output).
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import re
+import uuid
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.collections import PolyCollection
+from matplotlib.figure import Figure
+
+from bayeshyst.errors import ParameterError
+from bayeshyst.inference.convergence import hdi, rhat
+from bayeshyst.inference.posterior import Posterior
+from bayeshyst.inference.sampling import SamplingResult
+from bayeshyst.params import ParamSpace
+
+__all__ = ["plot_corner", "plot_loops", "plot_residuals", "plot_trace"]
+
+DPI = 120
+_RED = "#c0392b"
+
+
+# --------------------------------------------------------------------------- helpers
+def _fmt(x: float, spec: str = ".4g") -> str:
+    """A number for a label; never 'nan'."""
+    return format(x, spec) if np.isfinite(x) else "n/a"
+
+
+def _unit(unit: str) -> str:
+    return re.sub(r"\bum\b", "µm", unit or "")
+
+
+def _label(name: str, unit: str) -> str:
+    """``name [unit]``, or just ``name`` for a dimensionless quantity."""
+    u = _unit(unit)
+    return f"{name} [{u}]" if u and u != "1" else name
+
+
+def _positive_int(value: Any, what: str) -> int:
+    if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < 1:
+        raise ParameterError(f"{what} must be a positive integer, got {value!r}")
+    return int(value)
+
+
+def _prob(prob: Any) -> float:
+    if not (isinstance(prob, float | int) and 0.0 < float(prob) < 1.0):
+        raise ParameterError(f"prob must be in (0, 1), got {prob!r}")
+    return float(prob)
+
+
+def _png_path(path: str | os.PathLike[str]) -> Path:
+    path = Path(path)
+    if path.suffix.lower() != ".png":
+        raise ParameterError(f"figures are written as PNG: {path} must end in .png")
+    return path
+
+
+def _figure(width: float, height: float) -> Figure:
+    fig = Figure(figsize=(width, height), layout="constrained")
+    FigureCanvasAgg(fig)
+    return fig
+
+
+def _save(fig: Figure, path: Path) -> Path:
+    """Write ``fig`` to ``path`` as PNG through a temporary file and ``os.replace``."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.{uuid.uuid4().hex}.tmp")
+    try:
+        with open(tmp, "xb") as fh:  # "x": never clobber; permissions follow the umask
+            fig.savefig(fh, format="png", dpi=DPI)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    finally:
+        fig.clear()
+    return path
+
+
+def _title(fig: Figure, result: SamplingResult, what: str) -> None:
+    """Figure title; a run that has not converged gets a red banner."""
+    conv = result.convergence
+    if conv.converged:
+        fig.suptitle(f"{result.model} / {result.likelihood}: {what}\nconverged (R-hat max "
+                     f"{_fmt(conv.rhat_max, '.3f')}, ESS bulk min "
+                     f"{_fmt(conv.ess_bulk_min, '.0f')})", fontsize=10)
+    else:
+        reasons = "; ".join(conv.reasons) or "see the convergence report"
+        fig.suptitle(f"NOT CONVERGED: {reasons}\n{result.model} / {result.likelihood}: "
+                     f"{what}", fontsize=10, color=_RED, fontweight="bold")
+
+
+def _check_pair(post: Posterior, result: SamplingResult) -> None:
+    if not isinstance(post, Posterior):
+        raise ParameterError(f"post must be a Posterior, got {type(post).__name__}")
+    _check_result(result)
+    if post.space != result.space:
+        raise ParameterError("the result was not sampled from this posterior: their "
+                             "parameter spaces differ")
+
+
+def _check_result(result: SamplingResult) -> None:
+    if not isinstance(result, SamplingResult):
+        raise ParameterError(f"result must be a SamplingResult, got {type(result).__name__}")
+
+
+@dataclass(frozen=True)
+class _Element:
+    """One free scalar element of the parameter vector."""
+
+    label: str
+    name: str
+    index: int  # flat index within the parameter
+    unit: str
+
+    @property
+    def axis_label(self) -> str:
+        return _label(self.label, self.unit)
+
+
+def _elements(space: ParamSpace, params: Any, max_params: int) -> tuple[list[_Element], int]:
+    """The selected elements (parameter names or element labels) and how many there were.
+
+    Raises
+    ------
+    ParameterError
+        Naming an unknown or fixed parameter.
+    """
+    every = [_Element(lab, p.name, j, p.unit)
+             for p in space.params for j, lab in enumerate(p.labels())]
+    if params is None:
+        chosen = every
+    else:
+        if isinstance(params, str):
+            params = [params]
+        chosen = []
+        for name in params:
+            hit = [e for e in every if e.name == name or e.label == name]
+            if not hit:
+                why = "is fixed" if name in space.fixed else "is not a parameter"
+                raise ParameterError(f"parameter {name!r} {why}; free: {space.labels}")
+            chosen += [e for e in hit if e not in chosen]
+    return chosen[:max_params], len(chosen)
+
+
+def _values(result: SamplingResult, elements: list[_Element]) -> np.ndarray:
+    """Physical values of ``elements`` over the chains, shape (E, S, W, k)."""
+    n_ens, n_steps, n_walk, _ = result.chains.shape
+    theta = result.space.unpack(result.flat_z)
+    cols = [np.asarray(theta[e.name]).reshape(n_ens * n_steps * n_walk, -1)[:, e.index]
+            for e in elements]
+    return np.stack(cols, axis=-1).reshape(n_ens, n_steps, n_walk, len(elements))
+
+
+def _shown(n: int, total: int, what: str) -> str:
+    return what if n == total else f"{what} (first {n} of {total} elements)"
+
+
+def _predictions(post: Posterior, result: SamplingResult, n_draws: int,
+                 seed: int) -> tuple[list[np.ndarray], int]:
+    z = result.draws(n_draws, seed=seed)
+    return post.predict(z), z.shape[0]
+
+
+# ----------------------------------------------------------------------------- loops
+def _build_loops(post: Posterior, result: SamplingResult, *, n_draws: int = 100,
+                 prob: float = 0.9, seed: int = 0) -> Figure:
+    """The figure of :func:`plot_loops` (one axes per record)."""
+    _check_pair(post, result)
+    n_draws = _positive_int(n_draws, "n_draws")
+    prob = _prob(prob)
+    preds, n = _predictions(post, result, n_draws, seed)
+    records = list(post.data)
+    ncols = min(3, len(records))
+    nrows = math.ceil(len(records) / ncols)
+    fig = _figure(4.4 * ncols, 3.6 * nrows + 0.6)
+    axes = fig.subplots(nrows, ncols, squeeze=False).ravel()
+    for ax in axes[len(records):]:
+        fig.delaxes(ax)
+    q = [(1 - prob) / 2, (1 + prob) / 2]
+    for i, (ax, rec, pred) in enumerate(zip(axes, records, preds, strict=False)):
+        sl = rec.scored
+        u, y, p = rec.u[sl], rec.y[sl], pred[:, sl]
+        ok = np.all(np.isfinite(p), axis=1)
+        ax.plot(u, y, ".", ms=1.5, color="0.45", alpha=0.6, label="measured")
+        if ok.any():
+            mean = p[ok].mean(axis=0)
+            lo, hi = np.quantile(p[ok], q, axis=0)
+            quads = np.stack([np.column_stack([u[:-1], lo[:-1]]),
+                              np.column_stack([u[1:], lo[1:]]),
+                              np.column_stack([u[1:], hi[1:]]),
+                              np.column_stack([u[:-1], hi[:-1]])], axis=1)
+            ax.add_collection(PolyCollection(quads, facecolors="C0", alpha=0.3,
+                                             linewidths=0, antialiaseds=False,
+                                             label=f"{prob:.0%} interval"))
+            ax.plot(u, mean, color="C0", lw=1.0, label="posterior mean")
+        freq = rec.frequency_hz
+        fstr = f"{freq:g} Hz" if freq is not None and np.isfinite(freq) else "frequency unknown"
+        failed = "" if ok.all() else f" ({int((~ok).sum())} of {n} draws failed)"
+        ax.set_title(f"{rec.name}, {fstr}{failed}", fontsize=9)
+        ax.set_xlabel(_label("u", rec.units.get("u", "")))
+        ax.set_ylabel(_label("y", rec.units.get("y", "")))
+        if i == 0:
+            ax.legend(fontsize=7, loc="upper left", markerscale=4)
+    _title(fig, result, f"hysteresis loops, posterior predictive of the noise-free model "
+                        f"({n} draws)")
+    return fig
+
+
+def plot_loops(post: Posterior, result: SamplingResult, path: str | os.PathLike[str], *,
+               n_draws: int = 100, prob: float = 0.9, seed: int = 0) -> Path:
+    """Measured loops with the posterior-predictive mean and band of the model.
+
+    One subplot per record (titled with its name and frequency): measured ``y``
+    against ``u`` over the scored samples (points), the mean over ``n_draws``
+    posterior draws of the noise-free prediction (``post.predict``, offset included)
+    and the equal-tailed ``prob`` interval of those predictions as a shaded band.
+
+    Parameters
+    ----------
+    post : Posterior
+    result : SamplingResult
+        Draws of ``post``.
+    path : path-like
+        Target PNG file.
+    n_draws : int
+        Posterior draws predicted (``result.draws(n_draws, seed=seed)``).
+    prob : float
+        Mass of the band.
+    seed : int
+        Selects the draws.
+
+    Returns
+    -------
+    Path
+        ``path``, written atomically.
+    """
+    path = _png_path(path)
+    return _save(_build_loops(post, result, n_draws=n_draws, prob=prob, seed=seed), path)
+
+
+# ----------------------------------------------------------------------------- trace
+def _ranks(x: np.ndarray) -> np.ndarray:
+    """Ranks 0..n-1 of all values of ``x`` jointly (ties broken by position)."""
+    flat = x.ravel()
+    r = np.empty(flat.size, dtype=np.int64)
+    r[np.argsort(flat, kind="stable")] = np.arange(flat.size)
+    return r.reshape(x.shape)
+
+
+def _build_trace(result: SamplingResult, *, params: Any = None, max_params: int = 12,
+                 walkers_shown: int = 3, bins: int = 20) -> Figure:
+    """The figure of :func:`plot_trace` (two axes per element: trace, rank plot)."""
+    _check_result(result)
+    max_params = _positive_int(max_params, "max_params")
+    elements, total = _elements(result.space, params, max_params)
+    values = _values(result, elements)  # (E, S, W, k)
+    n_ens, n_steps, n_walk, k = values.shape
+    steps = result.convergence.burn + np.arange(n_steps)
+    show = np.unique(np.linspace(0, n_walk - 1, min(walkers_shown, n_walk)).astype(int))
+    fig = _figure(10.0, 1.9 * k + 0.9)
+    axes = fig.subplots(k, 2, squeeze=False, width_ratios=[2.2, 1.0])
+    for j, el in enumerate(elements):
+        v = values[..., j]
+        walkers = v.transpose(0, 2, 1).reshape(n_ens * n_walk, n_steps)
+        ensembles = v.reshape(n_ens, n_steps * n_walk)
+        r = max(rhat(walkers), rhat(ensembles))
+        ax_t, ax_r = axes[j]
+        for e in range(n_ens):
+            for w in show:
+                ax_t.plot(steps, v[e, :, w], color=f"C{e}", lw=0.6, alpha=0.7,
+                          label=f"ensemble {e}" if w == show[0] else None)
+        ax_t.set_title(f"{el.axis_label}: R-hat {_fmt(r, '.3f')}", fontsize=9,
+                       color=_RED if not r < 1.01 else "black")
+        ax_t.set_ylabel(_label(el.label, el.unit), fontsize=8)
+        ranks = _ranks(ensembles)
+        edges = np.linspace(0, ranks.size, bins + 1)
+        for e in range(n_ens):
+            counts, _ = np.histogram(ranks[e], bins=edges)
+            ax_r.stairs(counts, edges, color=f"C{e}", lw=1.0, baseline=None)
+        ax_r.axhline(ranks.shape[1] / bins, color="0.3", ls="--", lw=0.8)
+        ax_r.set_title("rank plot (uniform when mixed)", fontsize=8)
+        ax_r.set_yticks([])
+        if j == k - 1:
+            ax_t.set_xlabel("step")
+            ax_r.set_xlabel("rank of draw over all ensembles")
+        if j == 0:
+            ax_t.legend(fontsize=7, loc="upper right", ncols=n_ens)
+    _title(fig, result, _shown(k, total, f"traces ({len(show)} walkers per ensemble) "
+                                         f"and rank plots"))
+    return fig
+
+
+def plot_trace(result: SamplingResult, path: str | os.PathLike[str], *,
+               params: Any = None, max_params: int = 12) -> Path:
+    """Trace and rank plot of each free scalar element.
+
+    Left: the post-burn-in trace of a few walkers of every ensemble (one colour per
+    ensemble) in physical units, titled with the element's R-hat (the larger of the
+    walkers-as-chains and ensembles-as-chains values, as in the convergence report).
+    Right: rank plot — histogram, per ensemble, of the ranks of its draws among all
+    draws; flat histograms mean the ensembles sample the same distribution. A run
+    that has not converged gets a red "NOT CONVERGED" title.
+
+    Parameters
+    ----------
+    result : SamplingResult
+    path : path-like
+        Target PNG file.
+    params : str or list of str, optional
+        Parameter names (all their elements) or element labels (``"w[0]"``); default
+        every free element.
+    max_params : int
+        At most this many elements are drawn (the title says when some are left out).
+
+    Returns
+    -------
+    Path
+        ``path``, written atomically.
+
+    Raises
+    ------
+    ParameterError
+        Naming an unknown or fixed parameter (nothing is written).
+    """
+    path = _png_path(path)
+    return _save(_build_trace(result, params=params, max_params=max_params), path)
+
+
+# ---------------------------------------------------------------------------- corner
+def _hdr_levels(h: np.ndarray, masses: tuple[float, ...]) -> list[float]:
+    """Density thresholds enclosing ``masses`` of a 2-D histogram (increasing)."""
+    flat = np.sort(h.ravel())[::-1]
+    cum = np.cumsum(flat) / max(flat.sum(), 1e-300)
+    levels = [float(flat[min(np.searchsorted(cum, m), flat.size - 1)]) for m in masses]
+    return sorted(set(lv for lv in levels if lv > 0))
+
+
+def _limits(x: np.ndarray) -> tuple[float, float]:
+    """Axis limits of a column of draws (a small margin; never a zero-width range)."""
+    lo, hi = float(np.min(x)), float(np.max(x))
+    pad = 0.03 * (hi - lo) if hi > lo else max(abs(lo) * 1e-3, 1e-12)
+    return lo - pad, hi + pad
+
+
+def _build_corner(result: SamplingResult, *, params: Any = None, max_params: int = 8,
+                  prob: float = 0.9, bins: int = 40) -> Figure:
+    """The figure of :func:`plot_corner` (``k (k + 1) / 2`` axes for ``k`` elements)."""
+    _check_result(result)
+    max_params = _positive_int(max_params, "max_params")
+    prob = _prob(prob)
+    elements, total = _elements(result.space, params, max_params)
+    x = _values(result, elements).reshape(-1, len(elements))
+    map_theta = result.space.unpack(np.asarray(result.start.z, dtype=float))
+    best = [float(np.ravel(map_theta[e.name])[e.index]) for e in elements]
+    k = len(elements)
+    fig = _figure(max(4.0, 2.1 * k), max(4.0, 2.1 * k) + 0.6)
+    axes = fig.subplots(k, k, squeeze=False)
+    for i in range(k):
+        for j in range(k):
+            ax = axes[i, j]
+            if j > i:
+                fig.delaxes(ax)
+                continue
+            if i == j:
+                lo, hi = hdi(x[:, i], prob)
+                ax.hist(x[:, i], bins=bins, histtype="stepfilled", color="C0", alpha=0.5)
+                ax.axvspan(lo, hi, color="C0", alpha=0.12, lw=0)
+                for edge in (lo, hi):
+                    ax.axvline(edge, color="C0", ls="--", lw=0.8)
+                ax.axvline(best[i], color=_RED, lw=1.0)
+                ax.set_yticks([])
+                ax.set_title(f"{elements[i].label}: {prob:.0%} HDI\n[{_fmt(lo)}, {_fmt(hi)}]",
+                             fontsize=8)
+            else:
+                h, xe, ye = np.histogram2d(x[:, j], x[:, i], bins=bins)
+                ax.pcolormesh(xe, ye, h.T, cmap="Blues", shading="flat")
+                levels = _hdr_levels(h, (0.9, 0.5))
+                if len(levels) > 1 or (levels and levels[0] < h.max()):
+                    xc, yc = 0.5 * (xe[1:] + xe[:-1]), 0.5 * (ye[1:] + ye[:-1])
+                    ax.contour(xc, yc, h.T, levels=levels, colors="k", linewidths=0.6)
+                ax.plot(best[j], best[i], "x", color=_RED, ms=6, mew=1.5)
+            if i == k - 1:
+                ax.set_xlabel(elements[j].axis_label, fontsize=8)
+            else:
+                ax.tick_params(labelbottom=False)
+            if j == 0 and i > 0:
+                ax.set_ylabel(elements[i].axis_label, fontsize=8)
+            elif j > 0:
+                ax.tick_params(labelleft=False)
+            ax.tick_params(labelsize=7)
+            ax.set_xlim(*_limits(x[:, j]))
+            if j < i:
+                ax.set_ylim(*_limits(x[:, i]))
+    _title(fig, result, _shown(k, total, f"posterior (MAP in red, {prob:.0%} HDI dashed, "
+                                         f"contours 50/90 %)"))
+    return fig
+
+
+def plot_corner(result: SamplingResult, path: str | os.PathLike[str], *,
+                params: Any = None, max_params: int = 8, prob: float = 0.9) -> Path:
+    """Corner plot of the posterior in physical units (no third-party package).
+
+    Diagonal: histogram of each element with its ``prob`` highest-density interval
+    (shaded, dashed edges) and the MAP (red line). Below: 2-D histograms of each pair
+    with the contours enclosing 50 % and 90 % of the draws and the MAP (red cross).
+
+    Parameters
+    ----------
+    result : SamplingResult
+    path : path-like
+        Target PNG file.
+    params : str or list of str, optional
+        Parameter names or element labels, e.g. ``["alpha", "beta", "gamma", "n"]`` for
+        Bouc–Wen; default every free element.
+    max_params : int
+        At most this many elements (the title says when some are left out).
+    prob : float
+        Mass of the HDI.
+
+    Returns
+    -------
+    Path
+        ``path``, written atomically.
+
+    Raises
+    ------
+    ParameterError
+        Naming an unknown or fixed parameter (nothing is written).
+    """
+    path = _png_path(path)
+    return _save(_build_corner(result, params=params, max_params=max_params, prob=prob), path)
+
+
+# ------------------------------------------------------------------------- residuals
+def _build_residuals(post: Posterior, result: SamplingResult, *, n_draws: int = 100,
+                     seed: int = 0) -> Figure:
+    """The figure of :func:`plot_residuals` (two axes per record)."""
+    _check_pair(post, result)
+    n_draws = _positive_int(n_draws, "n_draws")
+    preds, n = _predictions(post, result, n_draws, seed)
+    sigma = None
+    if "noise.sigma" in post.space.names:
+        sigma = float(np.mean(result.theta()["noise.sigma"]))
+    records = list(post.data)
+    fig = _figure(10.0, 2.6 * len(records) + 0.8)
+    axes = fig.subplots(len(records), 2, squeeze=False, width_ratios=[1.6, 1.0])
+    for (ax_t, ax_u), rec, pred in zip(axes, records, preds, strict=True):
+        ok = np.all(np.isfinite(pred), axis=1)
+        mean = pred[ok].mean(axis=0) if ok.any() else np.full(rec.n, np.nan)
+        res = rec.y - mean
+        sc, wu = rec.scored_mask, ~rec.scored_mask
+        rms = float(np.sqrt(np.mean(res[sc] ** 2)))
+        y_unit = rec.units.get("y", "")
+        for ax, xv, xname in ((ax_t, rec.t, "t"), (ax_u, rec.u, "u")):
+            if wu.any():
+                ax.plot(xv[wu], res[wu], ".", ms=1.5, color="0.75",
+                        label="warm-up (not scored)")
+            ax.plot(xv[sc], res[sc], ".", ms=1.5, color="C0", label="scored")
+            ax.axhline(0.0, color="k", lw=0.7)
+            if sigma is not None and np.isfinite(sigma):
+                for s in (-2 * sigma, 2 * sigma):
+                    ax.axhline(s, color=_RED, ls="--", lw=0.7)
+            ax.set_xlabel(_label(xname, rec.units.get(xname, "")))
+            ax.set_ylabel(_label("residual", y_unit))
+        failed = "" if ok.all() else f", {int((~ok).sum())} of {n} draws failed"
+        ax_t.set_title(f"{rec.name}: RMS {_fmt(rms)} {_unit(y_unit)} (scored{failed})",
+                       fontsize=9)
+        ax_u.set_title(f"{rec.name}: residual against input", fontsize=9)
+    axes[0, 0].legend(fontsize=7, loc="upper right", markerscale=4)
+    band = "" if sigma is None else ", dashed: ±2 noise.sigma (posterior mean)"
+    _title(fig, result, f"residuals, measured − posterior-mean prediction ({n} draws{band})")
+    return fig
+
+
+def plot_residuals(post: Posterior, result: SamplingResult, path: str | os.PathLike[str],
+                   *, n_draws: int = 100, seed: int = 0) -> Path:
+    """Residuals of the posterior-mean prediction against time and input, per record.
+
+    The residual is measured ``y`` minus the mean, over ``n_draws`` posterior draws,
+    of the noise-free prediction (offset included). Scored samples are blue, warm-up
+    samples grey; dashed lines at ±2 ``noise.sigma`` when the likelihood has one.
+    Structure in these plots (loops against ``u``, trends against ``t``) points to a
+    missing effect.
+
+    Parameters
+    ----------
+    post : Posterior
+    result : SamplingResult
+        Draws of ``post``.
+    path : path-like
+        Target PNG file.
+    n_draws : int
+        Posterior draws averaged.
+    seed : int
+        Selects the draws.
+
+    Returns
+    -------
+    Path
+        ``path``, written atomically.
+    """
+    path = _png_path(path)
+    return _save(_build_residuals(post, result, n_draws=n_draws, seed=seed), path)
