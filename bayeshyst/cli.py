@@ -11,12 +11,14 @@ import json
 import os
 import sys
 from collections.abc import Sequence
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from bayeshyst import __version__
 from bayeshyst.errors import DataError, ModelError, ParameterError
+from bayeshyst.report.files import jsonable
 
 __all__ = ["main"]
 
@@ -83,6 +85,46 @@ def _cmd_models(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def _positive_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got {value}")
+    return value
+
+
+def _cmd_fit(args: argparse.Namespace) -> int:
+    from bayeshyst.data import load
+    from bayeshyst.inference.fit import fit_model
+    from bayeshyst.likelihoods import get_likelihood
+    from bayeshyst.models import get as get_model
+    from bayeshyst.report import write_fit_outputs
+
+    # validate everything cheap before the long part starts
+    data = load(args.data)
+    model = get_model(args.model)
+    likelihood = get_likelihood(args.likelihood)
+    out = Path(args.out)
+    checkpoint = None if args.no_checkpoint else out / "checkpoint.h5"
+    if not args.quiet:
+        print(f"bayeshyst fit: {model.name} / {likelihood.name} on {data.name} "
+              f"({len(data)} record(s), {data.n_samples} samples)", file=sys.stderr)
+    fit = fit_model(data, model, likelihood, seed=args.seed, n_walkers=args.walkers,
+                    max_steps=args.steps, checkpoint=checkpoint, progress=not args.quiet)
+    summary = write_fit_outputs(fit, out, data_path=str(args.data), figures=not args.no_figures,
+                                seed=args.seed)
+    if args.json:
+        json.dump(jsonable(summary), sys.stdout, indent=2)
+        sys.stdout.write("\n")
+    else:
+        print(fit)
+        print(f"outputs in {out}/: summary.json, posterior.nc"
+              + ("" if args.no_figures else ", " + ", ".join(summary["files"]["figures"])))
+    return EXIT_OK
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of the ``bayeshyst`` command."""
     # argparse itself exits with status 2 on usage errors, as bad input should
@@ -95,6 +137,25 @@ def build_parser() -> argparse.ArgumentParser:
     p_models.add_argument("name", nargs="*", help="only these models")
     p_models.add_argument("--json", action="store_true", help="print JSON to stdout")
     p_models.set_defaults(func=_cmd_models)
+
+    p_fit = sub.add_parser("fit", help="sample the posterior of one model given data")
+    p_fit.add_argument("data", help="data file (.csv/.txt/.npz/.mat, JSON sidecar optional)")
+    p_fit.add_argument("--model", required=True,
+                       help="model name or spec string, e.g. bouc_wen+second_order")
+    p_fit.add_argument("--likelihood", default="gaussian",
+                       help="gaussian (default), student_t or ar1")
+    p_fit.add_argument("--out", default="bayeshyst-fit", help="output folder")
+    p_fit.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    p_fit.add_argument("--steps", type=_positive_int, default=20_000,
+                       help="step budget per ensemble (default 20000)")
+    p_fit.add_argument("--walkers", type=_positive_int, default=None,
+                       help="walkers per ensemble (default max(32, 4 ndim))")
+    p_fit.add_argument("--json", action="store_true", help="print summary.json to stdout")
+    p_fit.add_argument("--quiet", action="store_true", help="no progress on stderr")
+    p_fit.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
+    p_fit.add_argument("--no-checkpoint", action="store_true",
+                       help="do not checkpoint to OUT/checkpoint.h5 (and do not resume)")
+    p_fit.set_defaults(func=_cmd_fit)
     return parser
 
 

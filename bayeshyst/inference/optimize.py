@@ -86,15 +86,15 @@ def _value_and_grad(post: Posterior, z: np.ndarray) -> tuple[float, np.ndarray]:
     return float(f[0]), grad
 
 
-def laplace_covariance(post: Posterior, z: np.ndarray) -> tuple[np.ndarray, bool]:
-    """Inverse Hessian of ``-log p`` at ``z`` by central differences (one batch).
+def _latin_hypercube(n: int, d: int, rng: np.random.Generator) -> np.ndarray:
+    """``n`` points of a Latin hypercube in the unit cube ``[0, 1)^d``."""
+    u = (np.argsort(rng.random((d, n)), axis=1).T + rng.random((n, d))) / max(n, 1)
+    return u
 
-    Returns the covariance and whether the Hessian was positive definite. Directions
-    of non-positive curvature get the prior's local width, so the result is always a
-    usable covariance; ``False`` says it had to be regularised.
-    """
+
+def _hessian(post: Posterior, z: np.ndarray, h: np.ndarray) -> np.ndarray:
+    """Central-difference Hessian of ``-log p`` with steps ``h`` (one batch)."""
     n = z.size
-    h = 10 * _steps(z)
     pts = [z]
     for i in range(n):
         for j in range(i, n):
@@ -111,14 +111,36 @@ def laplace_covariance(post: Posterior, z: np.ndarray) -> tuple[np.ndarray, bool
             pp, pm, mp, mm = f[k:k + 4]
             k += 4
             hess[i, j] = hess[j, i] = (pp - pm - mp + mm) / (4 * h[i] * h[j])
-    hess = 0.5 * (hess + hess.T)
-    prior_var = post.space.prior_scale_z(z) ** 2
+    return 0.5 * (hess + hess.T)
+
+
+def laplace_covariance(post: Posterior, z: np.ndarray) -> tuple[np.ndarray, bool]:
+    """Inverse Hessian of ``-log p`` at ``z`` by central differences.
+
+    Two passes: the diagonal curvature first gives each coordinate's conditional
+    scale, and the full Hessian is then taken with steps of a fifth of that scale —
+    a fixed step would be far too long across a thin ridge and far too short along it.
+    Returns the covariance and whether the Hessian was positive definite; directions of
+    non-positive curvature (flat or numerically unresolved) get the broadest variance
+    the positive directions identify, so the result is a usable covariance and
+    ``False`` says it had to be regularised.
+    """
+    n = z.size
+    h0 = 1e-3 * np.maximum(1.0, np.abs(z))
+    eye = np.diag(h0)
+    f = _neg(post, np.vstack([z[None, :], z + eye, z - eye]))
+    diag = (f[1:n + 1] - 2 * f[0] + f[n + 1:]) / h0**2
+    cond_sd = np.where(np.isfinite(diag) & (diag > 0), 1.0 / np.sqrt(np.abs(diag)), h0 * 10)
+    h = np.clip(0.2 * cond_sd, 1e-8 * np.maximum(1.0, np.abs(z)), 1e-1)
+    hess = _hessian(post, z, h)
     if not np.all(np.isfinite(hess)):
-        return np.diag(prior_var), False
+        return np.diag(post.space.prior_scale_z(z) ** 2), False
     vals, vecs = np.linalg.eigh(hess)
     ok = bool(np.all(vals > 0))
     if not ok:
-        floor = 1.0 / float(np.max(prior_var))
+        pos = vals[vals > 0]
+        floor = float(pos.min()) if pos.size else 1.0 / float(
+            np.max(post.space.prior_scale_z(z) ** 2))
         vals = np.where(vals > 0, vals, floor)
     cov = (vecs / vals) @ vecs.T
     return 0.5 * (cov + cov.T), ok
@@ -129,9 +151,10 @@ def find_map(
     *,
     seed: int | np.random.Generator = 0,
     n_screen: int = 256,
-    n_starts: int = 4,
+    n_starts: int = 2,
     global_search: bool = True,
-    de_maxiter: int = 60,
+    de_maxiter: int = 100,
+    powell_maxfev: int = 1000,
     x0: np.ndarray | None = None,
 ) -> MAPResult:
     """Maximum a posteriori point in ``z`` with its Laplace covariance.
@@ -144,12 +167,14 @@ def find_map(
     n_screen : int
         Prior draws evaluated (one batch) to pick starting points.
     n_starts : int
-        Distinct starting points polished with L-BFGS-B.
+        Distinct starting points polished (Powell, then L-BFGS-B).
     global_search : bool
         Run a short differential evolution over the central 99 % of the prior (in
         ``z``) first; its best point joins the starts.
     de_maxiter : int
         Generations of the differential evolution.
+    powell_maxfev : int
+        Evaluations per dimension allowed to each Powell search.
     x0 : ndarray, shape (ndim,), optional
         An extra starting point (e.g. a least-squares fit).
 
@@ -168,12 +193,16 @@ def find_map(
     if global_search:
         lo, hi = np.quantile(space.sample_prior(rng, 2000), [0.005, 0.995], axis=0)
         hi = np.where(hi > lo, hi, lo + 1.0)
-        best_screen = cand[np.argsort(f)[: 5 * space.ndim]]
-        init = np.clip(best_screen, lo, hi)
+        # population: the best screened prior draws (inside the DE box) filled up with
+        # a Latin hypercube, 10 members per dimension
+        size = max(20, 10 * space.ndim)
+        inside = np.all((cand >= lo) & (cand <= hi), axis=1)
+        seeded = cand[np.argsort(np.where(inside, f, np.inf))][: size // 2]
+        seeded = seeded[np.all((seeded >= lo) & (seeded <= hi), axis=1)]
+        lhs = lo + (hi - lo) * _latin_hypercube(size - seeded.shape[0], space.ndim, rng)
         res = optimize.differential_evolution(
             lambda zz: _neg(post, np.asarray(zz).T), list(zip(lo, hi, strict=True)),
-            maxiter=de_maxiter, popsize=max(5, 15 if space.ndim < 8 else 8), tol=1e-8,
-            init=init if init.shape[0] >= 5 else "latinhypercube",
+            maxiter=de_maxiter, tol=0.0, atol=0.0, init=np.vstack([seeded, lhs]),
             seed=int(rng.integers(2**31 - 1)), polish=False, vectorized=True,
             updating="deferred")
         cand = np.vstack([res.x[None, :], cand])
@@ -195,15 +224,27 @@ def find_map(
         )
     optima = []
     for s in starts:
-        res = optimize.minimize(lambda zz: _value_and_grad(post, zz), s, jac=True,
-                                method="L-BFGS-B", options={"maxiter": 2000, "gtol": 1e-8})
-        optima.append((float(res.fun), res.x))
+        # Powell first: derivative-free line searches follow the thin curved ridges of
+        # hysteresis posteriors (Laplace eigenvalues spanning >10 decades for
+        # Bouc-Wen), where quasi-Newton steps from finite differences stall at once;
+        # L-BFGS-B then polishes where the gradient is informative
+        res = optimize.minimize(lambda zz: float(_neg(post, zz[None, :])[0]), s,
+                                method="Powell",
+                                options={"maxfev": powell_maxfev * space.ndim,
+                                         "xtol": 1e-6, "ftol": 1e-12})
+        res2 = optimize.minimize(lambda zz: _value_and_grad(post, zz), res.x, jac=True,
+                                 method="L-BFGS-B", options={"maxiter": 500, "gtol": 1e-8})
+        best = res2 if res2.fun <= res.fun else res
+        optima.append((float(best.fun), np.asarray(best.x, dtype=float)))
     optima.sort(key=lambda p: p[0])
     best_f, best_z = optima[0]
     if best_f >= _BIG:
         raise ParameterError(f"MAP search for {post!r} found no finite posterior density")
     cov, ok = laplace_covariance(post, best_z)
-    distinct = sorted({round(-v, 6) for v, _ in optima if v < _BIG}, reverse=True)
+    distinct: list[float] = []
+    for v, _ in optima:  # sorted best first; optima within 0.05 nats count as one
+        if v < _BIG and all(abs(-v - d) > 0.05 for d in distinct):
+            distinct.append(-v)
     return MAPResult(best_z, space.unpack(best_z), -best_f, cov, ok,
                      post.counts.evaluations - n0, tuple(distinct))
 
