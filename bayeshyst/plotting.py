@@ -19,6 +19,7 @@ from __future__ import annotations
 import math
 import os
 import re
+import textwrap
 import uuid
 from dataclasses import dataclass
 from pathlib import Path
@@ -98,17 +99,25 @@ def _save(fig: Figure, path: Path) -> Path:
     return path
 
 
+def _wrap(fig: Figure, text: str) -> str:
+    # about 11 characters of 10-pt text per inch of figure width: wrap each line so a
+    # one-panel figure does not clip its title
+    width = max(30, int(fig.get_figwidth() * 11))
+    return "\n".join(textwrap.fill(line, width) for line in text.split("\n"))
+
+
 def _title(fig: Figure, result: SamplingResult, what: str) -> None:
     """Figure title; a run that has not converged gets a red banner."""
     conv = result.convergence
     if conv.converged:
-        fig.suptitle(f"{result.model} / {result.likelihood}: {what}\nconverged (R-hat max "
-                     f"{_fmt(conv.rhat_max, '.3f')}, ESS bulk min "
-                     f"{_fmt(conv.ess_bulk_min, '.0f')})", fontsize=10)
+        fig.suptitle(_wrap(fig, f"{result.model} / {result.likelihood}: {what}\nconverged "
+                              f"(R-hat max {_fmt(conv.rhat_max, '.3f')}, ESS bulk min "
+                              f"{_fmt(conv.ess_bulk_min, '.0f')})"), fontsize=10)
     else:
         reasons = "; ".join(conv.reasons) or "see the convergence report"
-        fig.suptitle(f"NOT CONVERGED: {reasons}\n{result.model} / {result.likelihood}: "
-                     f"{what}", fontsize=10, color=_RED, fontweight="bold")
+        fig.suptitle(_wrap(fig, f"NOT CONVERGED: {reasons}\n{result.model} / "
+                              f"{result.likelihood}: {what}"),
+                     fontsize=10, color=_RED, fontweight="bold")
 
 
 def _check_pair(post: Posterior, result: SamplingResult) -> None:

@@ -283,8 +283,12 @@ def sample_posterior(
     if progress:
         from tqdm.auto import tqdm
 
+        import sys
+
+        # a terminal gets a live bar; a log file an update every 10 s, not thousands
         bar = tqdm(total=max_steps * n_ensembles, desc=f"sampling {post.model.name}",
-                   unit="step", initial=sum(s.iteration for s, _ in samplers))
+                   unit="step", initial=sum(s.iteration for s, _ in samplers),
+                   mininterval=0.2 if sys.stderr.isatty() else 10.0)
     report = None
     try:
         for boundary in chunk_boundaries(first_chunk, max_steps):
