@@ -19,7 +19,6 @@ from __future__ import annotations
 import math
 import os
 import re
-import textwrap
 import uuid
 from dataclasses import dataclass
 from pathlib import Path
@@ -99,25 +98,17 @@ def _save(fig: Figure, path: Path) -> Path:
     return path
 
 
-def _wrap(fig: Figure, text: str) -> str:
-    # about 11 characters of 10-pt text per inch of figure width: wrap each line so a
-    # one-panel figure does not clip its title
-    width = max(30, int(fig.get_figwidth() * 11))
-    return "\n".join(textwrap.fill(line, width) for line in text.split("\n"))
-
-
 def _title(fig: Figure, result: SamplingResult, what: str) -> None:
     """Figure title; a run that has not converged gets a red banner."""
     conv = result.convergence
     if conv.converged:
-        fig.suptitle(_wrap(fig, f"{result.model} / {result.likelihood}: {what}\nconverged "
-                              f"(R-hat max {_fmt(conv.rhat_max, '.3f')}, ESS bulk min "
-                              f"{_fmt(conv.ess_bulk_min, '.0f')})"), fontsize=10)
+        fig.suptitle(f"{result.model} / {result.likelihood}: {what}\nconverged (R-hat max "
+                     f"{_fmt(conv.rhat_max, '.3f')}, ESS bulk min "
+                     f"{_fmt(conv.ess_bulk_min, '.0f')})", fontsize=10)
     else:
         reasons = "; ".join(conv.reasons) or "see the convergence report"
-        fig.suptitle(_wrap(fig, f"NOT CONVERGED: {reasons}\n{result.model} / "
-                              f"{result.likelihood}: {what}"),
-                     fontsize=10, color=_RED, fontweight="bold")
+        fig.suptitle(f"NOT CONVERGED: {reasons}\n{result.model} / {result.likelihood}: "
+                     f"{what}", fontsize=10, color=_RED, fontweight="bold")
 
 
 def _check_pair(post: Posterior, result: SamplingResult) -> None:
@@ -203,7 +194,8 @@ def _build_loops(post: Posterior, result: SamplingResult, *, n_draws: int = 100,
     records = list(post.data)
     ncols = min(3, len(records))
     nrows = math.ceil(len(records) / ncols)
-    fig = _figure(4.4 * ncols, 3.6 * nrows + 0.6)
+    # one panel still needs room for the two-line title
+    fig = _figure(max(6.4, 4.4 * ncols), 3.6 * nrows + 0.6)
     axes = fig.subplots(nrows, ncols, squeeze=False).ravel()
     for ax in axes[len(records):]:
         fig.delaxes(ax)
@@ -232,8 +224,7 @@ def _build_loops(post: Posterior, result: SamplingResult, *, n_draws: int = 100,
         ax.set_ylabel(_label("y", rec.units.get("y", "")))
         if i == 0:
             ax.legend(fontsize=7, loc="upper left", markerscale=4)
-    _title(fig, result, f"hysteresis loops, posterior predictive of the noise-free model "
-                        f"({n} draws)")
+    _title(fig, result, f"loops, noise-free prediction ({n} draws)")
     return fig
 
 
