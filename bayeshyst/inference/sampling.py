@@ -17,6 +17,7 @@ uninterrupted run.
 from __future__ import annotations
 
 import hashlib
+import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -282,8 +283,6 @@ def sample_posterior(
     bar = None
     if progress:
         from tqdm.auto import tqdm
-
-        import sys
 
         # a terminal gets a live bar; a log file an update every 10 s, not thousands
         bar = tqdm(total=max_steps * n_ensembles, desc=f"sampling {post.model.name}",
