@@ -21,7 +21,6 @@ from __future__ import annotations
 import json
 import math
 import os
-import uuid
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
@@ -32,6 +31,7 @@ import numpy as np
 import xarray as xr
 
 from bayeshyst.errors import ParameterError
+from bayeshyst.files import atomic_path
 from bayeshyst.inference.posterior import NOISE, Posterior
 from bayeshyst.inference.sampling import SamplingResult
 from bayeshyst.params import ParamSpace
@@ -376,14 +376,8 @@ def save_netcdf(idata: az.InferenceData, path: str | os.PathLike[str]) -> Path:
     if not isinstance(idata, az.InferenceData):
         raise ParameterError(f"idata must be an InferenceData, got {type(idata).__name__}")
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.{uuid.uuid4().hex}.tmp")
-    try:
+    with atomic_path(path) as tmp:
         idata.to_netcdf(tmp)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
     return path
 
 

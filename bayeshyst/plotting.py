@@ -19,7 +19,6 @@ from __future__ import annotations
 import math
 import os
 import re
-import uuid
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -30,6 +29,7 @@ from matplotlib.collections import PolyCollection
 from matplotlib.figure import Figure
 
 from bayeshyst.errors import ParameterError
+from bayeshyst.files import atomic_path
 from bayeshyst.inference.convergence import hdi, rhat
 from bayeshyst.inference.posterior import Posterior
 from bayeshyst.inference.sampling import SamplingResult
@@ -83,16 +83,10 @@ def _figure(width: float, height: float) -> Figure:
 
 
 def _save(fig: Figure, path: Path) -> Path:
-    """Write ``fig`` to ``path`` as PNG through a temporary file and ``os.replace``."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.{uuid.uuid4().hex}.tmp")
+    """Write ``fig`` to ``path`` as PNG atomically (:func:`bayeshyst.files.atomic_path`)."""
     try:
-        with open(tmp, "xb") as fh:  # "x": never clobber; permissions follow the umask
+        with atomic_path(path) as tmp, open(tmp, "wb") as fh:
             fig.savefig(fh, format="png", dpi=DPI)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
     finally:
         fig.clear()
     return path

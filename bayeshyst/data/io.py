@@ -35,7 +35,6 @@ from __future__ import annotations
 import io
 import itertools
 import os
-import tempfile
 import zipfile
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
@@ -56,6 +55,7 @@ from bayeshyst.data.parsing import (
 )
 from bayeshyst.data.record import MIN_SAMPLES, Dataset, Record
 from bayeshyst.errors import DataError
+from bayeshyst.files import atomic_paths
 
 __all__ = [
     "OPTIONAL_ROLES",
@@ -464,27 +464,12 @@ def _atomic_write(files: Sequence[tuple[Path, Callable[[io.BufferedWriter], None
     Nothing is renamed until every temp file is complete, so a failure leaves the
     targets untouched (and the temps removed).
     """
-    # mkstemp creates 0600 files; give the result the mode a plain open() would have
-    umask = os.umask(0)
-    os.umask(umask)
-    temps: list[tuple[str, Path]] = []
-    try:
-        for target, write in files:
-            fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp",
-                                       dir=target.parent)
-            temps.append((tmp, target))
-            mode = target.stat().st_mode & 0o777 if target.exists() else 0o666 & ~umask
-            os.chmod(tmp, mode)
-            with os.fdopen(fd, "wb") as fh:
+    with atomic_paths([target for target, _ in files]) as temps:
+        for (_, write), tmp in zip(files, temps, strict=True):
+            with open(tmp, "wb") as fh:
                 write(fh)
                 fh.flush()
                 os.fsync(fh.fileno())
-        for tmp, target in temps:
-            os.replace(tmp, target)
-    finally:
-        for tmp, _ in temps:
-            if os.path.exists(tmp):
-                os.unlink(tmp)
 
 
 def _target(path: str | os.PathLike[str]) -> Path:

@@ -1,39 +1,18 @@
-"""Atomic file writing: every output appears whole or not at all.
-
-A writer creates a temporary file in the destination folder (same file system, so the
-final ``os.replace`` is atomic) and renames it into place only after it was written and
-closed; on any exception the temporary file is removed.
-"""
+"""JSON output: plain types, no NaN, written atomically (:mod:`bayeshyst.files`)."""
 
 from __future__ import annotations
 
 import json
 import math
-import os
-import tempfile
-from collections.abc import Callable, Iterator
-from contextlib import contextmanager
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from bayeshyst.files import atomic_path
+
 __all__ = ["atomic_path", "jsonable", "write_json"]
-
-
-@contextmanager
-def atomic_path(path: str | Path) -> Iterator[Path]:
-    """Yield a temporary path next to ``path``; rename it to ``path`` on success."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    os.close(fd)
-    try:
-        yield Path(tmp)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
 
 
 def jsonable(obj: Any) -> Any:
