@@ -29,8 +29,6 @@ import numpy as np
 from scipy.integrate import solve_ivp
 
 ROOT = Path(__file__).resolve().parents[1]
-RESULTS = ROOT / "benchmarks" / "RESULTS.md"
-BEGIN, END = "<!-- inference:begin -->", "<!-- inference:end -->"
 TRUTH = {"k": 0.3, "alpha": 0.12, "beta": 0.004, "gamma": 0.001, "n": 1.3}
 SIGMA = 0.05
 
@@ -83,6 +81,7 @@ def main(argv: list[str] | None = None) -> int:
     from bayeshyst.inference.optimize import find_map
     from bayeshyst.inference.posterior import Posterior
     from bayeshyst.inference.sampling import sample_posterior
+    from benchmarks._results import write_section
 
     rec = make_data()
     post = Posterior("bouc_wen", rec)
@@ -137,15 +136,7 @@ def main(argv: list[str] | None = None) -> int:
         for m, ess, rh, steps, wall, rate, conv in rows:
             lines.append(f"| {m} | {ess:.0f} | {rh:.4f} | {steps} | {wall:.1f} | {rate:.1f} | "
                          f"{conv} |")
-        block = BEGIN + "\n" + "\n".join(lines) + "\n" + END
-        old = RESULTS.read_text() if RESULTS.exists() else "# Benchmark results\n"
-        if BEGIN in old:
-            new = old[: old.index(BEGIN)] + block + old[old.index(END) + len(END):]
-        else:
-            new = old.rstrip() + "\n\n## Posterior sampling (Bouc-Wen)\n\n" + block + "\n"
-        tmp = RESULTS.with_suffix(".md.tmp")
-        tmp.write_text(new)
-        tmp.replace(RESULTS)
+        write_section("inference", "Posterior sampling (Bouc-Wen)", "\n".join(lines))
     return 0
 
 

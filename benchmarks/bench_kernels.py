@@ -31,14 +31,13 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-RESULTS = ROOT / "benchmarks" / "RESULTS.md"
-BEGIN, END = "<!-- kernels:begin -->", "<!-- kernels:end -->"
 
 
-def _signal(n: int) -> tuple[np.ndarray, np.ndarray]:
-    # 1 kHz sampling of a 10 Hz sine with a slow amplitude modulation: nested loops and
-    # reversals at every scale, the worst case for memory-keeping operators
-    t = np.arange(n) * 1e-3
+def _signal(n: int, fs: float = 1e3) -> tuple[np.ndarray, np.ndarray]:
+    # a 10 Hz sine with a slow amplitude modulation: nested loops and reversals at every
+    # scale, the worst case for memory-keeping operators; fs = 1 kHz gives 100 samples
+    # per period (coarse: adaptive integrators take extra sub-steps), 10 kHz gives 1000
+    t = np.arange(n) / fs
     u = 75.0 + 70.0 * np.sin(2 * np.pi * 10 * t) * (0.6 + 0.4 * np.sin(2 * np.pi * 0.37 * t))
     return u, t
 
@@ -71,32 +70,33 @@ def _time(fn, repeats: int) -> float:
     return best
 
 
-def measure(name: str, sizes: list[int], repeats: int, batch: int) -> dict:
+def measure(name: str, sizes: list[int], repeats: int, batch: int, fs: float = 1e3) -> dict:
     """Time one model compiled (all sizes, and a batch) in this process."""
     model, space, z = _setup(name)
     theta = space.unpack(z)
-    out = {"model": name, "operators": _operators(model), "ns_per_sample": {}}
-    u, t = _signal(16)
+    label = name if fs == 1e3 else f"{name} ({fs / 10:.0f} samples/period)"
+    out = {"model": label, "operators": _operators(model), "ns_per_sample": {}}
+    u, t = _signal(16, fs)
     model.simulate(u, t, theta)  # compile outside the timing
     for n in sizes:
-        u, t = _signal(n)
+        u, t = _signal(n, fs)
         sec = _time(lambda u=u, t=t: model.simulate(u, t, theta), repeats)
         out["ns_per_sample"][str(n)] = sec / n * 1e9
     zb = z + 0.01 * np.random.default_rng(1).standard_normal((batch, z.size))
     thetas = space.unpack(zb)
-    u, t = _signal(sizes[0])
+    u, t = _signal(sizes[0], fs)
     model.simulate_batch(u, t, thetas)
     sec = _time(lambda: model.simulate_batch(u, t, thetas), repeats)
     out["batch_ns_per_walker_sample"] = sec / (batch * sizes[0]) * 1e9
     return out
 
 
-def measure_interpreted(name: str, n: int) -> float:
+def measure_interpreted(name: str, n: int, fs: float = 1e3) -> float:
     """ns per sample of the same kernel with numba disabled, in a subprocess."""
     code = (
         f"import json,sys,time;sys.path.insert(0,{str(ROOT)!r});"
         "from benchmarks.bench_kernels import _setup,_signal;"
-        f"m,s,z=_setup({name!r});th=s.unpack(z);u,t=_signal({n});"
+        f"m,s,z=_setup({name!r});th=s.unpack(z);u,t=_signal({n},{fs});"
         "t0=time.perf_counter();m.simulate(u,t,th);"
         f"print(json.dumps((time.perf_counter()-t0)/{n}*1e9))"
     )
@@ -129,17 +129,21 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     sys.path.insert(0, str(ROOT))
     from bayeshyst import models
+    from benchmarks._results import write_section
 
     names = [n for n in args.models.split(",") if n] or models.names()
     sizes = [1_000, 10_000] if args.quick else [10_000, 100_000]
     repeats = 1 if args.quick else 5
     n_interp = 300 if args.quick else 2_000
     rows = []
-    for name in names:
-        r = measure(name, sizes, repeats, batch=32)
-        r["interpreted"] = measure_interpreted(name, n_interp)
+    # the differential models also at 1000 samples per period, where their adaptive
+    # sub-stepping settles to about one step per sample
+    fine = [n for n in ("bouc_wen", "bouc_wen_asym", "duhem") if n in names]
+    for name, fs in [(n, 1e3) for n in names] + [(n, 1e4) for n in fine]:
+        r = measure(name, sizes, repeats, batch=32, fs=fs)
+        r["interpreted"] = measure_interpreted(name, n_interp, fs)
         rows.append(r)
-        print(f"{name:<28} {r['ns_per_sample'][str(sizes[-1])]:9.1f} ns/sample  "
+        print(f"{r['model']:<40} {r['ns_per_sample'][str(sizes[-1])]:9.1f} ns/sample  "
               f"interpreted {r['interpreted']:10.0f} ns/sample  "
               f"ratio {r['interpreted'] / r['ns_per_sample'][str(sizes[-1])]:8.0f}x",
               flush=True)
@@ -154,15 +158,7 @@ def main(argv: list[str] | None = None) -> int:
                 f"numpy {np.__version__}, numba {numba.__version__}. "
                 "Interpreted = the same kernels with NUMBA_DISABLE_JIT=1, "
                 f"N = {n_interp}.")
-        block = f"{BEGIN}\n{meta}\n\n{text}\n{END}"
-        old = RESULTS.read_text() if RESULTS.exists() else "# Benchmark results\n\n"
-        if BEGIN in old:
-            new = old[: old.index(BEGIN)] + block + old[old.index(END) + len(END):]
-        else:
-            new = old.rstrip() + "\n\n## Kernel simulation speed\n\n" + block + "\n"
-        tmp = RESULTS.with_suffix(".md.tmp")
-        tmp.write_text(new)
-        tmp.replace(RESULTS)
+        write_section("kernels", "Kernel simulation speed", f"{meta}\n\n{text}")
     return 0
 
 
