@@ -361,6 +361,31 @@ class HysteresisModel(ABC):
             raise SimulationError(f"{self.name}: simulation failed for theta={dict(theta)}")
         return Trajectory(y[0], state[0], np.asarray(False))
 
+    def step(self, u_k: float, t_k: float, theta: Mapping[str, Any],
+             state: np.ndarray) -> Trajectory:
+        """Advance one sample from ``state``: the building block of numerical inversion.
+
+        Parameters
+        ----------
+        u_k : float
+            Input at this sample (V).
+        t_k : float
+            Its time (s).
+        theta : mapping
+            Physical parameter values.
+        state : ndarray, shape (S,)
+            State before the sample (from :meth:`initial_state` or an earlier run).
+
+        Returns
+        -------
+        Trajectory
+            ``y`` of shape (1,) and the state after the sample. Stepping through a
+            record sample by sample reproduces :meth:`run` on the whole record, because
+            every model keeps in its state all it needs to continue.
+        """
+        return self.run(np.array([u_k], dtype=float), np.array([t_k], dtype=float), theta,
+                        state0=state)
+
     def simulate(self, u: Any, t: Any, theta: Mapping[str, Any], *,
                  state0: np.ndarray | None = None) -> np.ndarray:
         """Model output ``y`` (shape (N,)) for input ``u``; see :meth:`run`."""
