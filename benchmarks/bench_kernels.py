@@ -82,9 +82,11 @@ def measure(name: str, sizes: list[int], repeats: int, batch: int, fs: float = 1
         u, t = _signal(n, fs)
         sec = _time(lambda u=u, t=t: model.simulate(u, t, theta), repeats)
         out["ns_per_sample"][str(n)] = sec / n * 1e9
-    zb = z + 0.01 * np.random.default_rng(1).standard_normal((batch, z.size))
-    thetas = space.unpack(zb)
+    # the batch: prior draws inside the model's valid region (as an ensemble would be)
     u, t = _signal(sizes[0], fs)
+    draws = space.sample_prior(np.random.default_rng(1), 8 * batch)
+    ok = ~model.run_batch(u[:200], t[:200], space.unpack(draws)).failed
+    thetas = space.unpack(draws[ok][:batch])
     model.simulate_batch(u, t, thetas)
     sec = _time(lambda: model.simulate_batch(u, t, thetas), repeats)
     out["batch_ns_per_walker_sample"] = sec / (batch * sizes[0]) * 1e9

@@ -22,7 +22,10 @@ from bayeshyst.inference.posterior import Posterior
 
 __all__ = ["MAPResult", "find_map", "initial_ensemble", "laplace_covariance"]
 
-_BIG = 1e300  # stands for -log p = +inf inside the optimisers (they cannot take inf)
+# stands for -log p = +inf inside the optimisers (they cannot take inf); far above any
+# feasible value, yet its square stays finite (differential evolution takes the std of
+# its population energies, and 1e300 overflowed there)
+_BIG = 1e100
 
 
 @dataclass(frozen=True)
