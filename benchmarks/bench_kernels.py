@@ -85,7 +85,7 @@ def measure(name: str, sizes: list[int], repeats: int, batch: int, fs: float = 1
     # the batch: prior draws inside the model's valid region (as an ensemble would be)
     u, t = _signal(sizes[0], fs)
     draws = space.sample_prior(np.random.default_rng(1), 8 * batch)
-    ok = ~model.run_batch(u[:200], t[:200], space.unpack(draws)).failed
+    ok = ~model.run_batch(u, t, space.unpack(draws)).failed
     thetas = space.unpack(draws[ok][:batch])
     model.simulate_batch(u, t, thetas)
     sec = _time(lambda: model.simulate_batch(u, t, thetas), repeats)
