@@ -82,6 +82,7 @@ def _check_calibration(stats_list, ndim):
     d2 = np.array([s[0] for s in stats_list])
     dof = ndim * len(d2)
     p = stats.chi2.sf(d2.sum(), dof)
+    print(f"sum of Mahalanobis^2 {d2.sum():.1f} on {dof} dof: p = {p:.3f}")
     assert 1e-3 / 2 < p < 1 - 1e-3 / 2, (d2, p)
 
 
@@ -90,6 +91,7 @@ def _check_coverage(stats_list):
     m = len(stats_list)
     for lab in labels:
         k = sum(s[1][lab] for s in stats_list)
+        print(f"{lab}: 90 % HDI covered the truth in {k} of {m} fits")
         # Bonferroni over parameters: each tail at 1e-3 / len(labels)
         assert stats.binomtest(k, m, 0.9).pvalue > 1e-3 / len(labels), (lab, k, m)
 
