@@ -220,17 +220,17 @@ class Posterior:
         off = theta.get(f"{OBS}.offset", 0.0) if self.offset else 0.0
         return model_theta, noise, off
 
-    def _pointwise(self, z: np.ndarray) -> tuple[list[np.ndarray], np.ndarray, np.ndarray]:
+    def _pointwise(self, z: np.ndarray,
+                   inside: np.ndarray) -> tuple[list[np.ndarray], np.ndarray]:
         """Per-record pointwise log-likelihood for the walkers inside the prior.
 
-        Returns the list of (W_in, N_scored) arrays, the mask of walkers inside the prior
-        (W,), and the mask of those whose simulation failed (W_in,).
+        ``inside`` (W,) marks the walkers with a finite log prior (the caller has it
+        already). Returns the list of (W_in, N_scored) arrays and the mask of the
+        walkers whose simulation failed (W_in,).
         """
-        lp = np.atleast_1d(self.space.log_prior(z))
-        inside = np.isfinite(lp)
         zi = z[inside]
         if zi.shape[0] == 0:
-            return [], inside, np.zeros(0, dtype=bool)
+            return [], np.zeros(0, dtype=bool)
         model_theta, noise, off = self._split_theta(self.space.unpack(zi))
         failed = np.zeros(zi.shape[0], dtype=bool)
         out = []
@@ -243,7 +243,7 @@ class Posterior:
                 pw = self.likelihood.pointwise(rec["y"] - yhat, noise)
             failed |= traj.failed | ~np.all(np.isfinite(pw), axis=1)
             out.append(pw)
-        return out, inside, failed
+        return out, failed
 
     def log_prob_batch(self, z: np.ndarray) -> np.ndarray:
         """Log posterior density (up to a constant) of ``W`` points.
@@ -265,7 +265,8 @@ class Posterior:
         if self.beta == 0.0:
             self._n_prior += int(np.count_nonzero(~np.isfinite(lp)))
             return np.where(np.isfinite(lp), lp, -np.inf)
-        pws, inside, failed = self._pointwise(z)
+        inside = np.isfinite(lp)
+        pws, failed = self._pointwise(z, inside)
         self._n_prior += int(np.count_nonzero(~inside))
         if pws:
             ll = np.sum([pw.sum(axis=1) for pw in pws], axis=0)
@@ -291,7 +292,8 @@ class Posterior:
         """
         z = np.atleast_2d(np.asarray(z, dtype=float))
         out = np.full((z.shape[0], self.n_units), -np.inf)
-        pws, inside, failed = self._pointwise(z)
+        inside = np.isfinite(np.atleast_1d(self.space.log_prior(z)))
+        pws, failed = self._pointwise(z, inside)
         if not pws:
             return out
         cols = []
