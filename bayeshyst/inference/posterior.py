@@ -26,7 +26,7 @@ from bayeshyst.models import get as get_model
 from bayeshyst.models.base import HysteresisModel
 from bayeshyst.params import Normal, Param, ParamSpace
 
-__all__ = ["EvalCounts", "Posterior", "Unit"]
+__all__ = ["EvalCounts", "Posterior", "Unit", "cycle_units"]
 
 OBS, NOISE = "obs", "noise"
 
@@ -72,7 +72,7 @@ class EvalCounts:
                 f"{self.prior_rejected} outside the prior")
 
 
-def _cycle_units(record: Record) -> list[tuple[int, int]]:
+def cycle_units(record: Record) -> list[tuple[int, int]]:
     """Scored sample ranges, one per input cycle.
 
     Partial cycles at the ends of the scored part join their neighbouring whole cycle
@@ -161,7 +161,7 @@ class Posterior:
         self._records = []
         for rec in data:
             s0 = rec.scored.start or 0
-            spans = _cycle_units(rec)
+            spans = cycle_units(rec)
             first = len(self.units)
             for i, (a, b) in enumerate(spans):
                 self.units.append(Unit(rec.name, i, a, b, rec.frequency_hz))
