@@ -9,6 +9,7 @@ one-by-one; prior draws never give NaN; loops widen and tilt towards resonance.
 from __future__ import annotations
 
 import itertools
+import re
 from types import SimpleNamespace
 
 import numpy as np
@@ -200,3 +201,23 @@ def test_state_of_the_wrong_size_is_refused():
     theta = {k: v[0] for k, v in _thetas(model, 1, 1).items()}
     with pytest.raises(ParameterError, match="blocks alone need"):
         model.run(REC.u[:5], REC.t[:5], theta, state0=np.zeros(3))
+
+
+def test_spec_strings_carry_settings():
+    m = get("pi_play(n_operators=4)+second_order")
+    assert m.base == get("pi_play", n_operators=4)
+    assert get("preisach(n_levels=6, relay='01')") == get("preisach", n_levels=6, relay="01")
+    assert get(" pi_play ( n_operators = 3 ) ") == get("pi_play", n_operators=3)
+
+
+@pytest.mark.parametrize("spec, message", [
+    ("pi_play(4)", "given by name"),
+    ("pi_play(n=4)", "no setting(s) ['n']"),
+    ("pi_play(n_operators=x)", "must be a literal"),
+    ("pi_play(n_operators=4", "cannot read"),
+    ("pi_play+second_order(fn=3)", "block 'second_order' has no setting(s) ['fn']"),
+    ("pi_play(**{'a': 1})", "'**' is not allowed"),
+])
+def test_bad_spec_settings_are_named(spec, message):
+    with pytest.raises(ModelError, match=re.escape(message)):
+        get(spec)

@@ -14,7 +14,10 @@ name (``static.w``, ``arx.kappa``, ``creep.c``); a block that appears twice gets
 
 from __future__ import annotations
 
+import ast
+import dataclasses
 import math
+import re
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -172,30 +175,76 @@ def WithCreep(model: HysteresisModel, n_terms: int = 3, *,
     return Composite(model, (Creep(n_terms, tau_min, tau_max),))
 
 
+_PART = re.compile(r"^([A-Za-z_][A-Za-z0-9_]*)\s*(?:\((.*)\))?$", re.DOTALL)
+
+
+def _split_part(part: str, spec: str) -> tuple[str, dict[str, Any]]:
+    """``"pi_play(n_operators=4)"`` -> ``("pi_play", {"n_operators": 4})``."""
+    m = _PART.match(part)
+    if m is None:
+        raise ModelError(f"model spec {spec!r}: cannot read {part!r}; write a name, optionally "
+                         f"with settings: 'pi_play(n_operators=6)+second_order'")
+    name, args = m.group(1), m.group(2)
+    if args is None or not args.strip():
+        return name, {}
+    try:
+        call = ast.parse(f"f({args})", mode="eval").body
+    except SyntaxError as exc:
+        raise ModelError(f"model spec {spec!r}: settings of {name!r} are not "
+                         f"'key=value, ...': {exc.msg}") from None
+    if not isinstance(call, ast.Call) or call.args:
+        raise ModelError(f"model spec {spec!r}: settings of {name!r} must be given by name "
+                         f"(key=value), got {args!r}")
+    settings = {}
+    for kw in call.keywords:
+        if kw.arg is None:
+            raise ModelError(f"model spec {spec!r}: '**' is not allowed in settings")
+        try:
+            settings[kw.arg] = ast.literal_eval(kw.value)
+        except ValueError:
+            raise ModelError(f"model spec {spec!r}: setting {kw.arg!r} of {name!r} must be a "
+                             f"literal (number, string, tuple), got "
+                             f"{ast.unparse(kw.value)!r}") from None
+    return name, settings
+
+
+def _build_block(name: str, settings: dict[str, Any], spec: str) -> EffectBlock:
+    cls = block_class(name)
+    fields = {f.name for f in dataclasses.fields(cls) if f.init}
+    unknown = sorted(set(settings) - fields)
+    if unknown:
+        raise ModelError(f"model spec {spec!r}: block {name!r} has no setting(s) {unknown}; "
+                         f"settings: {sorted(fields) or 'none'}")
+    return cls(**settings)
+
+
 def parse_spec(spec: str) -> HysteresisModel:
     """Build a model from a spec string ``"base+block+block..."``.
 
-    The first part is a registered model name (:func:`bayeshyst.models.registry.get`,
-    default settings); the others are effect-block names (:func:`block_names`), built
-    with default settings. A spec without ``+`` is just the registered model.
+    The first part is a registered model name (:func:`bayeshyst.models.registry.get`);
+    the others are effect-block names (:func:`block_names`). Each part may carry
+    structural settings in parentheses, as literals given by name:
+    ``"pi_play(n_operators=6)+second_order"``, ``"preisach(n_levels=8)"``. Without
+    them a part has its default settings. A spec without ``+`` is just the model.
 
     Raises
     ------
     ModelError
-        For an empty part, a block name in first place, an unknown model or an unknown
-        block (the message lists the valid names).
+        For an empty part, a block name in first place, an unknown model or block (the
+        message lists the valid names), or settings that are not ``key=literal`` or
+        that the model does not have.
     """
     parts = [p.strip() for p in str(spec).split("+")]
     if any(not p for p in parts):
         raise ModelError(f"model spec {spec!r} has an empty part; write e.g. 'pi_play+arx'")
-    head, *rest = parts
+    (head, head_settings), *rest = [_split_part(p, spec) for p in parts]
     if head in block_names():
         raise ModelError(f"model spec {spec!r} must start with a hysteresis model "
                          f"({', '.join(registry.names())}), not the effect block {head!r}")
-    base = registry.get(head)
+    base = registry.get(head, **head_settings)
     if not rest:
         return base
-    return Composite(base, tuple(block_class(p)() for p in rest))
+    return Composite(base, tuple(_build_block(n, kw, spec) for n, kw in rest))
 
 
 registry.register_spec_parser(parse_spec)

@@ -50,13 +50,14 @@ def get(spec: str, **settings: Any) -> HysteresisModel:
     Parameters
     ----------
     spec : str
-        A model name such as ``"pi_play"``; with effect blocks, ``"pi_play+arx"``.
+        A model name such as ``"pi_play"``; with effect blocks, ``"pi_play+arx"``;
+        with settings in the string, ``"pi_play(n_operators=6)+second_order"``.
     **settings
         Structural settings of the model (e.g. ``n_operators=12``); unknown names are
         an error, not ignored.
     """
     spec = spec.strip()
-    if "+" in spec:
+    if "+" in spec or "(" in spec:
         if settings:
             raise ModelError("settings cannot be combined with a composed spec string; "
                              "build the blocks in Python instead")
