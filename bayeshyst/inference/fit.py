@@ -20,7 +20,9 @@ from bayeshyst.likelihoods import Likelihood
 from bayeshyst.models.base import HysteresisModel
 from bayeshyst.params import ParamSpace
 
-__all__ = ["FitResult", "TrackingError", "fit_model", "tracking_errors"]
+__all__ = [
+    "FitResult", "TrackingError", "errors_by_frequency", "fit_model", "tracking_errors",
+]
 
 
 @dataclass(frozen=True)
@@ -59,6 +61,40 @@ def _errors(freq: float | None, measured: np.ndarray, predicted: np.ndarray) -> 
     return TrackingError(freq, rmse, mx, 100 * rmse / ptp, 100 * mx / ptp, int(e.size))
 
 
+def errors_by_frequency(
+    data: Dataset, predictions: list[np.ndarray]
+) -> tuple[TrackingError, list[TrackingError]]:
+    """Errors of one prediction per record, overall and per excitation frequency.
+
+    Parameters
+    ----------
+    data : Dataset
+        The measured records.
+    predictions : list of ndarray, each (N_record,)
+        Full-record predictions (warm-up included; only scored samples count).
+
+    Returns
+    -------
+    overall : TrackingError
+    per_frequency : list of TrackingError
+        Sorted by frequency; records without a frequency are grouped under ``None``,
+        last.
+    """
+    groups: dict[float | None, tuple[list, list]] = {}
+    all_m, all_p = [], []
+    for rec, pred in zip(data, predictions, strict=True):
+        s0 = rec.scored.start or 0
+        groups.setdefault(rec.frequency_hz, ([], []))
+        groups[rec.frequency_hz][0].append(rec.y[s0:])
+        groups[rec.frequency_hz][1].append(pred[s0:])
+        all_m.append(rec.y[s0:])
+        all_p.append(pred[s0:])
+    overall = _errors(None, np.concatenate(all_m), np.concatenate(all_p))
+    keys = sorted(k for k in groups if k is not None) + ([None] if None in groups else [])
+    per = [_errors(k, np.concatenate(groups[k][0]), np.concatenate(groups[k][1])) for k in keys]
+    return overall, per
+
+
 def tracking_errors(
     post: Posterior, z: np.ndarray
 ) -> tuple[TrackingError, list[TrackingError], list[np.ndarray]]:
@@ -70,18 +106,7 @@ def tracking_errors(
     """
     preds = post.predict(z)
     means = [np.nanmean(p, axis=0) for p in preds]
-    groups: dict[float | None, tuple[list, list]] = {}
-    all_m, all_p = [], []
-    for rec, mean in zip(post.data, means, strict=True):
-        s0 = rec.scored.start or 0
-        groups.setdefault(rec.frequency_hz, ([], []))
-        groups[rec.frequency_hz][0].append(rec.y[s0:])
-        groups[rec.frequency_hz][1].append(mean[s0:])
-        all_m.append(rec.y[s0:])
-        all_p.append(mean[s0:])
-    overall = _errors(None, np.concatenate(all_m), np.concatenate(all_p))
-    keys = sorted(k for k in groups if k is not None) + ([None] if None in groups else [])
-    per = [_errors(k, np.concatenate(groups[k][0]), np.concatenate(groups[k][1])) for k in keys]
+    overall, per = errors_by_frequency(post.data, means)
     return overall, per, means
 
 

@@ -12,7 +12,7 @@ simulation per record; it is what the sampler calls.
 from __future__ import annotations
 
 import copy
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -169,7 +169,9 @@ class Posterior:
                 "u": np.ascontiguousarray(rec.u), "t": np.ascontiguousarray(rec.t),
                 "y": np.ascontiguousarray(rec.y[s0:]), "s0": s0,
                 "unit_starts": np.array([a - s0 for a, _ in spans]), "unit_first": first,
+                "keep": None,
             })
+        self.held_out: tuple[int, ...] = ()
         self._n_evals = 0
         self._n_prior = 0
         self._n_failed = 0
@@ -201,6 +203,39 @@ class Posterior:
         new.reset_counts()
         return new
 
+    def holding_out(self, units: Sequence[int]) -> Posterior:
+        """A copy whose likelihood leaves out the cycles ``units`` (indices into :attr:`units`).
+
+        The held-out cycles are still simulated (the model's memory runs through them)
+        but not scored: the posterior given all the other cycles, as exact
+        leave-one-cycle-out cross-validation needs. With the AR(1) likelihood the first
+        sample after a held-out cycle is still conditioned on the residual before it
+        (the innovation form is kept); that sample is one of hundreds per cycle.
+
+        Parameters
+        ----------
+        units : sequence of int
+            Indices of the cycles to hold out; empty restores the full likelihood.
+        """
+        idx = sorted({int(i) for i in units})
+        if idx and (idx[0] < 0 or idx[-1] >= self.n_units):
+            raise ParameterError(f"held-out units must be in [0, {self.n_units}), got {idx}")
+        new = copy.copy(self)
+        new.held_out = tuple(idx)
+        new._records = []
+        for rec in self._records:
+            keep = None
+            if idx:
+                n = rec["y"].size
+                keep = np.ones(n, dtype=bool)
+                starts = [*rec["unit_starts"], n]
+                for j in range(len(starts) - 1):
+                    if rec["unit_first"] + j in idx:
+                        keep[starts[j]:starts[j + 1]] = False
+            new._records.append({**rec, "keep": keep})
+        new.reset_counts()
+        return new
+
     def reset_counts(self) -> None:
         """Zero the evaluation counters."""
         self._n_evals = self._n_prior = self._n_failed = 0
@@ -210,6 +245,8 @@ class Posterior:
 
     def __repr__(self) -> str:
         temper = "" if self.beta == 1.0 else f", beta={self.beta}"
+        if self.held_out:
+            temper += f", held_out={list(self.held_out)}"
         return (f"Posterior(model={self.model.name!r}, likelihood={self.likelihood.name!r}, "
                 f"records={len(self.data)}, ndim={self.ndim}{temper})")
 
@@ -269,7 +306,8 @@ class Posterior:
         pws, failed = self._pointwise(z, inside)
         self._n_prior += int(np.count_nonzero(~inside))
         if pws:
-            ll = np.sum([pw.sum(axis=1) for pw in pws], axis=0)
+            ll = np.sum([pw.sum(axis=1) if rec["keep"] is None else pw[:, rec["keep"]].sum(axis=1)
+                         for pw, rec in zip(pws, self._records, strict=True)], axis=0)
             ll[failed] = -np.inf
             self._n_failed += int(np.count_nonzero(failed))
             lp[inside] += self.beta * ll

@@ -180,6 +180,7 @@ def _fingerprint(post: Posterior, settings: dict[str, Any]) -> dict[str, Any]:
         "model": repr(post.model),
         "likelihood": post.likelihood.name,
         "beta": post.beta,
+        "held_out": str(post.held_out),
         "space": str(post.space),
         "data_sha256": h.hexdigest(),
         **{k: str(v) for k, v in settings.items()},
