@@ -125,6 +125,53 @@ def _cmd_fit(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def _cmd_compare(args: argparse.Namespace) -> int:
+    from bayeshyst.data import load
+    from bayeshyst.likelihoods import get_likelihood
+    from bayeshyst.report.compare_outputs import write_comparison_outputs
+    from bayeshyst.selection import check_models, compare_models
+
+    # validate everything cheap before the long part starts
+    data = load(args.data)
+    models = check_models(args.models)
+    get_likelihood(args.likelihood)
+    out = Path(args.out)
+    if not args.quiet:
+        freqs = ", ".join(f"{f:g}" for f in data.frequencies) or "none given"
+        print(f"bayeshyst compare: {', '.join(models)} on {data.name} ({len(data)} record(s); "
+              f"frequencies [Hz]: {freqs})", file=sys.stderr)
+    result = compare_models(data, models, likelihood=args.likelihood, seed=args.seed,
+                            n_walkers=args.walkers, max_steps=args.steps,
+                            lofo=not args.no_lofo, max_refits=args.max_refits,
+                            gp_n_train=args.gp_train, n_jobs=args.jobs, out_dir=out,
+                            progress=not args.quiet)
+    summary = write_comparison_outputs(result, out, data_path=str(args.data),
+                                       figures=not args.no_figures)
+    if args.json:
+        json.dump(jsonable(summary), sys.stdout, indent=2)
+        sys.stdout.write("\n")
+    else:
+        print(result)
+        print()
+        print("\n".join(summary["statements"]))
+        for w in summary["warnings"]:
+            print(f"warning: {w}")
+        print(f"outputs in {out}/: summary.json, comparison.csv, comparison.txt"
+              + "".join(f", {f}" for f in summary["files"]["figures"])
+              + (", posteriors/" if summary["files"]["posteriors"] else ""))
+    return EXIT_OK
+
+
+def _non_negative_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {text!r}") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {value}")
+    return value
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of the ``bayeshyst`` command."""
     # argparse itself exits with status 2 on usage errors, as bad input should
@@ -156,6 +203,33 @@ def build_parser() -> argparse.ArgumentParser:
     p_fit.add_argument("--no-checkpoint", action="store_true",
                        help="do not checkpoint to OUT/checkpoint.h5 (and do not resume)")
     p_fit.set_defaults(func=_cmd_fit)
+
+    p_cmp = sub.add_parser("compare", help="rank models per excitation frequency "
+                           "(PSIS-LOO, WAIC, leave-one-frequency-out, BIC, stacking)")
+    p_cmp.add_argument("data", help="data file (.csv/.txt/.npz/.mat, JSON sidecar optional)")
+    p_cmp.add_argument("--models", required=True,
+                       help="comma-separated model specs, e.g. "
+                            "pi_play,bouc_wen,pi_play+second_order,gp,gp_memory")
+    p_cmp.add_argument("--likelihood", default="gaussian",
+                       help="gaussian (default), student_t or ar1")
+    p_cmp.add_argument("--out", default="bayeshyst-compare", help="output folder")
+    p_cmp.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    p_cmp.add_argument("--steps", type=_positive_int, default=20_000,
+                       help="step budget per ensemble of every fit (default 20000)")
+    p_cmp.add_argument("--walkers", type=_positive_int, default=None,
+                       help="walkers per ensemble (default max(32, 4 ndim))")
+    p_cmp.add_argument("--jobs", type=_positive_int, default=None,
+                       help="worker processes (default: one per core)")
+    p_cmp.add_argument("--no-lofo", action="store_true",
+                       help="skip the leave-one-frequency-out fits")
+    p_cmp.add_argument("--max-refits", type=_non_negative_int, default=5,
+                       help="exact refits per fit for cycles with Pareto k > 0.7 (default 5)")
+    p_cmp.add_argument("--gp-train", type=_positive_int, default=1000,
+                       help="training-subset size of the GP models (default 1000)")
+    p_cmp.add_argument("--json", action="store_true", help="print summary.json to stdout")
+    p_cmp.add_argument("--quiet", action="store_true", help="no progress on stderr")
+    p_cmp.add_argument("--no-figures", action="store_true", help="skip the PNG figure")
+    p_cmp.set_defaults(func=_cmd_compare)
     return parser
 
 

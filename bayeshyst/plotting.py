@@ -35,7 +35,7 @@ from bayeshyst.inference.posterior import Posterior
 from bayeshyst.inference.sampling import SamplingResult
 from bayeshyst.params import ParamSpace
 
-__all__ = ["plot_corner", "plot_loops", "plot_residuals", "plot_trace"]
+__all__ = ["plot_corner", "plot_loops", "plot_model_comparison", "plot_residuals", "plot_trace"]
 
 DPI = 120
 _RED = "#c0392b"
@@ -517,3 +517,83 @@ def plot_residuals(post: Posterior, result: SamplingResult, path: str | os.PathL
     """
     path = _png_path(path)
     return _save(_build_residuals(post, result, n_draws=n_draws, seed=seed), path)
+
+
+# ------------------------------------------------------------------ model comparison
+def _build_model_comparison(result: Any) -> Figure:
+    from bayeshyst.selection import ComparisonResult
+
+    if not isinstance(result, ComparisonResult):
+        raise ParameterError(f"result must be a ComparisonResult, got {type(result).__name__}")
+    rows = [fc for fc in result.per_frequency if fc.frequency_hz is not None]
+    if not rows:
+        raise ParameterError("no record has an excitation frequency: nothing to plot "
+                             "against frequency")
+    f = np.array([fc.frequency_hz for fc in rows], dtype=float)
+    has_lofo = any(np.isfinite(s.elpd_lofo) for fc in rows for s in fc.scores)
+    n_panels = 3 if has_lofo else 2
+    fig = _figure(4.2 * n_panels, 3.8)
+    axes = fig.subplots(1, n_panels)
+    colors = [f"C{i % 10}" for i in range(len(result.models))]
+    unconverged = []
+    for model, color in zip(result.models, colors, strict=True):
+        scores = [fc.score(model) for fc in rows]
+        d = np.array([s.delta_elpd / max(s.n_cycles, 1) for s in scores])
+        dse = np.array([s.delta_se / max(s.n_cycles, 1) for s in scores])
+        conv = np.array([s.converged for s in scores])
+        if not conv.all():
+            unconverged.append(model)
+        axes[0].errorbar(f, d, yerr=np.where(np.isfinite(dse), 2 * dse, 0.0), color=color,
+                         marker="o", ms=4, capsize=2, label=model)
+        axes[0].plot(f[~conv], d[~conv], "x", color=_RED, ms=9, mew=2)
+        nrmse = np.array([s.nrmse_percent for s in scores])
+        axes[1].plot(f, nrmse, marker="o", ms=4, color=color, label=model)
+        if has_lofo:
+            lofo = np.array([s.elpd_lofo / max(s.n_cycles, 1) for s in scores])
+            axes[2].plot(f, lofo, marker="s", ms=4, color=color, label=model)
+    axes[0].axhline(0.0, color="0.5", lw=0.8)
+    axes[0].set_ylabel("Δelpd_loo per cycle vs best (±2 se)")
+    axes[0].set_title("fitted at each frequency", fontsize=9)
+    axes[1].set_ylabel("NRMSE of the posterior mean [% of stroke]")
+    axes[1].set_title("tracking error", fontsize=9)
+    positive = [s.nrmse_percent for fc in rows for s in fc.scores
+                if np.isfinite(s.nrmse_percent) and s.nrmse_percent > 0]
+    if positive and max(positive) / min(positive) > 20:
+        axes[1].set_yscale("log")
+    if has_lofo:
+        axes[2].set_ylabel("held-out elpd per cycle")
+        axes[2].set_title("fitted to the other frequencies", fontsize=9)
+    for ax in axes:
+        if f.size > 1 and f.max() / f.min() > 8:
+            ax.set_xscale("log")
+        ax.set_xlabel("excitation frequency [Hz]")
+        ax.grid(alpha=0.3)
+    axes[0].legend(fontsize=7, loc="best")
+    title = "model selection per frequency (higher elpd is better)"
+    if unconverged:
+        fig.suptitle(f"NOT CONVERGED (red x): {', '.join(unconverged)}\n{title}", fontsize=10,
+                     color=_RED, fontweight="bold")
+    else:
+        fig.suptitle(title, fontsize=10)
+    return fig
+
+
+def plot_model_comparison(result: Any, path: str | os.PathLike[str]) -> Path:
+    """elpd (relative to the best), tracking error and held-out elpd against frequency.
+
+    Parameters
+    ----------
+    result : ComparisonResult
+        From :func:`bayeshyst.selection.compare_models`.
+    path : path
+        PNG file to write (atomically).
+
+    Returns
+    -------
+    Path
+        ``path``. Per-cycle values (elpd / number of cycles) make frequencies with
+        different numbers of cycles comparable; fits that did not converge are marked
+        with a red x and named in a red title.
+    """
+    path = _png_path(path)
+    return _save(_build_model_comparison(result), path)

@@ -1,0 +1,348 @@
+"""One fit of a model comparison: a model, a subset of the data, its predictive scores.
+
+:func:`bayeshyst.selection.compare_models` cuts a comparison into independent tasks —
+(model, scope) with scope ``"joint"`` (all records), ``"frequency"`` (the records of
+one excitation frequency) or ``"lofo"`` (all records but those of one frequency, scored
+on the held-out one) — and runs them in parallel worker processes. This module is
+what a worker runs; it returns a :class:`TaskResult` of plain arrays and numbers, so
+nothing heavy crosses the process boundary.
+
+Scores, per cycle (the cross-validation unit of :class:`~bayeshyst.inference.posterior.Posterior`):
+
+- parametric models, ``joint``/``frequency``: PSIS-LOO and WAIC from the sampled
+  posterior; cycles whose Pareto k exceeds 0.7 are **refitted exactly** (the posterior
+  given all the other cycles, sampled again from the full-data MAP) up to
+  ``max_refits`` of them, worst first; BIC at the MAP;
+- parametric models, ``lofo``: the log posterior-predictive density of every held-out
+  cycle, ``log mean_s p(y_cycle | theta_s)`` over draws of the posterior fitted
+  without that frequency;
+- Gaussian-process models: exact leave-one-cycle-out at the fitted hyperparameters
+  (``joint``/``frequency``) and the log predictive density of held-out cycles
+  (``lofo``), from :mod:`bayeshyst.gp`; WAIC and BIC are not defined for them (NaN).
+"""
+
+from __future__ import annotations
+
+import math
+import re
+import time
+import traceback
+import zlib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from scipy.special import logsumexp
+
+from bayeshyst.data.record import Dataset
+from bayeshyst.diagnostics import PARETO_K_BAD, loo, save_netcdf, to_inference_data, waic
+from bayeshyst.errors import DataError, ModelError, ParameterError, SimulationError
+from bayeshyst.inference.fit import TrackingError, errors_by_frequency, tracking_errors
+from bayeshyst.inference.posterior import Posterior, cycle_units
+from bayeshyst.inference.sampling import sample_posterior
+
+__all__ = [
+    "GP_MODELS", "CompareSettings", "TaskResult", "TaskSpec", "heldout_log_density", "run_task",
+    "task_seed",
+]
+
+GP_MODELS = {"gp": "rate", "gp_memory": "memory"}
+"""Names under which the Gaussian-process model takes part: ``gp`` is the (u, du/dt)
+form of ref. [64]; ``gp_memory`` adds reversal-memory features."""
+
+SCOPES = ("joint", "frequency", "lofo")
+
+
+@dataclass(frozen=True)
+class CompareSettings:
+    """Settings shared by every task of a comparison (see ``compare_models``)."""
+
+    likelihood: str = "gaussian"
+    n_walkers: int | None = None
+    max_steps: int = 20_000
+    first_chunk: int = 1_000
+    draws_per_chain: int = 30
+    n_lofo_draws: int = 400
+    max_refits: int = 5
+    gp_n_train: int = 1000
+
+
+@dataclass(frozen=True)
+class TaskSpec:
+    """One fit: ``model`` on ``scope`` data; ``frequency_hz`` is the frequency fitted
+    (``"frequency"``) or held out (``"lofo"``), ``None`` for ``"joint"``.
+
+    ``group`` distinguishes "records of unknown frequency" (``frequency_hz`` None,
+    ``group`` True) from "all records" (``group`` False).
+    """
+
+    model: str
+    scope: str
+    frequency_hz: float | None = None
+    group: bool = False
+
+    @property
+    def key(self) -> str:
+        """A readable, file-name-safe identifier (``bouc_wen__lofo_10Hz``)."""
+        where = "all" if not self.group else (
+            "unknown" if self.frequency_hz is None else f"{self.frequency_hz:g}Hz")
+        slug = re.sub(r"[^A-Za-z0-9._]+", "-", self.model).strip("-")
+        if slug != self.model:  # two specs that differ only in punctuation stay apart
+            slug += f"-{zlib.crc32(self.model.encode()):08x}"
+        return f"{slug}__{self.scope}_{where}"
+
+
+def task_seed(seed: int, spec: TaskSpec) -> int:
+    """A per-task seed that depends only on the user's seed and the task (not on the
+    order or the process the task runs in): same seed, same numbers."""
+    ss = np.random.SeedSequence([int(seed), zlib.crc32(spec.key.encode())])
+    return int(ss.generate_state(1)[0])
+
+
+@dataclass(frozen=True)
+class TaskResult:
+    """Scores of one task, per cycle and in total.
+
+    Attributes
+    ----------
+    spec : TaskSpec
+    pointwise : ndarray, shape (n_units,)
+        elpd of each scored cycle: LOO (``joint``/``frequency``) or held-out predictive
+        (``lofo``). Empty when the task failed.
+    unit_frequency : ndarray, shape (n_units,)
+        Frequency of each scored cycle (NaN if unknown).
+    unit_labels : tuple of str
+        ``record#cycle`` of each scored cycle.
+    p_loo : float
+        Effective number of parameters (NaN for ``lofo`` and GP).
+    pareto_k : ndarray or None
+        After refits, the refitted cycles carry NaN (their value is exact).
+    waic_pointwise : ndarray or None
+    bic : float
+        At the MAP; NaN where undefined.
+    n_params : int
+        Free parameters (noise and offset included); GP: hyperparameters.
+    converged : bool
+    n_refits : int
+    overall : TrackingError or None
+        Of the posterior-mean prediction of the scored records.
+    per_frequency : tuple of TrackingError
+    warnings : tuple of str
+    runtime_s : float
+    failed_simulations : int
+    netcdf : str or None
+        Path of the saved InferenceData (parametric ``joint``/``frequency`` fits when an
+        output folder was given).
+    error : str or None
+        Why the task failed (the comparison goes on without it).
+    """
+
+    spec: TaskSpec
+    pointwise: np.ndarray
+    unit_frequency: np.ndarray
+    unit_labels: tuple[str, ...]
+    p_loo: float = math.nan
+    pareto_k: np.ndarray | None = None
+    waic_pointwise: np.ndarray | None = None
+    bic: float = math.nan
+    n_params: int = 0
+    converged: bool = False
+    n_refits: int = 0
+    overall: TrackingError | None = None
+    per_frequency: tuple[TrackingError, ...] = ()
+    warnings: tuple[str, ...] = ()
+    runtime_s: float = 0.0
+    failed_simulations: int = 0
+    netcdf: str | None = None
+    error: str | None = None
+    extra: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def ok(self) -> bool:
+        """True when the task produced scores."""
+        return self.error is None
+
+
+def split_data(data: Dataset, spec: TaskSpec) -> tuple[Dataset, Dataset]:
+    """(fit data, scored data) of a task."""
+    def at(rec: Any) -> bool:
+        return rec.frequency_hz == spec.frequency_hz
+
+    if spec.scope == "joint":
+        return data, data
+    inside = tuple(r for r in data if at(r))
+    outside = tuple(r for r in data if not at(r))
+    if not inside or (spec.scope == "lofo" and not outside):
+        raise DataError(f"task {spec.key}: no records to fit or score")
+    if spec.scope == "frequency":
+        sub = Dataset(inside, name=data.name)
+        return sub, sub
+    return Dataset(outside, name=data.name), Dataset(inside, name=data.name)
+
+
+def _units_meta(data: Dataset) -> tuple[np.ndarray, tuple[str, ...]]:
+    freqs, labels = [], []
+    for rec in data:
+        for i, _ in enumerate(cycle_units(rec)):
+            freqs.append(math.nan if rec.frequency_hz is None else float(rec.frequency_hz))
+            labels.append(f"{rec.name}#{i}")
+    return np.asarray(freqs, dtype=float), tuple(labels)
+
+
+def _logmeanexp(ll: np.ndarray) -> np.ndarray:
+    """``log mean exp`` over axis 0, ``-inf`` rows (failed draws) included as zeros."""
+    return logsumexp(ll, axis=0) - math.log(ll.shape[0])
+
+
+def _transfer(train: Posterior, test: Posterior, z: np.ndarray) -> np.ndarray:
+    """The points ``z`` of ``train`` expressed in the coordinates of ``test``.
+
+    Both posteriors share the model's parameter space; the noise and offset spaces
+    are rebuilt for the test data, so go through the physical values.
+    """
+    theta = train.space.unpack(z)
+    names = test.space.names
+    out = np.empty((z.shape[0], test.ndim))
+    for i in range(z.shape[0]):
+        out[i] = test.space.pack({k: np.asarray(theta[k])[i] for k in names})
+    return out
+
+
+def heldout_log_density(post: Posterior, test: Dataset, z: np.ndarray
+                        ) -> tuple[np.ndarray, Posterior, np.ndarray]:
+    """Log posterior-predictive density of every cycle of ``test``.
+
+    ``elpd_c = log (1/S) sum_s p(y_c | theta_s)`` with ``theta_s`` the draws ``z``
+    (S, ndim) of ``post`` — the Monte Carlo estimate of ``log p(y_c | training data)``,
+    each cycle's samples taken jointly (the same unit as the cycles of PSIS-LOO).
+
+    Returns the pointwise values (n_cycles,), the test posterior (same model space and
+    offset, the test records) and the draws in its coordinates.
+    """
+    test_post = Posterior(post.model, test, post.likelihood, space=post.model_space,
+                          offset=post.offset)
+    zt = _transfer(post, test_post, z)
+    return _logmeanexp(test_post.log_likelihood_units(zt)), test_post, zt
+
+
+def _refit_bad_cycles(post: Posterior, res: Any, pointwise: np.ndarray, k: np.ndarray,
+                      settings: CompareSettings, seed: int, notes: list[str]
+                      ) -> tuple[np.ndarray, np.ndarray, int, float]:
+    """Exact leave-one-cycle-out for the cycles whose PSIS-LOO is unreliable.
+
+    Returns the pointwise elpd and Pareto k (NaN where refitted), the number of
+    refits and the change of ``p_loo`` (``lppd - elpd`` moves by the elpd change).
+    """
+    bad = [int(i) for i in np.argsort(-k) if k[i] > PARETO_K_BAD]
+    todo = bad[:settings.max_refits]
+    pw, kk, dp = pointwise.copy(), k.copy(), 0.0
+    n_draws = max(400, settings.n_lofo_draws)
+    for j, i in enumerate(todo):
+        held = post.holding_out([i])
+        r = sample_posterior(held, n_walkers=settings.n_walkers, max_steps=settings.max_steps,
+                             first_chunk=settings.first_chunk, seed=seed + 1 + j, start=res.start)
+        ll = post.log_likelihood_units(r.draws(n_draws, seed=seed))[:, i]
+        new = float(_logmeanexp(ll[:, None])[0])
+        dp += pw[i] - new
+        pw[i], kk[i] = new, math.nan
+        if not r.converged:
+            notes.append(f"the exact refit without cycle {i} did not converge")
+    if len(bad) > len(todo):
+        notes.append(f"{len(bad) - len(todo)} more cycles have Pareto k > {PARETO_K_BAD} "
+                     f"and were not refitted (max_refits={settings.max_refits}): their "
+                     f"PSIS-LOO values are unreliable")
+    return pw, kk, len(todo), dp
+
+
+def _run_parametric(data: Dataset, spec: TaskSpec, settings: CompareSettings, seed: int,
+                    out_dir: Path | None) -> TaskResult:
+    t0 = time.perf_counter()
+    train, test = split_data(data, spec)
+    post = Posterior(spec.model, train, settings.likelihood)
+    ckpt = None if out_dir is None else out_dir / "checkpoints" / f"{spec.key}.h5"
+    res = sample_posterior(post, n_walkers=settings.n_walkers, max_steps=settings.max_steps,
+                           first_chunk=settings.first_chunk, seed=seed, checkpoint=ckpt)
+    notes = [] if res.converged else ["the sampler did not converge within its budget"]
+    freqs, labels = _units_meta(test)
+    failed = res.counts.failed
+    if spec.scope == "lofo":
+        pw, test_post, zt = heldout_log_density(post, test,
+                                                res.draws(settings.n_lofo_draws, seed=seed))
+        failed += test_post.counts.failed
+        overall, per, _ = tracking_errors(test_post, zt)
+        return TaskResult(spec, pw, freqs, labels, n_params=post.ndim,
+                          converged=res.converged, overall=overall, per_frequency=tuple(per),
+                          warnings=tuple(notes), runtime_s=time.perf_counter() - t0,
+                          failed_simulations=failed)
+    idata = to_inference_data(post, res, draws_per_chain=settings.draws_per_chain,
+                              n_predictive=min(200, settings.n_lofo_draws), seed=seed)
+    lo, wa = loo(idata), waic(idata)
+    notes += [w for w in lo.warnings if "Pareto k >" not in w and w not in notes]
+    pw, k, n_refits, dp = _refit_bad_cycles(post, res, lo.pointwise, lo.pareto_k, settings,
+                                            seed, notes)
+    if n_refits:
+        notes.append(f"{n_refits} cycles with Pareto k > {PARETO_K_BAD} were refitted exactly")
+    ll_map = float(np.sum(post.log_likelihood_units(res.start.z[None, :])))
+    n_obs = sum(r.n_scored for r in train)
+    bic = post.ndim * math.log(n_obs) - 2.0 * ll_map
+    overall, per, _ = tracking_errors(post, res.draws(settings.n_lofo_draws, seed=seed))
+    path = None
+    if out_dir is not None:
+        path = str(save_netcdf(idata, out_dir / "posteriors" / f"{spec.key}.nc"))
+    return TaskResult(spec, pw, freqs, labels, p_loo=lo.p + dp, pareto_k=k,
+                      waic_pointwise=wa.pointwise, bic=bic, n_params=post.ndim,
+                      converged=res.converged, n_refits=n_refits, overall=overall,
+                      per_frequency=tuple(per), warnings=tuple(notes),
+                      runtime_s=time.perf_counter() - t0, failed_simulations=failed,
+                      netcdf=path)
+
+
+def _run_gp(data: Dataset, spec: TaskSpec, settings: CompareSettings, seed: int) -> TaskResult:
+    from bayeshyst.gp import GPHysteresis  # scikit-learn is imported only when a GP runs
+
+    t0 = time.perf_counter()
+    train, test = split_data(data, spec)
+    gp = GPHysteresis(features=GP_MODELS[spec.model], n_train=settings.gp_n_train,
+                      random_state=seed)
+    gp.fit_records(train)
+    scores = gp.log_density_units(test) if spec.scope == "lofo" else gp.loo_units(test)
+    freqs, labels = _units_meta(test)
+    preds = [p.mean for p in gp.predict_records(test)]
+    overall, per = errors_by_frequency(test, preds)
+    notes = [] if gp.converged_ else ["the GP hyperparameter optimisation did not converge"]
+    return TaskResult(spec, np.asarray(scores.values, dtype=float), freqs, labels,
+                      n_params=int(gp.n_hyperparameters_), converged=bool(gp.converged_),
+                      overall=overall, per_frequency=tuple(per), warnings=tuple(notes),
+                      runtime_s=time.perf_counter() - t0)
+
+
+def run_task(data: Dataset, spec: TaskSpec, settings: CompareSettings, seed: int,
+             out_dir: str | Path | None = None) -> TaskResult:
+    """Run one comparison task; a failure is returned as a result with ``error`` set.
+
+    Parameters
+    ----------
+    data : Dataset
+        All records of the comparison (the task selects its own).
+    spec : TaskSpec
+    settings : CompareSettings
+    seed : int
+        The comparison's seed; the task derives its own with :func:`task_seed`.
+    out_dir : path, optional
+        Where posteriors (``posteriors/<key>.nc``) and sampler checkpoints
+        (``checkpoints/<key>.h5``, resumed on a re-run) go.
+    """
+    out = None if out_dir is None else Path(out_dir)
+    s = task_seed(seed, spec)
+    t0 = time.perf_counter()
+    try:
+        if spec.model in GP_MODELS:
+            return _run_gp(data, spec, settings, s)
+        return _run_parametric(data, spec, settings, s, out)
+    except (DataError, ModelError, ParameterError, SimulationError, FloatingPointError,
+            np.linalg.LinAlgError, ValueError) as exc:
+        freqs = np.zeros(0)
+        detail = traceback.format_exception_only(type(exc), exc)[-1].strip()
+        return TaskResult(spec, np.zeros(0), freqs, (), runtime_s=time.perf_counter() - t0,
+                          error=f"{spec.model} ({spec.scope}) failed: {detail}")

@@ -1,0 +1,605 @@
+"""Model selection per excitation frequency: :func:`compare_models`.
+
+The question a user asks is not only "which model fits my loops best" but "which model
+will hold at a frequency I did not fit". For every model and every excitation
+frequency ``f`` in the data the comparison therefore fits
+
+- the records at ``f`` alone → PSIS-LOO with cycles as the left-out unit (Pareto k
+  reported, exact refits for k > 0.7), WAIC, BIC at the MAP, tracking error;
+- every record but those at ``f`` → the **leave-one-frequency-out** (LOFO) log
+  predictive density of the cycles at ``f``: extrapolation in frequency, the test a
+  rate-independent model fails when the dynamics matter;
+
+and, once, all records together → the joint row (PSIS-LOO over all cycles, also
+reported per frequency as ``elpd_joint``: one set of parameters for every frequency).
+Models are ranked at each frequency by ``elpd_loo``; ``Δelpd`` and its standard error
+are paired over the same cycles (Vehtari, Gelman & Gabry 2017, §5.2); stacking weights
+(Yao et al. 2018) combine the models' pointwise predictive densities.
+
+Independent (model, scope) fits run in parallel worker processes; each task derives
+its seed from the user's seed and its own identity, so the numbers do not depend on
+the number of workers or the order in which tasks finish.
+"""
+
+from __future__ import annotations
+
+import math
+import multiprocessing as mp
+import os
+import sys
+import time
+from collections.abc import Callable, Sequence
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from scipy.optimize import minimize
+from scipy.special import softmax
+
+from bayeshyst._comparison_tasks import (
+    GP_MODELS,
+    CompareSettings,
+    TaskResult,
+    TaskSpec,
+    run_task,
+)
+from bayeshyst.data.record import Dataset, Record
+from bayeshyst.errors import DataError, ModelError, ParameterError
+from bayeshyst.likelihoods import get_likelihood
+from bayeshyst.models import get as get_model
+
+__all__ = [
+    "ComparisonResult",
+    "FrequencyComparison",
+    "ModelScore",
+    "check_models",
+    "compare_models",
+    "paired_difference",
+    "stacking_weights",
+]
+
+
+# ------------------------------------------------------------------------ statistics
+def stacking_weights(pointwise: np.ndarray) -> np.ndarray:
+    """Stacking weights of predictive distributions (Yao, Vehtari, Simpson & Gelman 2018).
+
+    Maximises ``sum_i log sum_k w_k exp(lpd[i, k])`` over the simplex.
+
+    Parameters
+    ----------
+    pointwise : ndarray, shape (n_units, K)
+        Leave-one-out log predictive density of each unit under each model.
+
+    Returns
+    -------
+    ndarray, shape (K,)
+        Non-negative weights summing to 1.
+    """
+    lpd = np.asarray(pointwise, dtype=float)
+    if lpd.ndim != 2 or lpd.shape[1] == 0:
+        raise ParameterError(f"pointwise must be (n_units, K >= 1), got shape {lpd.shape}")
+    k = lpd.shape[1]
+    if k == 1:
+        return np.ones(1)
+    if not np.all(np.isfinite(lpd)):
+        raise ParameterError("pointwise log densities must be finite for stacking")
+    # the objective is invariant to a per-unit shift; subtracting the row max keeps the
+    # exponentials in range for elpd values of thousands (long cycles)
+    dens = np.exp(lpd - lpd.max(axis=1, keepdims=True))
+
+    def objective(a: np.ndarray) -> tuple[float, np.ndarray]:
+        w = softmax(np.append(a, 0.0))
+        mix = dens @ w
+        val = -np.sum(np.log(mix))
+        g_w = -(dens / mix[:, None]).sum(axis=0)
+        # d w / d a_j = w_j (delta - w); the last logit is pinned at 0
+        grad = w[:-1] * (g_w[:-1] - g_w @ w)
+        return float(val), grad
+
+    best = None
+    for a0 in (np.zeros(k - 1), np.log(np.maximum(dens.mean(axis=0), 1e-300))[:-1]
+               - math.log(max(dens.mean(axis=0)[-1], 1e-300))):
+        r = minimize(objective, a0, jac=True, method="L-BFGS-B",
+                     options={"gtol": 1e-12, "ftol": 1e-15, "maxiter": 10_000})
+        if best is None or r.fun < best.fun:
+            best = r
+    w = softmax(np.append(best.x, 0.0))
+    return w / w.sum()
+
+
+def paired_difference(a: np.ndarray, b: np.ndarray) -> tuple[float, float]:
+    """``sum(a - b)`` and its standard error ``sqrt(n var(a - b))`` over paired units."""
+    d = np.asarray(a, dtype=float) - np.asarray(b, dtype=float)
+    if d.size == 0:
+        return math.nan, math.nan
+    return float(np.sum(d)), float(math.sqrt(d.size * np.var(d))) if d.size > 1 else math.nan
+
+
+def _total_se(pw: np.ndarray) -> tuple[float, float]:
+    if pw.size == 0:
+        return math.nan, math.nan
+    return float(np.sum(pw)), float(math.sqrt(pw.size * np.var(pw))) if pw.size > 1 else math.nan
+
+
+# --------------------------------------------------------------------------- results
+@dataclass(frozen=True)
+class ModelScore:
+    """One model at one frequency (or over all frequencies).
+
+    Attributes
+    ----------
+    model : str
+    elpd_loo, se : float
+        PSIS-LOO (exact refits for bad cycles; exact LOO for GP models) summed over the
+        cycles, and its standard error.
+    p_loo : float
+        Effective number of parameters (NaN for GP models).
+    delta_elpd, delta_se : float
+        ``elpd_loo`` below the best model's, and the se of that paired difference.
+    weight : float
+        Stacking weight among the models at this frequency.
+    elpd_waic, waic_se : float
+        WAIC (NaN for GP models).
+    elpd_lofo, lofo_se : float
+        Log predictive density of these cycles by the model fitted to the **other**
+        frequencies (NaN when there is a single frequency or LOFO was not run).
+    lofo_nrmse_percent : float
+        Tracking error of that extrapolated prediction (% of the measured stroke).
+    elpd_joint : float
+        elpd of these cycles by PSIS-LOO of the model fitted to all frequencies.
+    bic : float
+        At the MAP (NaN for GP models); lower is better.
+    nrmse_percent, max_error_percent : float
+        Posterior-mean prediction error of the model fitted here (% of stroke).
+    n_params : int
+        Free parameters including noise and offset (GP: hyperparameters).
+    converged : bool
+        Every fit behind this row converged (sampler R-hat/ESS or GP optimiser).
+    max_pareto_k : float
+        Over the cycles not refitted exactly (NaN for GP models).
+    n_refits : int
+    n_cycles : int
+    warnings : tuple of str
+    error : str or None
+        The fit failed; its scores are NaN and it is ranked last.
+    """
+
+    model: str
+    elpd_loo: float
+    se: float
+    p_loo: float
+    delta_elpd: float
+    delta_se: float
+    weight: float
+    elpd_waic: float
+    waic_se: float
+    elpd_lofo: float
+    lofo_se: float
+    lofo_nrmse_percent: float
+    elpd_joint: float
+    bic: float
+    nrmse_percent: float
+    max_error_percent: float
+    n_params: int
+    converged: bool
+    max_pareto_k: float
+    n_refits: int
+    n_cycles: int
+    warnings: tuple[str, ...] = ()
+    error: str | None = None
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready dict (NaN becomes ``None``)."""
+        out: dict[str, Any] = {}
+        for k, v in self.__dict__.items():
+            if isinstance(v, float) and not math.isfinite(v):
+                v = None
+            out[k] = list(v) if isinstance(v, tuple) else v
+        return out
+
+
+@dataclass(frozen=True)
+class FrequencyComparison:
+    """The ranking at one excitation frequency (``frequency_hz`` None: all frequencies
+    jointly when ``joint`` is True, records of unknown frequency otherwise).
+
+    ``scores`` are ranked by ``elpd_loo`` (failed fits last); ``best`` is the first;
+    ``best_lofo`` the model with the highest leave-one-frequency-out elpd.
+    """
+
+    frequency_hz: float | None
+    scores: tuple[ModelScore, ...]
+    best: str | None
+    best_lofo: str | None
+    joint: bool = False
+
+    @property
+    def label(self) -> str:
+        """``"10 Hz"``, ``"all"`` or ``"unknown"``."""
+        if self.joint:
+            return "all"
+        return "unknown" if self.frequency_hz is None else f"{self.frequency_hz:g} Hz"
+
+    def score(self, model: str) -> ModelScore:
+        """The row of ``model``."""
+        for s in self.scores:
+            if s.model == model:
+                return s
+        raise ParameterError(f"no model {model!r} at {self.label}; have "
+                             f"{[s.model for s in self.scores]}")
+
+    def to_dict(self) -> dict[str, Any]:
+        """The ``per_frequency`` entry of ``summary.json``."""
+        return {
+            "frequency_hz": self.frequency_hz,
+            "best": self.best,
+            "best_lofo": self.best_lofo,
+            "ranking": [s.to_dict() for s in self.scores],
+        }
+
+    def __str__(self) -> str:
+        def f(x: float, fmt: str = ".1f") -> str:
+            return "—" if not math.isfinite(x) else format(x, fmt)
+
+        head = (f"{'model':<26} {'elpd_loo':>10} {'se':>7} {'Δelpd':>9} {'Δse':>7} "
+                f"{'weight':>6} {'elpd_lofo':>10} {'NRMSE%':>7} {'max%':>7} {'k':>3} "
+                f"{'conv':>4}")
+        lines = [f"── {self.label}: best {self.best}"
+                 + (f"; best out of frequency {self.best_lofo}" if self.best_lofo else ""),
+                 head]
+        for s in self.scores:
+            if s.error:
+                lines.append(f"{s.model:<26} failed: {s.error}")
+                continue
+            lines.append(
+                f"{s.model:<26} {f(s.elpd_loo):>10} {f(s.se):>7} {f(s.delta_elpd):>9} "
+                f"{f(s.delta_se):>7} {f(s.weight, '.2f'):>6} {f(s.elpd_lofo):>10} "
+                f"{f(s.nrmse_percent, '.3f'):>7} {f(s.max_error_percent, '.3f'):>7} "
+                f"{s.n_params:>3} {'yes' if s.converged else 'NO':>4}")
+        return "\n".join(lines)
+
+
+@dataclass(frozen=True)
+class ComparisonResult:
+    """Everything :func:`compare_models` found.
+
+    Attributes
+    ----------
+    models : tuple of str
+    per_frequency : tuple of FrequencyComparison
+        Sorted by frequency (unknown last).
+    overall : FrequencyComparison
+        All frequencies jointly (joint fits; ``elpd_lofo`` is the sum over frequencies).
+    tasks : tuple of TaskResult
+        Every fit that ran, with its own warnings, runtime and saved posterior.
+    settings : dict
+    runtime_s : float
+    """
+
+    models: tuple[str, ...]
+    per_frequency: tuple[FrequencyComparison, ...]
+    overall: FrequencyComparison
+    tasks: tuple[TaskResult, ...]
+    settings: dict[str, Any] = field(default_factory=dict)
+    runtime_s: float = 0.0
+
+    def winners(self) -> dict[str, str | None]:
+        """Best model by ``elpd_loo`` at each frequency label."""
+        return {fc.label: fc.best for fc in self.per_frequency}
+
+    @property
+    def failed(self) -> tuple[TaskResult, ...]:
+        """Tasks that raised (recorded, not fatal)."""
+        return tuple(t for t in self.tasks if not t.ok)
+
+    def to_dict(self) -> dict[str, Any]:
+        """The model-selection part of ``summary.json``."""
+        return {
+            "models": list(self.models),
+            "per_frequency": [fc.to_dict() for fc in self.per_frequency],
+            "overall": self.overall.to_dict(),
+            "winners": self.winners(),
+            "failed_fits": [t.error for t in self.failed],
+            "fits": [{"key": t.spec.key, "model": t.spec.model, "scope": t.spec.scope,
+                      "frequency_hz": t.spec.frequency_hz, "converged": t.converged,
+                      "runtime_s": round(t.runtime_s, 2), "n_refits": t.n_refits,
+                      "failed_simulations": t.failed_simulations, "posterior": t.netcdf,
+                      "warnings": list(t.warnings), "error": t.error}
+                     for t in self.tasks],
+            "settings": self.settings,
+            "runtime_s": round(self.runtime_s, 2),
+        }
+
+    def __str__(self) -> str:
+        blocks = [str(fc) for fc in self.per_frequency] + [str(self.overall)]
+        tail = [f"{len(self.tasks)} fits in {self.runtime_s:.1f} s"]
+        tail += [f"failed: {t.error}" for t in self.failed]
+        return "\n\n".join(blocks) + "\n\n" + "\n".join(tail)
+
+
+# ---------------------------------------------------------------------- orchestration
+def _split_top_level(text: str) -> list[str]:
+    """Split at commas outside parentheses (specs carry settings: ``pi_play(n_operators=4)``)."""
+    parts, depth, cur = [], 0, []
+    for ch in text:
+        depth += (ch == "(") - (ch == ")")
+        if ch == "," and depth == 0:
+            parts.append("".join(cur).strip())
+            cur = []
+        else:
+            cur.append(ch)
+    parts.append("".join(cur).strip())
+    return parts
+
+
+def check_models(models: Sequence[str] | str) -> tuple[str, ...]:
+    """Validated model specs (a list, or one comma-separated string): every spec must
+    build (``ModelError`` names the bad one), GP names are ``gp`` and ``gp_memory``,
+    and no spec may appear twice."""
+    if isinstance(models, str):
+        models = _split_top_level(models)
+    names = tuple(str(m).strip() for m in models)
+    if not names or any(not m for m in names):
+        raise ModelError(f"models: expected a non-empty list of model specs, got {models!r}")
+    dup = sorted({m for m in names if names.count(m) > 1})
+    if dup:
+        raise ModelError(f"models: {dup} listed more than once")
+    for m in names:
+        if m not in GP_MODELS:
+            get_model(m)  # raises ModelError naming the unknown part of the spec
+    return names
+
+
+def _tasks(models: tuple[str, ...], keys: list[float | None], lofo: bool) -> list[TaskSpec]:
+    out = []
+    for m in models:
+        out.append(TaskSpec(m, "joint"))
+        if len(keys) > 1:
+            out += [TaskSpec(m, "frequency", f, True) for f in keys]
+            if lofo:
+                out += [TaskSpec(m, "lofo", f, True) for f in keys]
+    return out
+
+
+def _worker_init() -> None:
+    """Serial kernels in the workers: the pool already uses every core, and a forked
+    child must never enter the parent's numba thread pool (it does not exist there)."""
+    from bayeshyst.models import _kernels
+
+    _kernels.PARALLEL_MIN_WORK = sys.maxsize
+
+
+def _pool_context() -> Any:
+    # fork where the platform has it: no re-import of the caller's __main__ (scripts
+    # without an ``if __name__ == "__main__"`` guard work) and no start-up cost;
+    # elsewhere spawn, which needs that guard (as every multiprocessing program does)
+    methods = mp.get_all_start_methods()
+    return mp.get_context("fork" if "fork" in methods else "spawn")
+
+
+def _run_all(data: Dataset, tasks: list[TaskSpec], settings: CompareSettings, seed: int,
+             out_dir: Path | None, n_jobs: int,
+             report: Callable[[int, int, TaskResult], None] | None) -> dict[TaskSpec, TaskResult]:
+    done: dict[TaskSpec, TaskResult] = {}
+    # the costliest fits first, so that the pool does not end waiting on one of them
+    order = sorted(tasks, key=lambda s: {"joint": 0, "lofo": 1, "frequency": 2}[s.scope])
+    if n_jobs <= 1 or len(tasks) == 1:
+        for spec in order:
+            done[spec] = run_task(data, spec, settings, seed, out_dir)
+            if report:
+                report(len(done), len(tasks), done[spec])
+        return done
+    with ProcessPoolExecutor(max_workers=n_jobs, mp_context=_pool_context(),
+                             initializer=_worker_init) as pool:
+        futures = {pool.submit(run_task, data, spec, settings, seed, out_dir): spec
+                   for spec in order}
+        for fut in as_completed(futures):
+            done[futures[fut]] = fut.result()
+            if report:
+                report(len(done), len(tasks), done[futures[fut]])
+    return done
+
+
+def _nrmse(task: TaskResult | None, freq: float | None, joint: bool) -> tuple[float, float]:
+    if task is None or not task.ok or task.overall is None:
+        return math.nan, math.nan
+    if joint:
+        return task.overall.nrmse_percent, task.overall.max_error_percent
+    for e in task.per_frequency:
+        if e.frequency_hz == freq:
+            return e.nrmse_percent, e.max_error_percent
+    return task.overall.nrmse_percent, task.overall.max_error_percent
+
+
+def _mask(task: TaskResult, freq: float | None, joint: bool) -> np.ndarray:
+    if joint:
+        return np.ones(task.pointwise.size, dtype=bool)
+    if freq is None:
+        return np.isnan(task.unit_frequency)
+    return task.unit_frequency == freq
+
+
+def _assemble(models: tuple[str, ...], freq: float | None, joint: bool,
+              fit: dict[str, TaskResult | None], lofo: dict[str, list[TaskResult]],
+              jointfit: dict[str, TaskResult]) -> FrequencyComparison:
+    """Rank the models at one frequency (or jointly)."""
+    pre: list[dict[str, Any]] = []
+    for m in models:
+        t = fit.get(m)
+        row: dict[str, Any] = {"model": m}
+        if t is None or not t.ok:
+            row["error"] = t.error if t is not None else "not run"
+            row["pw"] = None
+        else:
+            sel = _mask(t, freq, joint)
+            row["pw"] = t.pointwise[sel]
+            row["task"], row["sel"] = t, sel
+        lt = [x for x in lofo.get(m, []) if x.ok]
+        lofo_failed = [x.error for x in lofo.get(m, []) if not x.ok]
+        if lt and not lofo_failed:
+            lpw = np.concatenate([x.pointwise for x in lt])
+            row["lofo"] = _total_se(lpw)
+            if len(lt) == 1:
+                row["lofo_nrmse"] = _nrmse(lt[0], freq, True)[0]
+        jt = jointfit.get(m)
+        if jt is not None and jt.ok:
+            row["elpd_joint"] = float(np.sum(jt.pointwise[_mask(jt, freq, joint)]))
+        row["lofo_errors"] = lofo_failed
+        pre.append(row)
+    ok = [r for r in pre if r["pw"] is not None and np.all(np.isfinite(r["pw"]))
+          and r["pw"].size]
+    for r in pre:
+        if r["pw"] is not None and not any(r is o for o in ok):
+            r["error"] = "non-finite predictive density (failed simulations)"
+    if ok:
+        sizes = {r["pw"].size for r in ok}
+        if len(sizes) != 1:
+            raise ModelError(f"models scored different numbers of cycles at {freq}: {sizes}")
+        weights = stacking_weights(np.column_stack([r["pw"] for r in ok]))
+        for r, w in zip(ok, weights, strict=True):
+            r["weight"] = float(w)
+        top = max(ok, key=lambda r: float(np.sum(r["pw"])))
+    scores = []
+    for r in pre:
+        m = r["model"]
+        t: TaskResult | None = r.get("task")
+        lofo_elpd, lofo_se = r.get("lofo", (math.nan, math.nan))
+        warns = list(t.warnings) if t is not None else []
+        warns += [f"leave-one-frequency-out fit failed: {e}" for e in r["lofo_errors"]]
+        if t is None or r.get("error"):
+            scores.append(ModelScore(
+                m, *([math.nan] * 4), 0.0, *([math.nan] * 2), lofo_elpd, lofo_se,
+                r.get("lofo_nrmse", math.nan), r.get("elpd_joint", math.nan), math.nan,
+                math.nan, math.nan, 0, False, math.nan, 0, 0, tuple(warns),
+                r.get("error", "failed")))
+            continue
+        sel = r["sel"]
+        elpd, se = _total_se(r["pw"])
+        d, dse = (0.0, 0.0) if r is top else paired_difference(r["pw"], top["pw"])
+        wa = (_total_se(t.waic_pointwise[sel]) if t.waic_pointwise is not None
+              else (math.nan, math.nan))
+        k = t.pareto_k[sel] if t.pareto_k is not None else np.zeros(0)
+        kmax = float(np.nanmax(k)) if k.size and np.any(np.isfinite(k)) else math.nan
+        nrmse, mx = _nrmse(t, freq, joint)
+        conv = t.converged and all(x.converged for x in lofo.get(m, []) if x.ok)
+        scores.append(ModelScore(
+            m, elpd, se, t.p_loo, d, dse, r["weight"], wa[0], wa[1], lofo_elpd, lofo_se,
+            r.get("lofo_nrmse", math.nan), r.get("elpd_joint", math.nan), t.bic, nrmse, mx,
+            t.n_params, conv, kmax, t.n_refits, int(sel.sum()), tuple(warns)))
+
+    def rank(s: ModelScore) -> tuple[int, float]:
+        return (1, 0.0) if s.error else (0, -s.elpd_loo)
+
+    scores.sort(key=rank)
+    best = scores[0].model if scores and not scores[0].error else None
+    lofo_ok = [s for s in scores if math.isfinite(s.elpd_lofo)]
+    best_lofo = max(lofo_ok, key=lambda s: s.elpd_lofo).model if lofo_ok else None
+    return FrequencyComparison(freq, tuple(scores), best, best_lofo, joint)
+
+
+def compare_models(
+    data: Dataset | Record,
+    models: Sequence[str] | str,
+    *,
+    likelihood: str = "gaussian",
+    seed: int = 0,
+    n_walkers: int | None = None,
+    max_steps: int = 20_000,
+    first_chunk: int = 1_000,
+    draws_per_chain: int = 30,
+    n_lofo_draws: int = 400,
+    lofo: bool = True,
+    max_refits: int = 5,
+    gp_n_train: int = 1000,
+    n_jobs: int | None = None,
+    out_dir: str | os.PathLike[str] | None = None,
+    progress: bool = False,
+) -> ComparisonResult:
+    """Compare models per excitation frequency and over all frequencies.
+
+    Parameters
+    ----------
+    data : Dataset or Record
+        Measured records; records are grouped by ``frequency_hz`` (records without one
+        form an "unknown" group).
+    models : sequence of str, or a comma-separated str
+        Model spec strings (``"pi_play"``, ``"bouc_wen+second_order"``), and ``"gp"``
+        (Gaussian process on (u, du/dt), ref. [64]) or ``"gp_memory"`` (with reversal
+        memory features).
+    likelihood : str
+        ``"gaussian"``, ``"student_t"`` or ``"ar1"`` for the parametric models.
+    seed : int
+        Same seed, same numbers (whatever ``n_jobs``).
+    n_walkers, max_steps, first_chunk : int
+        Sampler settings of every fit (see :func:`~bayeshyst.inference.sampling.sample_posterior`).
+    draws_per_chain : int
+        Draws per walker kept for PSIS-LOO and WAIC.
+    n_lofo_draws : int
+        Posterior draws averaged for the held-out predictive density.
+    lofo : bool
+        Run the leave-one-frequency-out fits (one per model and frequency).
+    max_refits : int
+        Exact leave-one-cycle-out refits per fit for cycles with Pareto k > 0.7.
+    gp_n_train : int
+        Training subset of the GP models.
+    n_jobs : int, optional
+        Worker processes; default the machine's cores (``os.cpu_count()``).
+    out_dir : path, optional
+        Posteriors (netCDF) and resumable sampler checkpoints go here.
+    progress : bool
+        One line per finished fit on stderr.
+
+    Returns
+    -------
+    ComparisonResult
+    """
+    if isinstance(data, Record):
+        data = Dataset((data,), name=data.name)
+    if not isinstance(data, Dataset):
+        raise DataError(f"data must be a Dataset or Record, got {type(data).__name__}")
+    names = check_models(models)
+    get_likelihood(likelihood)
+    for value, what, low in ((max_steps, "max_steps", 10), (first_chunk, "first_chunk", 10),
+                             (draws_per_chain, "draws_per_chain", 1),
+                             (n_lofo_draws, "n_lofo_draws", 1), (max_refits, "max_refits", 0),
+                             (gp_n_train, "gp_n_train", 10)):
+        if int(value) != value or value < low:
+            raise ParameterError(f"{what} must be an integer >= {low}, got {value!r}")
+    n_jobs = (os.cpu_count() or 1) if n_jobs is None else int(n_jobs)
+    if n_jobs < 1:
+        raise ParameterError(f"n_jobs must be >= 1, got {n_jobs}")
+    settings = CompareSettings(likelihood, n_walkers, int(max_steps), int(first_chunk),
+                               int(draws_per_chain), int(n_lofo_draws), int(max_refits),
+                               int(gp_n_train))
+    groups = data.by_frequency()
+    keys = sorted(k for k in groups if k is not None) + ([None] if None in groups else [])
+    tasks = _tasks(names, keys, lofo)
+    out = None if out_dir is None else Path(out_dir)
+    t0 = time.perf_counter()
+
+    def report(i: int, n: int, r: TaskResult) -> None:
+        state = ("FAILED: " + (r.error or "")) if not r.ok else (
+            "converged" if r.converged else "NOT converged")
+        print(f"[{i}/{n}] {r.spec.key}: {state} ({r.runtime_s:.1f} s)", file=sys.stderr,
+              flush=True)
+
+    done = _run_all(data, tasks, settings, seed, out, min(n_jobs, len(tasks)),
+                    report if progress else None)
+    joint = {s.model: r for s, r in done.items() if s.scope == "joint"}
+    per = []
+    for f in keys:
+        fit = ({s.model: r for s, r in done.items() if s.scope == "frequency"
+                and s.frequency_hz == f} if len(keys) > 1 else dict(joint))
+        lofo_f = {m: [r for s, r in done.items() if s.scope == "lofo" and s.model == m
+                      and s.frequency_hz == f] for m in names}
+        per.append(_assemble(names, f, False, fit, lofo_f, joint))
+    lofo_all = {m: [r for s, r in done.items() if s.scope == "lofo" and s.model == m]
+                for m in names}
+    overall = _assemble(names, None, True, joint, lofo_all, joint)
+    settings_d = {**settings.__dict__, "seed": seed, "lofo": bool(lofo) and len(keys) > 1,
+                  "n_jobs": n_jobs}
+    return ComparisonResult(names, tuple(per), overall,
+                            tuple(done[s] for s in tasks), settings_d,
+                            time.perf_counter() - t0)

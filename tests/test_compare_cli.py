@@ -1,0 +1,120 @@
+"""``bayeshyst compare`` end to end: the files, the summary contract, bad input."""
+
+from __future__ import annotations
+
+import csv
+import json
+
+import numpy as np
+import pytest
+
+import bayeshyst.models as M
+from bayeshyst.cli import main
+from bayeshyst.data import Dataset, Record, write_csv
+from bayeshyst.models.base import DataScales
+
+RANKING_KEYS = {"model", "elpd_loo", "se", "weight", "nrmse_percent"}
+
+
+def _two_frequency_data(sigma=0.05):
+    model = M.get("pi_play", n_operators=3)
+    r = model.param_space(DataScales(0.0, 150.0, 0.0, 20.0)).fixed["r"]
+    theta = {"p0": 0.1, "w": np.array([0.05, 0.03, 0.02]), "r": r}
+    recs = []
+    for i, f in enumerate((2.0, 20.0)):
+        t = np.arange(400) / (80 * f)
+        u = 75 - 70 * np.cos(2 * np.pi * f * t)
+        y = model.simulate(u, t, theta) + np.random.default_rng(i).normal(0, sigma, t.size)
+        recs.append(Record(t=t, u=u, y=y, name=f"r{f:g}", warmup=80,
+                           metadata={"frequency_hz": f, "note": "<b>user</b>"}))
+    return Dataset(tuple(recs), name="two")
+
+
+@pytest.fixture(scope="module")
+def compared(tmp_path_factory):
+    data_path = tmp_path_factory.mktemp("data") / "two.csv"
+    write_csv(_two_frequency_data(), data_path)
+    out = tmp_path_factory.mktemp("cmp") / "out"
+    code = main(["compare", str(data_path), "--models", "pi_play(n_operators=3),duhem",
+                 "--out", str(out), "--steps", "200", "--walkers", "24", "--jobs", "2",
+                 "--max-refits", "1", "--quiet"])
+    return code, out
+
+
+def test_compare_writes_every_output(compared):
+    code, out = compared
+    assert code == 0
+    summary = json.loads((out / "summary.json").read_text())
+    assert [e["frequency_hz"] for e in summary["per_frequency"]] == [2.0, 20.0]
+    for entry in summary["per_frequency"]:
+        assert entry["best"] == entry["ranking"][0]["model"]
+        assert {r["model"] for r in entry["ranking"]} == {"pi_play(n_operators=3)", "duhem"}
+        for row in entry["ranking"]:
+            assert RANKING_KEYS <= set(row)
+            assert row["elpd_loo"] is not None and row["se"] >= 0
+            assert 0.0 <= row["weight"] <= 1.0
+            # leave-one-frequency-out ran: each model was scored on the held-out frequency
+            assert row["elpd_lofo"] is not None
+        assert sum(r["weight"] for r in entry["ranking"]) == pytest.approx(1.0, abs=1e-9)
+        elpds = [r["elpd_loo"] for r in entry["ranking"]]
+        assert elpds == sorted(elpds, reverse=True)
+        assert entry["statement"].startswith(f"{entry['frequency_hz']:g} Hz: {entry['best']}")
+    assert summary["overall"]["best"] in {"pi_play(n_operators=3)", "duhem"}
+    # 2 models x (joint + 2 frequencies + 2 held-out frequencies)
+    assert len(summary["fits"]) == 10
+    # the fits were given too few steps to converge: the summary must say so
+    assert any("did not converge" in w for w in summary["warnings"])
+    with open(out / "comparison.csv", newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    assert len(rows) == 3 * 2 and {r["frequency_hz"] for r in rows} == {"2.0", "20.0", "all"}
+    assert (out / "compare.png").stat().st_size > 10_000
+    assert "ranks first" in (out / "comparison.txt").read_text()
+    nc = sorted(p.name for p in (out / "posteriors").iterdir())
+    assert nc == sorted(summary["files"]["posteriors"]) and len(nc) == 6  # joint + frequency
+    assert not [p for p in out.rglob("*") if ".tmp" in p.name]
+
+
+def test_pi_model_wins_on_pi_data(compared):
+    # data from a 3-operator PI model: the PI model must beat the Duhem model everywhere
+    summary = json.loads((compared[1] / "summary.json").read_text())
+    for entry in summary["per_frequency"] + [summary["overall"]]:
+        assert entry["best"] == "pi_play(n_operators=3)"
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["--models", "pi_plya"], "unknown model 'pi_plya'"),
+    (["--models", "pi_play,pi_play"], "listed more than once"),
+    (["--models", "pi_play(n_operators=x)"], "must be a literal"),
+    (["--models", "pi_play", "--likelihood", "cauchy"], "likelihood"),
+])
+def test_bad_models_exit_2_and_write_nothing(tmp_path, capsys, argv, message):
+    data_path = tmp_path / "d.csv"
+    write_csv(_two_frequency_data(), data_path)
+    out = tmp_path / "out"
+    assert main(["compare", str(data_path), "--out", str(out), *argv]) == 2
+    err = capsys.readouterr().err
+    assert message in err and "Traceback" not in err
+    assert not out.exists()
+
+
+def test_missing_data_file_exit_2(tmp_path, capsys):
+    out = tmp_path / "out"
+    assert main(["compare", str(tmp_path / "nope.csv"), "--models", "pi_play",
+                 "--out", str(out)]) == 2
+    assert "nope.csv" in capsys.readouterr().err
+    assert not out.exists()
+
+
+def test_bad_numbers_are_usage_errors(tmp_path, capsys):
+    with pytest.raises(SystemExit) as exc:
+        main(["compare", "x.csv", "--models", "pi_play", "--jobs", "0"])
+    assert exc.value.code == 2
+    assert "positive integer" in capsys.readouterr().err
+
+
+def test_help_lists_compare(capsys):
+    with pytest.raises(SystemExit):
+        main(["compare", "--help"])
+    text = capsys.readouterr().out
+    for option in ("--models", "--no-lofo", "--jobs", "--max-refits", "--gp-train"):
+        assert option in text
