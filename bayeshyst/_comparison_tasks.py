@@ -23,6 +23,7 @@ Scores, per cycle (the cross-validation unit of :class:`~bayeshyst.inference.pos
 
 from __future__ import annotations
 
+import hashlib
 import math
 import re
 import time
@@ -190,6 +191,18 @@ def _units_meta(data: Dataset) -> tuple[np.ndarray, tuple[str, ...]]:
     return np.asarray(freqs, dtype=float), tuple(labels)
 
 
+def _run_digest(data: Dataset, settings: CompareSettings, seed: int) -> str:
+    """Short digest of what a fit depends on: a re-run with the same data and settings
+    resumes its checkpoint, a changed one starts a new file instead of failing on the
+    old one's fingerprint."""
+    h = hashlib.sha256(repr((settings, seed)).encode())
+    for rec in data:
+        for arr in (rec.t, rec.u, rec.y):
+            h.update(np.ascontiguousarray(arr).tobytes())
+        h.update(str(rec.warmup).encode())
+    return h.hexdigest()[:10]
+
+
 def _logmeanexp(ll: np.ndarray) -> np.ndarray:
     """``log mean exp`` over axis 0, ``-inf`` rows (failed draws) included as zeros."""
     return logsumexp(ll, axis=0) - math.log(ll.shape[0])
@@ -260,7 +273,8 @@ def _run_parametric(data: Dataset, spec: TaskSpec, settings: CompareSettings, se
     t0 = time.perf_counter()
     train, test = split_data(data, spec)
     post = Posterior(spec.model, train, settings.likelihood)
-    ckpt = None if out_dir is None else out_dir / "checkpoints" / f"{spec.key}.h5"
+    ckpt = None if out_dir is None else out_dir / "checkpoints" / (
+        f"{spec.key}-{_run_digest(train, settings, seed)}.h5")
     res = sample_posterior(post, n_walkers=settings.n_walkers, max_steps=settings.max_steps,
                            first_chunk=settings.first_chunk, seed=seed, checkpoint=ckpt)
     notes = [] if res.converged else ["the sampler did not converge within its budget"]
@@ -331,7 +345,8 @@ def run_task(data: Dataset, spec: TaskSpec, settings: CompareSettings, seed: int
         The comparison's seed; the task derives its own with :func:`task_seed`.
     out_dir : path, optional
         Where posteriors (``posteriors/<key>.nc``) and sampler checkpoints
-        (``checkpoints/<key>.h5``, resumed on a re-run) go.
+        (``checkpoints/<key>-<digest>.h5``; the digest covers data, settings and
+        seed, so a re-run with the same ones resumes) go.
     """
     out = None if out_dir is None else Path(out_dir)
     s = task_seed(seed, spec)

@@ -14,6 +14,8 @@ from bayeshyst.data import Dataset, Record, write_csv
 from bayeshyst.models.base import DataScales
 
 RANKING_KEYS = {"model", "elpd_loo", "se", "weight", "nrmse_percent"}
+ARGS = ["--models", "pi_play(n_operators=3),duhem", "--steps", "200", "--walkers", "24",
+        "--jobs", "2", "--max-refits", "1", "--quiet"]
 
 
 def _two_frequency_data(sigma=0.05):
@@ -35,14 +37,12 @@ def compared(tmp_path_factory):
     data_path = tmp_path_factory.mktemp("data") / "two.csv"
     write_csv(_two_frequency_data(), data_path)
     out = tmp_path_factory.mktemp("cmp") / "out"
-    code = main(["compare", str(data_path), "--models", "pi_play(n_operators=3),duhem",
-                 "--out", str(out), "--steps", "200", "--walkers", "24", "--jobs", "2",
-                 "--max-refits", "1", "--quiet"])
-    return code, out
+    code = main(["compare", str(data_path), *ARGS, "--out", str(out)])
+    return code, out, data_path
 
 
 def test_compare_writes_every_output(compared):
-    code, out = compared
+    code, out, _ = compared
     assert code == 0
     summary = json.loads((out / "summary.json").read_text())
     assert [e["frequency_hz"] for e in summary["per_frequency"]] == [2.0, 20.0]
@@ -79,6 +79,22 @@ def test_pi_model_wins_on_pi_data(compared):
     summary = json.loads((compared[1] / "summary.json").read_text())
     for entry in summary["per_frequency"] + [summary["overall"]]:
         assert entry["best"] == "pi_play(n_operators=3)"
+
+
+def test_rerun_resumes_from_checkpoints_with_identical_numbers(compared):
+    _, out, data_path = compared
+    before = json.loads((out / "summary.json").read_text())
+    ckpts = sorted(p.name for p in (out / "checkpoints").iterdir())
+    assert len(ckpts) == 10
+    assert main(["compare", str(data_path), *ARGS, "--out", str(out)]) == 0
+    after = json.loads((out / "summary.json").read_text())
+    assert after["per_frequency"] == before["per_frequency"]
+    assert after["overall"] == before["overall"]
+    assert sorted(p.name for p in (out / "checkpoints").iterdir()) == ckpts
+    # other settings do not trip over the old checkpoints: they get their own files
+    other = [a if a != "200" else "150" for a in ARGS]
+    assert main(["compare", str(data_path), *other, "--out", str(out)]) == 0
+    assert len(list((out / "checkpoints").iterdir())) == 20
 
 
 @pytest.mark.parametrize("argv, message", [

@@ -66,6 +66,7 @@ def test_stacking_dominant_model_and_huge_magnitudes():
         stacking_weights(np.array([[0.0, -np.inf]]))
 
 
+@pytest.mark.filterwarnings("ignore::DeprecationWarning", "ignore::FutureWarning")
 def test_paired_difference_equals_arviz_compare():
     rng = np.random.default_rng(4)
     n_units, n_draws = 25, 400
