@@ -17,6 +17,7 @@ import pytest
 
 import bayeshyst.models as M
 from bayeshyst.data import Dataset, Record
+from bayeshyst.inference.posterior import cycle_units
 from bayeshyst.models.base import DataScales
 from bayeshyst.selection import compare_models
 
@@ -125,3 +126,24 @@ def test_mr_damper_comparison_runs_end_to_end(shared_data_dir, tmp_path):
         assert all(r["elpd_loo"] is not None for r in entry["ranking"])
     assert (tmp_path / "compare.png").exists()
     print("\n".join(summary["statements"]))
+
+
+def test_single_frequency_and_unknown_frequency_groups():
+    data = _hammerstein_data(freqs=(2.0, 30.0), cycles=3, per_cycle=60)
+    kw = dict(max_steps=100, first_chunk=100, n_walkers=16, max_refits=0, draws_per_chain=5,
+              n_lofo_draws=20, n_jobs=1)
+    one = compare_models(data[0], [STATIC], **kw)
+    # one frequency: the joint fit is the per-frequency fit, and nothing is held out
+    assert [fc.frequency_hz for fc in one.per_frequency] == [2.0]
+    assert len(one.tasks) == 1 and one.settings["lofo"] is False
+    s = one.per_frequency[0].score(STATIC)
+    assert s.elpd_loo == one.overall.score(STATIC).elpd_loo
+    assert math.isnan(s.elpd_lofo) and s.weight == 1.0
+    assert s.n_cycles == len(cycle_units(data[0]))
+    # a record without a frequency forms its own group, listed last
+    bare = data[1].with_(metadata={})
+    mixed = compare_models(Dataset((data[0], bare)), [STATIC], **kw)
+    assert [fc.frequency_hz for fc in mixed.per_frequency] == [2.0, None]
+    assert [fc.label for fc in mixed.per_frequency] == ["2 Hz", "unknown"]
+    assert math.isfinite(mixed.per_frequency[1].score(STATIC).elpd_lofo)
+    assert mixed.overall.score(STATIC).n_cycles == sum(len(cycle_units(r)) for r in data)
