@@ -285,6 +285,37 @@ class ComparisonResult:
     settings: dict[str, Any] = field(default_factory=dict)
     runtime_s: float = 0.0
 
+    def difference(self, a: str, b: str, frequency_hz: float | None = None, *,
+                   joint: bool = False) -> tuple[float, float]:
+        """``elpd_loo(a) - elpd_loo(b)`` and its paired standard error at one frequency.
+
+        Parameters
+        ----------
+        a, b : str
+            Model specs of this comparison.
+        frequency_hz : float or None
+            The frequency (``None``: records of unknown frequency, or all frequencies
+            with ``joint=True``).
+        joint : bool
+            Compare the joint fits over all frequencies.
+        """
+        fits = {}
+        single = len(self.per_frequency) == 1
+        for t in self.tasks:
+            if t.spec.model not in (a, b) or not t.ok:
+                continue
+            if joint or single:
+                if t.spec.scope == "joint":
+                    fits[t.spec.model] = t
+            elif t.spec.scope == "frequency" and t.spec.frequency_hz == frequency_hz:
+                fits[t.spec.model] = t
+        missing = [m for m in (a, b) if m not in fits]
+        if missing:
+            raise ParameterError(f"no successful fit of {missing} at "
+                                 f"{'all frequencies' if joint else frequency_hz}")
+        pw = [fits[m].pointwise[_mask(fits[m], frequency_hz, joint)] for m in (a, b)]
+        return paired_difference(pw[0], pw[1])
+
     def winners(self) -> dict[str, str | None]:
         """Best model by ``elpd_loo`` at each frequency label."""
         return {fc.label: fc.best for fc in self.per_frequency}

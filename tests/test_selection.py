@@ -1,9 +1,9 @@
 """Model selection per frequency on data with a known truth, and on measured data.
 
 The truth is a Hammerstein actuator — a 4-operator play-PI hysteresis followed by a
-second-order resonance at 250 Hz (damping 0.2) — observed with white sensor noise of
-0.1 % of the stroke, at 1 Hz (quasi-static: the resonance is invisible) and 80 Hz
-(the resonance amplifies and delays the loop by ~10 % and ~5 degrees). Candidates: the
+second-order resonance at 250 Hz (damping 0.2, first-order hold) — observed with white
+sensor noise of 0.1 % of the stroke, at 1 Hz (quasi-static: the resonance is invisible)
+and 80 Hz (the resonance amplifies the loop by ~10 % and delays it by ~7 degrees). Candidates: the
 generating hysteresis family alone (static PI), another static family (Bouc-Wen), the
 generating Hammerstein (rate-dependent) and the Gaussian process.
 """
@@ -54,23 +54,34 @@ def comparison():
 def test_generating_family_first_at_low_frequency(comparison):
     low = comparison.per_frequency[0]
     assert low.frequency_hz == 1.0
-    # the quasi-static loop: the generating PI family ranks first, the other static
-    # family does not
+    # the quasi-static loop: the generating PI family ranks first; its static form is
+    # as good (within two standard errors: the resonance is invisible at 1 Hz), the
+    # other static family is significantly worse
     assert low.best in (STATIC, HAMMERSTEIN), str(low)
-    assert low.score(OTHER).delta_elpd < 0
+    static = low.score(STATIC)
+    assert -static.delta_elpd <= 2 * static.delta_se or static.delta_elpd == 0.0, str(low)
+    other = low.score(OTHER)
+    assert -other.delta_elpd > 2 * other.delta_se, str(low)
 
 
 def test_rate_dependent_model_overtakes_static_ones_at_high_frequency(comparison):
     high = comparison.per_frequency[-1]
     assert high.frequency_hz == 80.0
-    assert high.best == HAMMERSTEIN, str(high)
+    # a rate-dependent model ranks first (the Hammerstein or the GP on (u, du/dt))
+    assert high.best in (HAMMERSTEIN, "gp"), str(high)
+    hammer = high.score(HAMMERSTEIN)
     for static in (STATIC, OTHER):
         s = high.score(static)
-        # significantly behind: more than two standard errors of the paired difference
-        assert -s.delta_elpd > 2 * s.delta_se, (static, s.delta_elpd, s.delta_se)
-        assert s.nrmse_percent > high.score(HAMMERSTEIN).nrmse_percent
+        # the Hammerstein is significantly ahead of every static model: more than two
+        # standard errors of the paired difference
+        d, se = comparison.difference(HAMMERSTEIN, static, 80.0)
+        assert d == pytest.approx(hammer.elpd_loo - s.elpd_loo)
+        assert d > 2 * se, (static, d, se, str(high))
+        assert s.nrmse_percent > hammer.nrmse_percent
     # over all frequencies jointly one parameter set must serve both: dynamics win
     assert comparison.overall.best == HAMMERSTEIN
+    d, se = comparison.difference(HAMMERSTEIN, STATIC, joint=True)
+    assert d > 2 * se
 
 
 def test_gp_and_parametric_models_share_the_table(comparison):

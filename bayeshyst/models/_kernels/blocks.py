@@ -14,12 +14,14 @@ inversion) run a serial twin of the same loop, see
 Continuous-time blocks share one convention. The state holds the previous input
 ``w_prev``, the previous sample time ``t_prev`` and the time step ``h_ref`` that the
 cached discretisation was built for. Between samples the input is held (zero-order
-hold, ``w(t) = w_{k-1}`` on ``[t_{k-1}, t_k)``), which the matrix exponential
-propagates exactly. ``t_prev = NaN`` means "at rest since forever, now at the first
-sample's time": the first sample is not propagated (a steady state is a fixed point of
-every step, so no step length is needed). The discretisation is recomputed only when
-the step differs from ``h_ref`` by more than :data:`DT_RTOL` relative (rounding of
-``t``); since ``h_ref`` lives in the state, a run in pieces equals one run bit for bit.
+hold, ``w(t) = w_{k-1}`` on ``[t_{k-1}, t_k)``) or, for the second-order block by
+default, linear (first-order hold: no artificial one-sample delay), and the matrix
+exponential propagates either exactly. ``t_prev = NaN`` means "at rest since forever,
+now at the first sample's time": the first sample is not propagated (a steady state is
+a fixed point of every step, so no step length is needed). The discretisation is
+recomputed only when the step differs from ``h_ref`` by more than :data:`DT_RTOL`
+relative (rounding of ``t``); since ``h_ref`` lives in the state, a run in pieces
+equals one run bit for bit.
 """
 
 from __future__ import annotations
@@ -206,7 +208,7 @@ def second_order_phi(wn, zeta, h, phi):
 
 
 @njit(cache=True)
-def _second_order_one(w, t, wn, zeta, state, out):
+def _second_order_one(w, t, wn, zeta, foh, state, out):
     if not (wn > 0.0 and math.isfinite(wn) and zeta >= 0.0 and math.isfinite(zeta)):
         return False
     y = state[0]
@@ -226,10 +228,21 @@ def _second_order_one(w, t, wn, zeta, state, out):
                 if not abs(dt - href) <= DT_RTOL * href:
                     href = dt
                     second_order_phi(wn, zeta, href, phi)
-                # the error from the equilibrium of the held input decays as expm(A h)
-                e1 = y - wp
-                y = wp + phi[0] * e1 + phi[1] * v
-                v = phi[2] * e1 + phi[3] * v
+                if foh:
+                    # input linear from w_prev to w_k: the ramp's particular solution is
+                    # y_p = w(tau) - c s, v_p = s (c = 2 zeta / wn, s the slope); the
+                    # deviation from it decays as expm(A h)
+                    slope = (w[k] - wp) / dt
+                    c = 2.0 * zeta / wn
+                    e1 = y - (wp - c * slope)
+                    e2 = v - slope
+                    y = w[k] - c * slope + phi[0] * e1 + phi[1] * e2
+                    v = slope + phi[2] * e1 + phi[3] * e2
+                else:
+                    # the error from the equilibrium of the held input decays as expm(A h)
+                    e1 = y - wp
+                    y = wp + phi[0] * e1 + phi[1] * v
+                    v = phi[2] * e1 + phi[3] * v
         out[k] = y
         wp = w[k]
         tp = t[k]
@@ -242,21 +255,22 @@ def _second_order_one(w, t, wn, zeta, state, out):
 
 
 @njit(cache=True, parallel=True)
-def _second_order_par(w, t, wn, zeta, state, out, failed):
-    """``G(s) = wn^2 / (s^2 + 2 zeta wn s + wn^2)``, exact ZOH, for W parameter vectors.
+def _second_order_par(w, t, wn, zeta, foh, state, out, failed):
+    """``G(s) = wn^2 / (s^2 + 2 zeta wn s + wn^2)``, exact, for W parameter vectors.
 
-    ``wn`` (W,) natural angular frequency (rad/s), ``zeta`` (W,) damping ratio;
+    ``wn`` (W,) natural angular frequency (rad/s), ``zeta`` (W,) damping ratio; ``foh``
+    True: the input is linear between samples (first-order hold), False: held (ZOH);
     ``state`` (W, 5) ``[y, dy/dt, w_prev, t_prev, h_ref]``.
     """
     for j in prange(w.shape[0]):
-        ok = _second_order_one(w[j], t, wn[j], zeta[j], state[j], out[j])
+        ok = _second_order_one(w[j], t, wn[j], zeta[j], foh, state[j], out[j])
         _finish(ok, out[j], failed, j)
 
 
 @njit(cache=True)
-def _second_order_ser(w, t, wn, zeta, state, out, failed):
+def _second_order_ser(w, t, wn, zeta, foh, state, out, failed):
     for j in range(w.shape[0]):
-        ok = _second_order_one(w[j], t, wn[j], zeta[j], state[j], out[j])
+        ok = _second_order_one(w[j], t, wn[j], zeta[j], foh, state[j], out[j])
         _finish(ok, out[j], failed, j)
 
 

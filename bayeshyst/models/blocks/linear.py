@@ -8,7 +8,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from bayeshyst.errors import ParameterError
+from bayeshyst.errors import ModelError, ParameterError
 from bayeshyst.models._kernels.blocks import arx_batch, arx_polynomials, second_order_batch
 from bayeshyst.models.base import check_count, kernel_buffers
 from bayeshyst.models.blocks.base import (
@@ -120,10 +120,20 @@ class ARX(EffectBlock):
 class SecondOrder(EffectBlock):
     """Second-order dynamics ``G(s) = wn^2 / (s^2 + 2 zeta wn s + wn^2)``, ``wn = 2 pi f_n``.
 
-    Discretised exactly: the input is held between samples (ZOH) and the state is
-    propagated by the matrix exponential, in closed form for under-, critically and
-    over-damped ``zeta`` (MODELS.md §7). Any sampling, uniform or not, is exact: the
-    discretisation is cached per distinct step and recomputed when the step changes.
+    Discretised exactly for the chosen hold of the input between samples, by the
+    matrix exponential in closed form for under-, critically and over-damped ``zeta``
+    (MODELS.md §7). Any sampling, uniform or not, is exact: the discretisation is cached
+    per distinct step and recomputed when the step changes.
+
+    Parameters
+    ----------
+    hold : {"foh", "zoh"}, default "foh"
+        ``"foh"``: the input is linear between samples (first-order hold), as a sampled
+        smooth drive is; the output at ``t_k`` depends on ``w_k``. ``"zoh"``: the input
+        is held, so the output at ``t_k`` depends on inputs up to ``w_{k-1}`` only (a
+        strictly proper map whose one-sample lag is an artefact of the hold: at 100
+        samples per period it delays the loop by 3.6 degrees, which model comparison
+        would then mistake for dynamics).
 
     Notes
     -----
@@ -131,12 +141,17 @@ class SecondOrder(EffectBlock):
     data's Nyquist frequency; ``fs = 10 kHz`` without data) and a factor-e spread, so
     about 1 % of the prior lies above Nyquist; ``zeta`` (1), log-normal with median 0.3
     (piezo stages are lightly damped; 11 % prior mass is over-damped). ``G(0) = 1``.
-    With ZOH the output at ``t_k`` depends on inputs up to ``w_{k-1}`` only (strictly
-    proper). State: ``[y, dy/dt, w_prev, t_prev, h_ref]``.
+    State: ``[y, dy/dt, w_prev, t_prev, h_ref]``.
     """
 
     name: ClassVar[str] = "second_order"
-    equation: ClassVar[str] = "wn^2/(s^2 + 2 zeta wn s + wn^2), exact ZOH"
+    equation: ClassVar[str] = "wn^2/(s^2 + 2 zeta wn s + wn^2), exact FOH or ZOH"
+
+    hold: str = "foh"
+
+    def __post_init__(self) -> None:
+        if self.hold not in ("foh", "zoh"):
+            raise ModelError(f"SecondOrder.hold: expected 'foh' or 'zoh', got {self.hold!r}")
 
     @property
     def state_size(self) -> int:
@@ -162,5 +177,6 @@ class SecondOrder(EffectBlock):
     def _apply(self, w, t, theta, state):
         out, st, failed = kernel_buffers(state, w.shape[1])
         wn = 2.0 * np.pi * np.ascontiguousarray(theta["f_n"], dtype=np.float64)
-        second_order_batch(w, t, wn, np.ascontiguousarray(theta["zeta"]), st, out, failed)
+        second_order_batch(w, t, wn, np.ascontiguousarray(theta["zeta"]), self.hold == "foh",
+                           st, out, failed)
         return out, st, failed
