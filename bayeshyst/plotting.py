@@ -27,6 +27,7 @@ import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.collections import PolyCollection
 from matplotlib.figure import Figure
+from matplotlib.ticker import NullFormatter
 
 from bayeshyst.errors import ParameterError
 from bayeshyst.files import atomic_path
@@ -566,6 +567,9 @@ def _build_model_comparison(result: Any) -> Figure:
     for ax in axes:
         if f.size > 1 and f.max() / f.min() > 8:
             ax.set_xscale("log")
+        # label the measured frequencies themselves, not log-decade minor ticks
+        ax.set_xticks(f, [f"{x:g}" for x in f])
+        ax.xaxis.set_minor_formatter(NullFormatter())
         ax.set_xlabel("excitation frequency [Hz]")
         ax.grid(alpha=0.3)
     axes[0].legend(fontsize=7, loc="best")
