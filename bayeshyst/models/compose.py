@@ -15,7 +15,6 @@ name (``static.w``, ``arx.kappa``, ``creep.c``); a block that appears twice gets
 from __future__ import annotations
 
 import ast
-import dataclasses
 import math
 import re
 from collections.abc import Mapping, Sequence
@@ -208,16 +207,6 @@ def _split_part(part: str, spec: str) -> tuple[str, dict[str, Any]]:
     return name, settings
 
 
-def _build_block(name: str, settings: dict[str, Any], spec: str) -> EffectBlock:
-    cls = block_class(name)
-    fields = {f.name for f in dataclasses.fields(cls) if f.init}
-    unknown = sorted(set(settings) - fields)
-    if unknown:
-        raise ModelError(f"model spec {spec!r}: block {name!r} has no setting(s) {unknown}; "
-                         f"settings: {sorted(fields) or 'none'}")
-    return cls(**settings)
-
-
 def parse_spec(spec: str) -> HysteresisModel:
     """Build a model from a spec string ``"base+block+block..."``.
 
@@ -244,7 +233,8 @@ def parse_spec(spec: str) -> HysteresisModel:
     base = registry.get(head, **head_settings)
     if not rest:
         return base
-    return Composite(base, tuple(_build_block(n, kw, spec) for n, kw in rest))
+    return Composite(base, tuple(registry.build(block_class(n), kw, f"model spec {spec!r}: "
+                                                f"block {n!r}") for n, kw in rest))
 
 
 registry.register_spec_parser(parse_spec)

@@ -9,7 +9,7 @@ from typing import Any
 from bayeshyst.errors import ModelError
 from bayeshyst.models.base import HysteresisModel
 
-__all__ = ["get", "model_class", "names", "register", "register_spec_parser"]
+__all__ = ["build", "get", "model_class", "names", "register", "register_spec_parser"]
 
 _REGISTRY: dict[str, type[HysteresisModel]] = {}
 _SPEC_PARSER: list[Callable[[str], HysteresisModel]] = []
@@ -64,10 +64,18 @@ def get(spec: str, **settings: Any) -> HysteresisModel:
         if not _SPEC_PARSER:
             raise ModelError(f"composed spec {spec!r}: no effect blocks are installed")
         return _SPEC_PARSER[0](spec)
-    cls = model_class(spec)
+    return build(model_class(spec), settings, f"model {spec!r}")
+
+
+def build(cls: type, settings: dict[str, Any], label: str) -> Any:
+    """``cls(**settings)`` after checking every setting is a field of the dataclass.
+
+    ``label`` names the thing in the message (``"model 'pi_play'"``); unknown settings
+    are an error that lists the valid ones, never silently dropped.
+    """
     fields = {f.name for f in dataclasses.fields(cls) if f.init}
     unknown = sorted(set(settings) - fields)
     if unknown:
-        raise ModelError(f"model {spec!r} has no setting(s) {unknown}; "
+        raise ModelError(f"{label} has no setting(s) {unknown}; "
                          f"settings: {sorted(fields) or 'none'}")
     return cls(**settings)
