@@ -500,11 +500,15 @@ def _assemble(models: tuple[str, ...], freq: float | None, joint: bool,
         warns = list(t.warnings) if t is not None else []
         warns += [f"leave-one-frequency-out fit failed: {e}" for e in r["lofo_errors"]]
         if t is None or r.get("error"):
+            nan = math.nan
             scores.append(ModelScore(
-                m, *([math.nan] * 4), 0.0, *([math.nan] * 2), lofo_elpd, lofo_se,
-                r.get("lofo_nrmse", math.nan), r.get("elpd_joint", math.nan), math.nan,
-                math.nan, math.nan, 0, False, math.nan, 0, 0, tuple(warns),
-                r.get("error", "failed")))
+                model=m, elpd_loo=nan, se=nan, p_loo=nan, delta_elpd=nan, delta_se=nan,
+                weight=0.0, elpd_waic=nan, waic_se=nan, elpd_lofo=lofo_elpd, lofo_se=lofo_se,
+                lofo_nrmse_percent=r.get("lofo_nrmse", nan),
+                elpd_joint=r.get("elpd_joint", nan), bic=nan, nrmse_percent=nan,
+                max_error_percent=nan, n_params=0, converged=False, max_pareto_k=nan,
+                n_refits=0, n_cycles=0, warnings=tuple(warns),
+                error=r.get("error") or "failed"))
             continue
         sel = r["sel"]
         elpd, se = _total_se(r["pw"])
@@ -516,9 +520,12 @@ def _assemble(models: tuple[str, ...], freq: float | None, joint: bool,
         nrmse, mx = _nrmse(t, freq, joint)
         conv = t.converged and all(x.converged for x in lofo.get(m, []) if x.ok)
         scores.append(ModelScore(
-            m, elpd, se, t.p_loo, d, dse, r["weight"], wa[0], wa[1], lofo_elpd, lofo_se,
-            r.get("lofo_nrmse", math.nan), r.get("elpd_joint", math.nan), t.bic, nrmse, mx,
-            t.n_params, conv, kmax, t.n_refits, int(sel.sum()), tuple(warns)))
+            model=m, elpd_loo=elpd, se=se, p_loo=t.p_loo, delta_elpd=d, delta_se=dse,
+            weight=r["weight"], elpd_waic=wa[0], waic_se=wa[1], elpd_lofo=lofo_elpd,
+            lofo_se=lofo_se, lofo_nrmse_percent=r.get("lofo_nrmse", math.nan),
+            elpd_joint=r.get("elpd_joint", math.nan), bic=t.bic, nrmse_percent=nrmse,
+            max_error_percent=mx, n_params=t.n_params, converged=conv, max_pareto_k=kmax,
+            n_refits=t.n_refits, n_cycles=int(sel.sum()), warnings=tuple(warns)))
 
     def rank(s: ModelScore) -> tuple[int, float]:
         return (1, 0.0) if s.error else (0, -s.elpd_loo)

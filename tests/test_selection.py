@@ -158,3 +158,30 @@ def test_single_frequency_and_unknown_frequency_groups():
     assert [fc.label for fc in mixed.per_frequency] == ["2 Hz", "unknown"]
     assert math.isfinite(mixed.per_frequency[1].score(STATIC).elpd_lofo)
     assert mixed.overall.score(STATIC).n_cycles == sum(len(cycle_units(r)) for r in data)
+
+
+def test_a_failing_fit_is_recorded_and_ranked_last(monkeypatch):
+    import bayeshyst._comparison_tasks as tasks
+    from bayeshyst.errors import SimulationError
+
+    real = tasks._run_parametric
+
+    def flaky(data, spec, settings, seed, out_dir):
+        if spec.model == OTHER and spec.scope == "frequency" and spec.frequency_hz == 20.0:
+            raise SimulationError("integrator blew up (simulated failure)")
+        return real(data, spec, settings, seed, out_dir)
+
+    monkeypatch.setattr(tasks, "_run_parametric", flaky)
+    data = _hammerstein_data(freqs=(2.0, 20.0), cycles=3, per_cycle=60)
+    res = compare_models(data, [STATIC, OTHER], max_steps=100, first_chunk=100, n_walkers=16,
+                         max_refits=0, draws_per_chain=5, n_lofo_draws=20, n_jobs=1,
+                         lofo=False)
+    assert len(res.failed) == 1 and "integrator blew up" in res.failed[0].error
+    at20 = res.per_frequency[1]
+    assert [s.model for s in at20.scores] == [STATIC, OTHER]
+    bad = at20.score(OTHER)
+    assert "integrator blew up" in bad.error and bad.weight == 0.0
+    assert math.isnan(bad.elpd_loo) and at20.score(STATIC).weight == 1.0
+    # the other frequency and the joint row are untouched
+    assert res.per_frequency[0].score(OTHER).error is None
+    assert res.to_dict()["failed_fits"] == [res.failed[0].error]
