@@ -529,3 +529,46 @@ def test_h_bound_and_bad_theta():
         model.h_bound({**th, "beta": -1.0})
     with pytest.raises(SimulationError):  # β - γ < 0: outside the stable region
         model.simulate(U_PROP, T_PROP, {**th, "gamma": 0.2})
+
+
+# ------------------------------------------------------------ sign of the hysteretic term
+def _sine_input(n=1200, cycles=3):
+    t = np.arange(n) * 1e-3
+    return t, 75 - 70 * np.cos(2 * np.pi * cycles * t / t[-1])
+
+
+@pytest.mark.parametrize("name", ["bouc_wen", "bouc_wen_asym"])
+def test_sign_plus_is_k_u_plus_h(name):
+    t, u = _sine_input()
+    minus, plus = get(name), get(name, sign=1)
+    space = minus.param_space(Record(t=t, u=u, y=0.27 * u, name="scales"))
+    theta = space.unpack(space.sample_prior(np.random.default_rng(3), 40))
+    a, b = minus.run_batch(u, t, theta), plus.run_batch(u, t, theta)
+    np.testing.assert_array_equal(a.failed, b.failed)
+    ok = ~a.failed
+    assert ok.sum() > 20
+    # y- = k u - h and y+ = k u + h with the same h: their sum is 2 k u
+    k = np.asarray(theta["k"])[ok, None]
+    np.testing.assert_allclose(a.y[ok] + b.y[ok], 2 * k * u[None, :],
+                               atol=1e-9 * np.max(np.abs(a.y[ok])))
+    np.testing.assert_array_equal(a.state[ok], b.state[ok])
+
+
+def test_sign_sets_the_loop_orientation():
+    # over a closed periodic cycle the signed area  ∮ y du  is -∮ h du for y = k u - h
+    # and +∮ h du for y = k u + h: opposite orientations, the same magnitude
+    t, u = _sine_input(n=3001, cycles=3)
+    theta = {"k": 0.3, "alpha": 0.12, "beta": 0.004, "gamma": 0.001, "n": 1.3}
+    last = slice(2000, 3001)  # the third cycle: the loop has closed
+    areas = []
+    for sign in (-1, 1):
+        y = get("bouc_wen", sign=sign).simulate(u, t, theta)
+        areas.append(float(np.sum(0.5 * (y[last][1:] + y[last][:-1]) * np.diff(u[last]))))
+    assert areas[0] * areas[1] < 0
+    assert abs(areas[0]) == pytest.approx(abs(areas[1]), rel=1e-9)
+
+
+@pytest.mark.parametrize("sign", [0, 2, True, -1.0 + 0.5])
+def test_sign_must_be_plus_or_minus_one(sign):
+    with pytest.raises(ModelError, match="sign"):
+        get("bouc_wen", sign=sign)

@@ -113,6 +113,13 @@ class BoucWen(HysteresisModel):
 
     Parameters
     ----------
+    sign : {-1, 1}
+        Sign of the hysteretic term in the output: -1 (default) is the review's piezo
+        form ``y = k u - h``, whose branches start shallow after a reversal and steepen;
+        1 gives ``y = k u + h`` (Spencer's form ``F = k x + α z`` for MR dampers and
+        friction), whose branches start steep and flatten — the dissipative
+        force–displacement loop, which the piezo form cannot produce for any
+        parameters (α > 0 fixes the loop's orientation).
     step_scale : float
         Largest integration step as a fraction of the relaxation length of ``h``
         (default 0.2: the order-5 Taylor steps then agree with ``solve_ivp`` at rtol
@@ -148,9 +155,13 @@ class BoucWen(HysteresisModel):
     name: ClassVar[str] = "bouc_wen"
     equation: ClassVar[str] = "review Eq. 47-48"
     step_scale: float = C_L
+    sign: int = -1
 
     def __post_init__(self) -> None:
         _check_scale(self.step_scale, "step_scale", 0.5)
+        if isinstance(self.sign, bool) or self.sign not in (-1, 1):
+            raise ModelError(f"{type(self).__name__}.sign: expected -1 (y = k u - h, the "
+                             f"piezo form) or 1 (y = k u + h, force loops), got {self.sign!r}")
 
     def _space(self, sc: DataScales, extra: tuple[Param, ...] = ()) -> ParamSpace:
         g = abs(sc.gain)
@@ -208,6 +219,9 @@ class BoucWen(HysteresisModel):
         bw_batch(u, theta["k"], theta["alpha"], theta["beta"], theta["gamma"], theta["n"],
                  np.ascontiguousarray(self._delta(theta), dtype=np.float64), lo, hi,
                  float(self.step_scale), state, y, failed)
+        if self.sign == 1:
+            # the kernel writes k u - h; k u + h = 2 k u - (k u - h) (NaN rows stay NaN)
+            y = 2.0 * np.asarray(theta["k"], dtype=np.float64)[:, None] * u[None, :] - y
         return y, state, failed
 
 
@@ -244,6 +258,8 @@ class AsymmetricBoucWen(BoucWen):
     of the input range. The model needs ``α + δ u > 0`` over the simulated input (else
     ``h`` runs against the input and the loop turns clockwise); draws violating it are
     flagged as failed, like those outside the stable region.
+
+    ``sign`` as in :class:`BoucWen` (1: ``y = k u + h``).
     """
 
     name: ClassVar[str] = "bouc_wen_asym"
