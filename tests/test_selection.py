@@ -185,3 +185,49 @@ def test_a_failing_fit_is_recorded_and_ranked_last(monkeypatch):
     # the other frequency and the joint row are untouched
     assert res.per_frequency[0].score(OTHER).error is None
     assert res.to_dict()["failed_fits"] == [res.failed[0].error]
+
+
+# ------------------------------------------------------------------ virtual actuator
+PREISACH = "preisach_density(n_grid=32)"
+PREISACH_DYN = "preisach_density(n_grid=32)+second_order"
+
+
+@pytest.fixture(scope="module")
+def virtual_comparison():
+    """The virtual actuator (independent simulator): asymmetric Preisach hysteresis, a
+    250 Hz resonance (damping 0.2), white sensor noise 0.04 um; creep, drift and delay
+    off. Its hysteresis belongs to the Preisach family; PI and Bouc-Wen loops are
+    point-symmetric and cannot follow its asymmetry."""
+    from bayeshyst.data.excitation import sine
+    from bayeshyst.data.virtual import AR1Noise, SecondOrder, VirtualActuator
+
+    act = VirtualActuator(creep=None, drift=None, delay=None,
+                          noise=AR1Noise(rms_um=0.04, phi=0.0),
+                          dynamics=SecondOrder(resonance_hz=250.0, damping=0.2))
+    recs = []
+    for i, f in enumerate((1.0, 80.0)):
+        t, u = sine(f, 100 * f, cycles=4)
+        recs.append(act.record(t, u, rng=i, name=f"v{f:g}", warmup=100, frequency_hz=f))
+    return compare_models(Dataset(tuple(recs), name="virtual"),
+                          [PREISACH, OTHER, "pi_play(n_operators=6)", PREISACH_DYN, "gp"],
+                          max_steps=1500, first_chunk=500, n_walkers=24, lofo=False,
+                          max_refits=0, draws_per_chain=40, gp_n_train=300, n_jobs=2, seed=1)
+
+
+def test_virtual_actuator_generating_family_first_at_low_frequency(virtual_comparison):
+    low = virtual_comparison.per_frequency[0]
+    assert low.best in (PREISACH, PREISACH_DYN), str(low)
+    static = low.score(PREISACH)
+    assert -static.delta_elpd <= 2 * static.delta_se or static.delta_elpd == 0.0, str(low)
+    for other in (OTHER, "pi_play(n_operators=6)"):
+        d, se = virtual_comparison.difference(low.best, other, 1.0)
+        assert d > 2 * se, (other, d, se, str(low))
+
+
+def test_virtual_actuator_dynamics_win_at_high_frequency(virtual_comparison):
+    high = virtual_comparison.per_frequency[-1]
+    assert high.best in (PREISACH_DYN, "gp"), str(high)
+    for static in (PREISACH, OTHER, "pi_play(n_operators=6)"):
+        d, se = virtual_comparison.difference(PREISACH_DYN, static, 80.0)
+        assert d > 2 * se, (static, d, se, str(high))
+    assert virtual_comparison.overall.best == PREISACH_DYN
