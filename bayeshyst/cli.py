@@ -170,6 +170,21 @@ def _cmd_compare(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def _add_run_options(p: argparse.ArgumentParser, out_default: str, steps_help: str) -> None:
+    """The options every command that samples shares: data, likelihood, output folder,
+    seed, sampler budget, walkers, and what is printed and drawn."""
+    p.add_argument("data", help="data file (.csv/.txt/.npz/.mat, JSON sidecar optional)")
+    p.add_argument("--likelihood", default="gaussian", help="gaussian (default), student_t or ar1")
+    p.add_argument("--out", default=out_default, help=f"output folder (default {out_default})")
+    p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    p.add_argument("--steps", type=_positive_int, default=20_000, help=steps_help)
+    p.add_argument("--walkers", type=_positive_int, default=None,
+                   help="walkers per ensemble (default max(32, 4 ndim))")
+    p.add_argument("--json", action="store_true", help="print summary.json to stdout")
+    p.add_argument("--quiet", action="store_true", help="no progress on stderr")
+    p.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of the ``bayeshyst`` command."""
     # argparse itself exits with status 2 on usage errors, as bad input should
@@ -184,38 +199,20 @@ def build_parser() -> argparse.ArgumentParser:
     p_models.set_defaults(func=_cmd_models)
 
     p_fit = sub.add_parser("fit", help="sample the posterior of one model given data")
-    p_fit.add_argument("data", help="data file (.csv/.txt/.npz/.mat, JSON sidecar optional)")
     p_fit.add_argument("--model", required=True,
                        help="model name or spec string, e.g. bouc_wen+second_order")
-    p_fit.add_argument("--likelihood", default="gaussian",
-                       help="gaussian (default), student_t or ar1")
-    p_fit.add_argument("--out", default="bayeshyst-fit", help="output folder")
-    p_fit.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
-    p_fit.add_argument("--steps", type=_positive_int, default=20_000,
-                       help="step budget per ensemble (default 20000)")
-    p_fit.add_argument("--walkers", type=_positive_int, default=None,
-                       help="walkers per ensemble (default max(32, 4 ndim))")
-    p_fit.add_argument("--json", action="store_true", help="print summary.json to stdout")
-    p_fit.add_argument("--quiet", action="store_true", help="no progress on stderr")
-    p_fit.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
+    _add_run_options(p_fit, "bayeshyst-fit", "step budget per ensemble (default 20000)")
     p_fit.add_argument("--no-checkpoint", action="store_true",
                        help="do not checkpoint to OUT/checkpoint.h5 (and do not resume)")
     p_fit.set_defaults(func=_cmd_fit)
 
     p_cmp = sub.add_parser("compare", help="rank models per excitation frequency "
                            "(PSIS-LOO, WAIC, leave-one-frequency-out, BIC, stacking)")
-    p_cmp.add_argument("data", help="data file (.csv/.txt/.npz/.mat, JSON sidecar optional)")
     p_cmp.add_argument("--models", required=True,
                        help="comma-separated model specs, e.g. "
                             "pi_play,bouc_wen,pi_play+second_order,gp,gp_memory")
-    p_cmp.add_argument("--likelihood", default="gaussian",
-                       help="gaussian (default), student_t or ar1")
-    p_cmp.add_argument("--out", default="bayeshyst-compare", help="output folder")
-    p_cmp.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
-    p_cmp.add_argument("--steps", type=_positive_int, default=20_000,
-                       help="step budget per ensemble of every fit (default 20000)")
-    p_cmp.add_argument("--walkers", type=_positive_int, default=None,
-                       help="walkers per ensemble (default max(32, 4 ndim))")
+    _add_run_options(p_cmp, "bayeshyst-compare",
+                     "step budget per ensemble of every fit (default 20000)")
     p_cmp.add_argument("--jobs", type=_positive_int, default=None,
                        help="worker processes (default: one per core)")
     p_cmp.add_argument("--no-lofo", action="store_true",
@@ -224,9 +221,6 @@ def build_parser() -> argparse.ArgumentParser:
                        help="exact refits per fit for cycles with Pareto k > 0.7 (default 5)")
     p_cmp.add_argument("--gp-train", type=_positive_int, default=1000,
                        help="training-subset size of the GP models (default 1000)")
-    p_cmp.add_argument("--json", action="store_true", help="print summary.json to stdout")
-    p_cmp.add_argument("--quiet", action="store_true", help="no progress on stderr")
-    p_cmp.add_argument("--no-figures", action="store_true", help="skip the PNG figure")
     p_cmp.set_defaults(func=_cmd_compare)
     return parser
 
