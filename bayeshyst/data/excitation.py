@@ -46,6 +46,14 @@ def _finite(name: str, value: float) -> float:
     return value
 
 
+def _amplitude(value: float) -> float:
+    """``amplitude_v`` as a finite float >= 0."""
+    amp = _finite("amplitude_v", value)
+    if amp < 0:
+        raise ParameterError(f"amplitude_v: expected >= 0, got {amp!r}")
+    return amp
+
+
 def _periodic_axis(
     frequency_hz: float, fs_hz: float, cycles: float | None, duration_s: float | None
 ) -> np.ndarray:
@@ -104,9 +112,7 @@ def sine(
         Voltage [V].
     """
     t = _periodic_axis(frequency_hz, fs_hz, cycles, duration_s)
-    amp = _finite("amplitude_v", amplitude_v)
-    if amp < 0:
-        raise ParameterError(f"amplitude_v: expected >= 0, got {amp!r}")
+    amp = _amplitude(amplitude_v)
     u = _finite("offset_v", offset_v) - amp * np.cos(
         2 * np.pi * float(frequency_hz) * t + _finite("phase_rad", phase_rad)
     )
@@ -140,9 +146,7 @@ def triangle(
         Voltage [V].
     """
     t = _periodic_axis(frequency_hz, fs_hz, cycles, duration_s)
-    amp = _finite("amplitude_v", amplitude_v)
-    if amp < 0:
-        raise ParameterError(f"amplitude_v: expected >= 0, got {amp!r}")
+    amp = _amplitude(amplitude_v)
     x = np.mod(float(frequency_hz) * t, 1.0)
     return t, _finite("offset_v", offset_v) + amp * (1.0 - 4.0 * np.abs(x - 0.5))
 
