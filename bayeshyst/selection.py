@@ -109,18 +109,16 @@ def stacking_weights(pointwise: np.ndarray) -> np.ndarray:
     return w / w.sum()
 
 
-def paired_difference(a: np.ndarray, b: np.ndarray) -> tuple[float, float]:
-    """``sum(a - b)`` and its standard error ``sqrt(n var(a - b))`` over paired units."""
-    d = np.asarray(a, dtype=float) - np.asarray(b, dtype=float)
-    if d.size == 0:
-        return math.nan, math.nan
-    return float(np.sum(d)), float(math.sqrt(d.size * np.var(d))) if d.size > 1 else math.nan
-
-
 def _total_se(pw: np.ndarray) -> tuple[float, float]:
+    """``sum(pw)`` and its standard error ``sqrt(n var(pw))`` (NaN se for one unit)."""
     if pw.size == 0:
         return math.nan, math.nan
     return float(np.sum(pw)), float(math.sqrt(pw.size * np.var(pw))) if pw.size > 1 else math.nan
+
+
+def paired_difference(a: np.ndarray, b: np.ndarray) -> tuple[float, float]:
+    """``sum(a - b)`` and its standard error ``sqrt(n var(a - b))`` over paired units."""
+    return _total_se(np.asarray(a, dtype=float) - np.asarray(b, dtype=float))
 
 
 # --------------------------------------------------------------------------- results
