@@ -88,11 +88,17 @@ class EffectBlock(ABC):
         Whether the output depends on the time axis (or on the sample count).
     equation : str
         What the block implements, for docs.
+    needs_preview : bool
+        Whether the block is linear time-invariant dynamics whose output responds to its
+        present input weakly or not at all (a delay, sampled second-order dynamics): its
+        exact inverse is not causal, so inversion deconvolves it over the whole
+        (known) trajectory (:mod:`bayeshyst.inverse.lti`) instead of sample by sample.
     """
 
     name: ClassVar[str] = ""
     rate_dependent: ClassVar[bool] = True
     equation: ClassVar[str] = ""
+    needs_preview: ClassVar[bool] = False
 
     @property
     @abstractmethod

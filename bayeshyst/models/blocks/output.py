@@ -101,6 +101,7 @@ class Delay(EffectBlock):
     """
 
     name: ClassVar[str] = "delay"
+    needs_preview: ClassVar[bool] = True
     equation: ClassVar[str] = "y(t) = w(t - d)"
     max_delay_samples: int = 10
 

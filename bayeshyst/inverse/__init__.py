@@ -1,0 +1,1 @@
+"""Inverse models and feedforward compensation (MODELS.md §8)."""

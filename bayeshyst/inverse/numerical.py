@@ -1,0 +1,434 @@
+"""Numerical inversion of any model and composition, for one or many parameter vectors.
+
+The command ``u`` is found **sample by sample through the model's one-step map**
+(MODELS.md §8): from the state after sample ``k - 1`` choose ``u_k`` so that the output at
+``k`` meets the target, then advance the state with that ``u_k``. No algebraic loop (the
+one-step map is evaluated, never solved implicitly inside the model) and no artificial
+delay (``u_k`` is matched to ``y_k``, not ``y_{k+1}``). The one-step map of a hysteresis
+model is non-decreasing in ``u_k``; :func:`~bayeshyst.inverse.rootfind.solve_increasing`
+brackets and refines the root and checks monotonicity on the way.
+
+A composition ``base + blocks`` is split into **stages**. Blocks whose exact inverse is
+not causal (``needs_preview``: delay, ARX, second-order dynamics; see
+:mod:`bayeshyst.inverse.lti`) are inverted over the whole known signal by stable
+deconvolution, last block first; runs of other blocks are inverted sample by sample
+with their own one-step maps; the base model with the blocks directly after it is the
+first stage, the only one driven by the physical command.
+
+**Many parameter vectors.** With ``S`` posterior draws the states of all draws are
+carried together, and the one shared command ``u_k`` is chosen so that
+
+* ``objective="mean"``: the posterior-mean output meets the target, or
+* ``objective="quantile"``: the ``q``-quantile over draws of ``|y_k - y_d,k|`` is
+  smallest (a robust command: it lies between the draws' individual inverses).
+
+Later stages (dynamics after the hysteresis) are inverted per draw; the draws then ask
+the first stage for slightly different intermediate signals, and for the posterior mean
+the command is refined by correcting the reference with the remaining mean error until
+it is below the tolerance (a fixed-point iteration that contracts as fast as the draws'
+dynamics agree).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from bayeshyst.errors import ParameterError, SimulationError
+from bayeshyst.inverse.lti import deconvolve
+from bayeshyst.inverse.rootfind import solve_increasing
+from bayeshyst.models.base import HysteresisModel
+from bayeshyst.models.blocks import EffectBlock
+from bayeshyst.models.compose import STATIC, Composite, _namespaces
+from bayeshyst.params import ParamSpace
+
+__all__ = ["OBJECTIVES", "Inversion", "invert"]
+
+#: What the shared command is chosen to achieve across draws.
+OBJECTIVES = ("mean", "quantile")
+
+#: Residual accepted as zero, relative to the target's span.
+FTOL_REL = 1e-10
+#: Bracket width at which refinement stops, relative to the input scale.
+XTOL_REL = 1e-13
+#: Reference corrections for the posterior mean behind per-draw dynamics.
+MAX_CORRECTIONS = 25
+#: Golden-section iterations of the robust objective (bracket shrinks by 0.618 each).
+GOLDEN_ITER = 80
+
+
+@dataclass(frozen=True)
+class Inversion:
+    """A command designed by numerical inversion, with what it does on the model.
+
+    Attributes
+    ----------
+    u : ndarray, shape (N,)
+        The command (input unit).
+    y : ndarray, shape (S, N)
+        Output of every draw driven by ``u`` from rest (a forward simulation of the
+        whole model, not the inverter's own bookkeeping); failed draws are NaN.
+    objective : str
+        ``"mean"`` or ``"quantile"``.
+    quantile : float
+        The quantile minimised by the robust objective.
+    max_error : float
+        Largest ``|statistic_k - y_d,k|`` over the samples, where the statistic is the
+        mean over draws (``objective="mean"``) or the single draw (output unit).
+    n_saturated : int
+        Samples whose command reached a limit of ``u_limits`` (the target was out of
+        reach; reported, never hidden).
+    n_nonmonotone : int
+        Samples where the one-step map was seen decreasing.
+    n_failed_draws : int
+        Draws whose simulation failed on the way (left out of the objective).
+    n_evaluations : int
+        One-step evaluations of the first stage.
+    n_corrections : int
+        Reference corrections made for the posterior mean.
+    stages : tuple of str
+        How the model was inverted, first stage first (``"pi_play+creep: per sample"``,
+        ``"second_order: deconvolution"``).
+    """
+
+    u: np.ndarray
+    y: np.ndarray
+    objective: str
+    quantile: float
+    max_error: float
+    n_saturated: int
+    n_nonmonotone: int
+    n_failed_draws: int
+    n_evaluations: int
+    n_corrections: int
+    stages: tuple[str, ...] = field(default=())
+
+    def __str__(self) -> str:
+        return (f"Inversion({self.objective}, {self.y.shape[0]} draws x {self.u.size} samples, "
+                f"max error {self.max_error:.3g}, saturated {self.n_saturated}, "
+                f"non-monotone {self.n_nonmonotone}, failed draws {self.n_failed_draws}; "
+                f"stages: {'; '.join(self.stages)})")
+
+
+# ------------------------------------------------------------------------------ stages
+
+
+class _FirstStage:
+    """The base model (with the blocks right after it) driven by the shared command."""
+
+    def __init__(self, model: HysteresisModel, theta: Mapping[str, np.ndarray]) -> None:
+        self.model = model
+        self.theta = theta
+
+    def rest(self, x: float) -> np.ndarray:
+        return self.model._initial_state(self.theta, float(x))
+
+    def step(self, x: float, t_k: np.ndarray, states: np.ndarray):
+        y, s, failed = self.model._run(np.array([float(x)]), t_k, self.theta, states)
+        return y[:, 0], s, failed
+
+
+class _BlockStage:
+    """A run of blocks with per-draw inputs, inverted sample by sample."""
+
+    def __init__(self, blocks: list[EffectBlock], thetas: list[dict]) -> None:
+        self.blocks = blocks
+        self.thetas = thetas
+
+    @property
+    def label(self) -> str:
+        return "+".join(b.name for b in self.blocks) + ": per sample"
+
+    def rest(self, x: np.ndarray) -> list[np.ndarray]:
+        states, w = [], np.ascontiguousarray(x, dtype=float)
+        for i, (block, th) in enumerate(zip(self.blocks, self.thetas, strict=True)):
+            s = block._initial_state(th, w, math.nan)
+            states.append(s)
+            if i + 1 < len(self.blocks):
+                out, _, _ = block._apply(np.ascontiguousarray(w[:, None]), np.zeros(1), th, s)
+                w = np.ascontiguousarray(out[:, 0])
+        return states
+
+    def step(self, x: np.ndarray, t_k: np.ndarray, states: list[np.ndarray]):
+        w = np.ascontiguousarray(np.asarray(x, dtype=float)[:, None])
+        new, failed = [], np.zeros(w.shape[0], dtype=bool)
+        for block, th, s in zip(self.blocks, self.thetas, states, strict=True):
+            w, s2, f = block._apply(w, t_k, th, s)
+            new.append(s2)
+            failed |= f
+        return w[:, 0], new, failed
+
+    def invert(self, v: np.ndarray, t: np.ndarray, ftol: float, xtol: float) -> np.ndarray:
+        """Per-draw inputs ``(S, N)`` making this run of blocks output ``v`` (S, N)."""
+        n = v.shape[1]
+        out = np.empty_like(v)
+        scale = np.maximum(np.ptp(v, axis=1), 1e-12 * np.maximum(np.abs(v).max(axis=1), 1.0))
+        x = v[:, 0].copy()
+        states = None
+        for k in range(n):
+            t_k = t[k:k + 1]
+            if states is None:
+                def fun(z, k=k, t_k=t_k):
+                    return self.step(z, t_k, self.rest(z))[0] - v[:, k]
+            else:
+                def fun(z, k=k, t_k=t_k, states=states):
+                    return self.step(z, t_k, states)[0] - v[:, k]
+            res = solve_increasing(fun, x, 1e-3 * scale, ftol=ftol, xtol=xtol * scale)
+            x = res.x
+            base = self.rest(x) if states is None else states
+            _, states, failed = self.step(x, t_k, base)
+            if failed.any():
+                raise SimulationError(f"{self.label}: draw {int(np.flatnonzero(failed)[0])} "
+                                      f"failed at sample {k}")
+            out[:, k] = x
+        return out
+
+
+def _stages(model: HysteresisModel, theta: Mapping[str, np.ndarray]):
+    """Split ``model`` into the first stage and the later stages, in signal order."""
+    if not isinstance(model, Composite):
+        return _FirstStage(model, theta), [], model.name
+    blocks = list(model.blocks)
+    names = _namespaces(blocks)
+    thetas = [ParamSpace.sub_theta(theta, ns) for ns in names]
+    lead = 0
+    while lead < len(blocks) and not blocks[lead].needs_preview:
+        lead += 1
+    if lead:
+        # the sub-composite names its parameters as the full one does (same namespaces)
+        first_model = Composite(model.base, tuple(blocks[:lead]))
+        first_theta = {k: v for k, v in theta.items()
+                       if k.split(".", 1)[0] in (STATIC, *names[:lead])}
+    else:
+        first_model, first_theta = model.base, ParamSpace.sub_theta(theta, STATIC)
+    later: list[Any] = []
+    i = lead
+    while i < len(blocks):
+        if blocks[i].needs_preview:
+            later.append((blocks[i], thetas[i]))
+            i += 1
+            continue
+        j = i
+        while j < len(blocks) and not blocks[j].needs_preview:
+            j += 1
+        later.append(_BlockStage(blocks[i:j], thetas[i:j]))
+        i = j
+    return _FirstStage(first_model, first_theta), later, first_model.name
+
+
+# ------------------------------------------------------------------------------ driver
+
+
+def _objective_value(y: np.ndarray, target: np.ndarray, active: np.ndarray,
+                     objective: str, q: float) -> np.ndarray:
+    e = (y - target)[active]
+    if objective == "mean":
+        return e.mean(axis=0)
+    return np.quantile(np.abs(e), q, axis=0)
+
+
+class _Sample:
+    """The first stage at one sample: residuals ``y_s(z) - v_s,k`` of the draws in play."""
+
+    def __init__(self, stage: _FirstStage, v_k: np.ndarray, t_k: np.ndarray, states: Any,
+                 active: np.ndarray) -> None:
+        self.stage, self.v_k, self.t_k, self.states, self.active = stage, v_k, t_k, states, active
+
+    def residuals(self, z: float) -> np.ndarray:
+        s0 = self.stage.rest(z) if self.states is None else self.states
+        y, _, failed = self.stage.step(z, self.t_k, s0)
+        e = (np.where(failed, np.nan, y) - self.v_k)[self.active]
+        # a draw that fails at this candidate is dropped for good once the sample is
+        # committed; meanwhile the objective over the others stays defined
+        return e[np.isfinite(e)]
+
+    def reduced(self, how: str):
+        """``z (1,) -> (1,)``: mean, max or min of the residuals (each non-decreasing in z)."""
+        def fun(z: np.ndarray) -> np.ndarray:
+            e = self.residuals(float(z[0]))
+            if e.size == 0:
+                return np.array([math.nan])
+            return np.array([e.mean() if how == "mean" else e.max() if how == "max"
+                             else e.min()])
+        return fun
+
+    def quantile_loss(self, q: float):
+        """``z -> q``-quantile of ``|residual|`` over the draws."""
+        def loss(z: float) -> float:
+            e = self.residuals(z)
+            return float(np.quantile(np.abs(e), q)) if e.size else math.inf
+        return loss
+
+
+def _invert_first(stage: _FirstStage, v: np.ndarray, t: np.ndarray, objective: str, q: float,
+                  lo: float, hi: float, u_scale: float, ftol: float, xtol: float,
+                  active: np.ndarray) -> tuple[np.ndarray, int, int, int]:
+    """Shared command (N,) for per-draw first-stage targets ``v`` (S, N); updates ``active``."""
+    n = v.shape[1]
+    u = np.empty(n)
+    x = 0.0 if not (np.isfinite(lo) and np.isfinite(hi)) else 0.5 * (lo + hi)
+    step = 0.05 * u_scale
+    states = None
+    n_sat = n_mono = n_eval = 0
+    for k in range(n):
+        t_k = t[k:k + 1]
+        sample = _Sample(stage, v[:, k], t_k, states, active.copy())
+        guess, first = np.array([x]), np.array([step])
+        if objective == "mean" or active.sum() == 1:
+            res = solve_increasing(sample.reduced("mean"), guess, first, lo=lo, hi=hi,
+                                   ftol=ftol, xtol=xtol)
+            n_eval += res.n_evaluations
+            xk = float(res.x[0])
+            n_sat += int(res.saturated[0])
+            n_mono += int(res.nonmonotone[0])
+        else:
+            # the q-quantile of |e_s| is smallest between the point where every draw is
+            # at or below the target and the point where every draw is at or above it
+            r_lo = solve_increasing(sample.reduced("max"), guess, first, lo=lo, hi=hi,
+                                    ftol=ftol, xtol=xtol)
+            r_hi = solve_increasing(sample.reduced("min"), guess, first, lo=lo, hi=hi,
+                                    ftol=ftol, xtol=xtol)
+            n_eval += r_lo.n_evaluations + r_hi.n_evaluations + GOLDEN_ITER
+            n_sat += int(r_lo.saturated[0] and r_hi.saturated[0])
+            n_mono += int(r_lo.nonmonotone[0] or r_hi.nonmonotone[0])
+            a, b = sorted((float(r_lo.x[0]), float(r_hi.x[0])))
+            xk = _golden(sample.quantile_loss(q), a, b, xtol)
+        s0 = stage.rest(xk) if states is None else states
+        y, states, failed = stage.step(xk, t_k, s0)
+        active &= ~(failed | ~np.isfinite(y))
+        if not active.any():
+            raise SimulationError(f"{stage.model.name}: every draw failed by sample {k}")
+        step = max(abs(xk - x), 1e-3 * u_scale)
+        x = xk
+        u[k] = xk
+    return u, n_sat, n_mono, n_eval
+
+
+def _golden(loss, a: float, b: float, xtol: float) -> float:
+    """Minimiser of ``loss`` on ``[a, b]`` by golden-section search."""
+    if b - a <= xtol:
+        return 0.5 * (a + b)
+    r = 0.5 * (math.sqrt(5.0) - 1.0)
+    c, d = b - r * (b - a), a + r * (b - a)
+    fc, fd = loss(c), loss(d)
+    for _ in range(GOLDEN_ITER):
+        if b - a <= xtol:
+            break
+        if fc <= fd:
+            b, d, fd = d, c, fc
+            c = b - r * (b - a)
+            fc = loss(c)
+        else:
+            a, c, fc = c, d, fd
+            d = a + r * (b - a)
+            fd = loss(d)
+    return c if fc <= fd else d
+
+
+def invert(model: HysteresisModel, y_d: Any, t: Any, thetas: Mapping[str, Any], *,
+           objective: str = "mean", quantile: float = 0.9,
+           u_limits: tuple[float, float] = (-math.inf, math.inf),
+           offset: Any = None, periodic: bool = False) -> Inversion:
+    """Command ``u`` that makes ``model`` follow ``y_d``, for ``S`` parameter vectors at once.
+
+    Parameters
+    ----------
+    model : HysteresisModel
+        Any model or composition (``Composite``).
+    y_d : array_like, shape (N,)
+        Desired output (output unit). Should start at rest when the model has
+        ``needs_preview`` blocks and ``periodic`` is False (the pre-actuation of the
+        inverse dynamics must fit before the motion starts).
+    t : array_like, shape (N,)
+        Sample times (s); uniform when the model has ``needs_preview`` blocks.
+    thetas : mapping
+        ``name -> array (S, *shape)``: ``S`` parameter vectors (posterior draws, or one
+        MAP with ``S = 1``).
+    objective : {"mean", "quantile"}
+        What the shared command achieves across draws (module docstring).
+    quantile : float
+        ``q`` of the robust objective, in (0, 1).
+    u_limits : (float, float)
+        Admissible command range (input unit), e.g. the amplifier's; targets beyond it
+        saturate there and are counted in ``n_saturated``.
+    offset : array_like, shape (S,), optional
+        Observation offsets added to each draw's output (``obs.offset``).
+    periodic : bool
+        ``y_d`` holds whole periods of a periodic reference (dynamics inverted as the
+        periodic steady state).
+
+    Returns
+    -------
+    Inversion
+
+    Raises
+    ------
+    ParameterError
+        For bad arguments (unknown objective, quantile outside (0, 1), empty or
+        non-finite reference, limits not increasing).
+    SimulationError
+        If every draw fails.
+    """
+    if objective not in OBJECTIVES:
+        raise ParameterError(f"objective must be one of {OBJECTIVES}, got {objective!r}")
+    if not 0.0 < float(quantile) < 1.0:
+        raise ParameterError(f"quantile must be in (0, 1), got {quantile}")
+    lo, hi = (float(v) for v in u_limits)
+    if not lo < hi:
+        raise ParameterError(f"u_limits must be increasing, got {u_limits}")
+    y_d = np.ascontiguousarray(y_d, dtype=float)
+    t = np.ascontiguousarray(t, dtype=float)
+    if y_d.ndim != 1 or y_d.shape != t.shape or y_d.size == 0:
+        raise ParameterError(f"y_d and t must be 1-D of equal length, got {y_d.shape}, "
+                             f"{t.shape}")
+    if not (np.all(np.isfinite(y_d)) and np.all(np.isfinite(t))):
+        raise ParameterError("y_d and t must be finite")
+    theta_b, n_draws = model._batch_theta(thetas, batched=True)
+    off = (np.zeros(n_draws) if offset is None
+           else np.broadcast_to(np.asarray(offset, dtype=float).ravel(), (n_draws,)))
+    first, later, first_name = _stages(model, theta_b)
+    labels = [f"{first_name}: per sample"] + [
+        s.label if isinstance(s, _BlockStage) else f"{s[0].name}: deconvolution"
+        for s in later]
+    span = float(np.ptp(y_d)) or max(abs(float(y_d[0])), 1.0)
+    ftol = FTOL_REL * span
+    u_scale = hi - lo if math.isfinite(hi - lo) else 1.0
+    xtol = XTOL_REL * max(u_scale, 1.0)
+    target = y_d[None, :] - off[:, None]
+    correction = np.zeros_like(y_d)
+    active = np.ones(n_draws, dtype=bool)
+    total_sat = total_mono = total_eval = 0
+    n_corr = 0
+    while True:
+        v = target + correction[None, :]
+        for stage in reversed(later):
+            if isinstance(stage, _BlockStage):
+                v = stage.invert(v, t, ftol, XTOL_REL)
+            else:
+                block, th = stage
+                v = deconvolve(block, th, v, t, periodic=periodic).w
+        u, n_sat, n_mono, n_eval = _invert_first(first, v, t, objective, quantile, lo, hi,
+                                                 u_scale, ftol, xtol, active)
+        total_sat, total_mono = n_sat, n_mono
+        total_eval += n_eval
+        traj = model.run_batch(u, t, theta_b)
+        y = traj.y + off[:, None]
+        active &= ~traj.failed
+        stat = _objective_value(y, y_d[None, :], active, "mean", quantile)
+        err = float(np.max(np.abs(stat)))
+        # only the posterior mean behind per-draw dynamics needs the correction
+        if (objective != "mean" or n_draws == 1 or not later or err <= 10 * ftol
+                or n_corr >= MAX_CORRECTIONS):
+            break
+        correction = correction - stat
+        n_corr += 1
+    if objective == "quantile" and active.sum() > 1:
+        err = float(np.max(_objective_value(y, y_d[None, :], active, "quantile", quantile)))
+    return Inversion(u=u, y=y, objective=objective, quantile=float(quantile), max_error=err,
+                     n_saturated=total_sat, n_nonmonotone=total_mono,
+                     n_failed_draws=int(n_draws - active.sum()), n_evaluations=total_eval,
+                     n_corrections=n_corr, stages=tuple(labels))

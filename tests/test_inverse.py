@@ -1,0 +1,228 @@
+"""Numerical and analytic inverses: forward(inverse(y_d)) == y_d for every model.
+
+Oracle: the reference is the model's own response to a known smooth input ``u_true``
+(so an exact inverse exists) and the check is a forward simulation of the whole model
+driven by the designed command, independent of the inverter's bookkeeping.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from bayeshyst.errors import ParameterError
+from bayeshyst.inverse.numerical import invert
+from bayeshyst.models import get, registry
+from bayeshyst.models.base import DataScales
+
+SCALES = DataScales(0.0, 150.0, 0.0, 40.0)
+FS = 2000.0
+
+
+def smooth_input(n_cycles: float = 2.5, f: float = 10.0, lead: int = 40) -> tuple:
+    """Input at rest for ``lead`` samples, then a sine with a C2 envelope, with minor loops."""
+    n = lead + int(n_cycles * FS / f)
+    t = np.arange(n) / FS
+    s = np.clip((t - lead / FS) * f, 0.0, None)
+    envelope = np.where(s < 1.0, np.sin(0.5 * np.pi * np.clip(s, 0, 1)) ** 4, 1.0)
+    u = 75.0 - 60.0 * envelope * np.cos(2 * np.pi * s) + 8.0 * envelope * np.sin(6 * np.pi * s)
+    return t, u
+
+
+def invertible_theta(model, t, u, seeds=range(400), positive=()):
+    """A prior draw whose output rises with the input on every branch (so it has an inverse).
+
+    ``positive`` names parameters taken in absolute value first (a relay grid's weights:
+    a prior draw of 55 of them is almost never all positive).
+    """
+    space = model.param_space(SCALES)
+    for seed in seeds:
+        theta = space.unpack(space.sample_prior(np.random.default_rng(seed), 1))
+        theta.update({k: np.abs(theta[k]) for k in positive})
+        traj = model.run_batch(u, t, theta)
+        if traj.failed[0]:
+            continue
+        y = traj.y[0]
+        du, dy = np.diff(u), np.diff(y)
+        moving = np.abs(du) > 1e-9
+        span = np.ptp(y)
+        if span > 1e-3 * 40 and np.all(dy[moving] * np.sign(du[moving]) > -1e-9 * span):
+            return theta, y
+    pytest.fail(f"no invertible prior draw of {model.name} in {len(seeds)} seeds")
+
+
+STATIC = [n for n in registry.names() if n not in ("mrc", "bouc_wen_oscillator")]
+
+
+@pytest.mark.parametrize("name", STATIC)
+def test_numerical_inverse_every_model(name):
+    model = get(name)
+    t, u_true = smooth_input()
+    theta, y_d = invertible_theta(model, t, u_true, positive=("mu",) if name == "preisach" else ())
+    inv = invert(model, y_d, t, theta, u_limits=(-100.0, 250.0))
+    y = model.run_batch(inv.u, t, theta).y[0]
+    stroke = np.ptp(y_d)
+    assert np.max(np.abs(y - y_d)) <= 1e-6 * stroke
+    assert inv.max_error <= 1e-6 * stroke
+    assert inv.n_saturated == 0 and inv.n_failed_draws == 0
+
+
+@pytest.mark.parametrize("name", ["mrc", "bouc_wen_oscillator"])
+def test_internal_dynamics_quasi_static_sampling(name):
+    # mass dynamics far faster than the sampling: the one-step map has full feedthrough
+    model = get(name)
+    t, u_true = smooth_input()
+    space = model.param_space(SCALES)
+    key = "f_n" if "f_n" in space.names else "fn"
+    theta, y_d = invertible_theta(model, t, u_true)
+    theta[key] = np.array([20 * FS])
+    y_d = model.run_batch(u_true, t, theta).y[0]
+    inv = invert(model, y_d, t, theta, u_limits=(-100.0, 250.0))
+    y = model.run_batch(inv.u, t, theta).y[0]
+    assert np.max(np.abs(y - y_d)) <= 1e-6 * np.ptp(y_d)
+
+
+def test_internal_dynamics_resolved_is_reported_not_hidden():
+    # a resonance the sampling resolves: causal per-sample inversion meets the sampling
+    # zero outside the unit circle; the result must say it failed (saturation, error)
+    model = get("bouc_wen_oscillator")
+    t, u_true = smooth_input()
+    theta, _ = invertible_theta(model, t, u_true)
+    theta["fn"] = np.array([300.0])
+    y_d = model.run_batch(u_true, t, theta).y[0]
+    inv = invert(model, y_d, t, theta, u_limits=(-100.0, 250.0))
+    assert inv.n_saturated > 0 and inv.max_error > 1e-3 * np.ptp(y_d)
+
+
+COMPOSITIONS = {
+    "pi_play+creep": {},
+    "pi_play+second_order": {"second_order.f_n": 300.0, "second_order.zeta": 0.1},
+    "pi_play+second_order(hold='zoh')": {"second_order.f_n": 300.0, "second_order.zeta": 0.1},
+    "bouc_wen+delay": {"delay.d": 3.7 / FS},
+    "pi_play+delay": {"delay.d": 0.8 / FS},  # fraction > 1/2: zero outside the unit circle
+    "pi_play+arx": {"arx.kappa": [-0.6, 0.3], "arx.beta": [0.4]},
+    "pi_play+asym_output": {},
+    "preisach_density(n_grid=24)+creep+second_order+drift": {
+        "second_order.f_n": 250.0, "second_order.zeta": 0.2},
+    "duhem+second_order+creep_fractional": {"second_order.f_n": 400.0,
+                                            "second_order.zeta": 0.3},
+}
+
+
+@pytest.mark.parametrize("spec", list(COMPOSITIONS))
+def test_numerical_inverse_compositions(spec):
+    model = get(spec)
+    t, u_true = smooth_input()
+    theta, _ = invertible_theta(model.base, t, u_true)
+    space = model.param_space(SCALES)
+    full = space.unpack(space.sample_prior(np.random.default_rng(7), 1))
+    full.update({f"static.{k}": v for k, v in theta.items()})
+    for k, v in COMPOSITIONS[spec].items():
+        full[k] = np.asarray(v, float)[None, ...]
+    # creep and drift drawn from their priors; keep them physical (small, same sign)
+    for k in [k for k in full if k.endswith(".c")]:
+        full[k] = np.abs(full[k])
+    y_d = model.run_batch(u_true, t, full).y[0]
+    inv = invert(model, y_d, t, full, u_limits=(-100.0, 250.0))
+    y = model.run_batch(inv.u, t, full).y[0]
+    assert np.max(np.abs(y - y_d)) <= 1e-6 * np.ptp(y_d), inv
+    assert inv.n_saturated == 0
+
+
+def test_analytic_and_numerical_inverse_agree_play_pi():
+    model = get("pi_play(n_operators=6)")
+    t, u_true = smooth_input()
+    theta, y_d = invertible_theta(model, t, u_true)
+    one = {k: np.asarray(v)[0] for k, v in theta.items()}
+    analytic = model.inverse(y_d, t, one)
+    numerical = invert(model, y_d, t, theta, u_limits=(-100.0, 250.0)).u
+    np.testing.assert_allclose(numerical, analytic, atol=1e-7 * 150)
+    np.testing.assert_allclose(analytic, u_true, atol=1e-7 * 150)
+
+
+def test_analytic_and_numerical_inverse_agree_mbw():
+    model = get("mbw")
+    t, u_true = smooth_input()
+    theta, y_d = invertible_theta(model, t, u_true)
+    one = {k: np.asarray(v)[0] for k, v in theta.items()}
+    analytic = model.inverse(y_d, t, one)
+    numerical = invert(model, y_d, t, theta, u_limits=(-100.0, 250.0)).u
+    # Eq. 55 is integrated with its own RK4 steps: agreement to its integration error
+    np.testing.assert_allclose(numerical, analytic, atol=1e-5 * 150)
+
+
+# ----------------------------------------------------------------------- many draws
+
+
+def draws_of(model, t, u_true, n, spread, seed=0):
+    """``n`` draws scattered around an invertible vector by ``spread`` (relative)."""
+    theta, _ = invertible_theta(model, t, u_true)
+    rng = np.random.default_rng(seed)
+    out = {}
+    for k, v in theta.items():
+        v = np.asarray(v, float)
+        out[k] = v * (1.0 + spread * rng.standard_normal((n, *v.shape[1:])))
+    return out
+
+
+def test_posterior_mean_objective_meets_reference():
+    model = get("pi_play(n_operators=6)")
+    t, u_true = smooth_input()
+    thetas = draws_of(model, t, u_true, 16, 0.05)
+    y_d = model.run_batch(u_true, t, {k: v[:1] for k, v in thetas.items()}).y[0]
+    offsets = np.linspace(-0.2, 0.2, 16)
+    inv = invert(model, y_d, t, thetas, offset=offsets, u_limits=(-100.0, 250.0))
+    y = model.run_batch(inv.u, t, thetas).y + offsets[:, None]
+    assert np.max(np.abs(y.mean(axis=0) - y_d)) <= 1e-6 * np.ptp(y_d)
+    assert np.ptp(y, axis=0).max() > 1e-3 * np.ptp(y_d)  # the draws do disagree
+
+
+def test_posterior_mean_behind_per_draw_dynamics():
+    model = get("pi_play(n_operators=4)+second_order")
+    t, u_true = smooth_input()
+    thetas = draws_of(model.base, t, u_true, 8, 0.03)
+    thetas = {f"static.{k}": v for k, v in thetas.items()}
+    thetas["second_order.f_n"] = np.linspace(250.0, 350.0, 8)
+    thetas["second_order.zeta"] = np.linspace(0.1, 0.3, 8)
+    y_d = model.run_batch(u_true, t, {k: v[:1] for k, v in thetas.items()}).y[0]
+    inv = invert(model, y_d, t, thetas, u_limits=(-100.0, 250.0))
+    y = model.run_batch(inv.u, t, thetas).y
+    assert inv.n_corrections >= 1
+    assert np.max(np.abs(y.mean(axis=0) - y_d)) <= 1e-6 * np.ptp(y_d)
+
+
+def test_robust_objective_is_minimal_on_a_grid():
+    model = get("pi_play(n_operators=4)")
+    t, u_true = smooth_input(n_cycles=1.0)
+    thetas = draws_of(model, t, u_true, 12, 0.08, seed=3)
+    y_d = model.run_batch(u_true, t, {k: v[:1] for k, v in thetas.items()}).y[0]
+    q = 0.8
+    inv = invert(model, y_d, t, thetas, objective="quantile", quantile=q,
+                 u_limits=(-100.0, 250.0))
+    rng = np.random.default_rng(0)
+    for k in rng.choice(np.arange(50, t.size), 8, replace=False):
+        # states after the designed command up to k-1, then a dense grid at sample k
+        grid = inv.u[k] + np.linspace(-3.0, 3.0, 601)
+        losses = []
+        for x in grid:
+            u = np.concatenate([inv.u[:k], [x]])
+            y = model.run_batch(u, t[:k + 1], thetas).y[:, -1]
+            losses.append(np.quantile(np.abs(y - y_d[k]), q))
+        u = inv.u[:k + 1]
+        ours = np.quantile(np.abs(model.run_batch(u, t[:k + 1], thetas).y[:, -1] - y_d[k]), q)
+        assert ours <= min(losses) + 1e-9 * np.ptp(y_d)
+
+
+def test_bad_arguments_are_refused():
+    model = get("pi_play")
+    t = np.arange(10) / FS
+    theta = model.param_space(SCALES).unpack(
+        model.param_space(SCALES).sample_prior(np.random.default_rng(0), 1))
+    with pytest.raises(ParameterError, match="objective"):
+        invert(model, np.ones(10), t, theta, objective="median")
+    with pytest.raises(ParameterError, match="quantile"):
+        invert(model, np.ones(10), t, theta, objective="quantile", quantile=1.0)
+    with pytest.raises(ParameterError, match="u_limits"):
+        invert(model, np.ones(10), t, theta, u_limits=(5.0, 1.0))
+    with pytest.raises(ParameterError, match="finite"):
+        invert(model, np.full(10, np.nan), t, theta)
