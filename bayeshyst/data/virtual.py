@@ -46,6 +46,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import os
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -86,6 +87,8 @@ __all__ = [
     "hysteresis_percent",
     "loop_width",
 ]
+
+_SIMULATOR = "bayeshyst.data.virtual.VirtualActuator"
 
 #: Names of the switchable effects, in signal-chain order.
 EFFECTS = ("hysteresis", "creep", "dynamics", "drift", "delay", "noise")
@@ -162,6 +165,41 @@ class VirtualActuator:
                 f"{me}.internal_rate_hz: expected >= 20 samples per resonance period "
                 f"({20 * self.dynamics.resonance_hz!r} Hz), got {self.internal_rate_hz!r}"
             )
+
+    @classmethod
+    def from_truth(cls, truth: Any) -> VirtualActuator:
+        """The actuator whose :meth:`truth` is ``truth`` (as stored in a record's metadata).
+
+        Lets a record simulated here, and saved with its sidecar, name its own plant:
+        ``bayeshyst compensate`` evaluates feedforward on it.
+
+        Parameters
+        ----------
+        truth : mapping
+            The dict :meth:`truth` returned (derived entries such as ``tau_s`` or the
+            density formula are ignored; they follow from the parameters).
+
+        Raises
+        ------
+        ParameterError
+            If ``truth`` is not such a dict or a value is invalid.
+        """
+        if not (isinstance(truth, Mapping) and truth.get("simulator") == _SIMULATOR):
+            raise ParameterError(f"not a virtual-actuator truth record (expected "
+                                 f"simulator {_SIMULATOR!r}): {str(truth)[:120]}")
+        kinds = dict(zip(EFFECTS, (PreisachHysteresis, LogCreep, SecondOrder, ThermalDrift,
+                                   SensorDelay, AR1Noise), strict=True))
+        values: dict[str, Any] = {}
+        for name, kind in kinds.items():
+            entry = truth.get(name)
+            if entry is None:
+                values[name] = None
+                continue
+            names = {f.name for f in dataclasses.fields(kind)}
+            values[name] = kind(**{k: tuple(v) if isinstance(v, list | tuple) else v
+                                   for k, v in entry.items() if k in names})
+        return cls(gain_um_per_v=float(truth["gain_um_per_v"]),
+                   internal_rate_hz=float(truth["internal_rate_hz"]), **values)
 
     # -- variants ----------------------------------------------------------------
     @property
@@ -354,7 +392,7 @@ class VirtualActuator:
     def truth(self) -> dict[str, Any]:
         """Every effect's parameters and which are on, as a JSON-serialisable dict."""
         return {
-            "simulator": "bayeshyst.data.virtual.VirtualActuator",
+            "simulator": _SIMULATOR,
             "chain": "u(t-delay) -> gain*u + Preisach -> creep -> second order -> drift "
                      "-> + AR(1) noise",
             "stroke_um_nominal": STROKE_UM,

@@ -1,0 +1,566 @@
+"""Feedforward compensation evaluated per excitation frequency (``bayeshyst compensate``).
+
+For every frequency in the data a reference trajectory at that frequency is tracked by
+four commands -- the scaled input (no compensation), the nominal inverse of the MAP,
+the posterior-aware inverse and its robust variant (:mod:`bayeshyst.inverse.feedforward`)
+-- and each is run on a **plant**:
+
+* the virtual actuator that generated the data, when the records carry its truth (the
+  sidecar of every bundled dataset does): the real test of a model;
+* otherwise posterior draws held out from both the design and the prediction draws,
+  each standing in for the plant (the first is *the* plant of the report, the others
+  measure how often the predicted band holds). This says how well the model's own
+  uncertainty is propagated, not how well the model fits the actuator; every output
+  says which plant was used.
+
+Errors are RMS and max of ``y - y_d`` in % of the reference's stroke, over the cycles
+after the warm-up cycle(s) (the first cycle starts from the relaxed state and carries
+the transient of the dynamics).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from bayeshyst.data.record import Dataset, Record
+from bayeshyst.data.virtual import VirtualActuator
+from bayeshyst.errors import DataError, ParameterError
+from bayeshyst.inference.fit import FitResult, fit_model
+from bayeshyst.inverse.feedforward import (
+    BAND,
+    Draws,
+    Feedforward,
+    design_feedforward,
+    predict_outputs,
+    tracking_percent,
+)
+from bayeshyst.models.base import HysteresisModel
+
+__all__ = [
+    "REFERENCE_KINDS",
+    "CompensationResult",
+    "CompensationRow",
+    "Reference",
+    "compensate",
+    "load_reference",
+    "reference_signal",
+]
+
+#: Built-in reference shapes.
+REFERENCE_KINDS = ("sine", "triangle")
+#: Fraction of the data's output range the built-in references leave free at each end.
+REFERENCE_MARGIN = 0.1
+
+
+# ---------------------------------------------------------------------------- references
+
+
+@dataclass(frozen=True)
+class Reference:
+    """A desired output trajectory.
+
+    Attributes
+    ----------
+    t : ndarray, shape (N,)
+        Times (s), from 0.
+    y_d : ndarray, shape (N,)
+        Desired output (output unit).
+    scored : ndarray of bool, shape (N,)
+        Samples the tracking error is measured on (after the warm-up).
+    kind : str
+        ``"sine"``, ``"triangle"`` or the file name.
+    frequency_hz : float or None
+    periodic : bool
+        Whether ``y_d`` holds whole periods (the inverse dynamics is then the periodic
+        steady state).
+    """
+
+    t: np.ndarray
+    y_d: np.ndarray
+    scored: np.ndarray
+    kind: str
+    frequency_hz: float | None
+    periodic: bool
+
+    @property
+    def stroke(self) -> float:
+        """Peak-to-peak of the reference (the percentages' denominator)."""
+        return float(np.ptp(self.y_d))
+
+
+def reference_signal(kind: str, frequency_hz: float, fs: float, y_lo: float, y_hi: float,
+                     *, cycles: int = 2, warmup_cycles: int = 1) -> Reference:
+    """A periodic reference from ``y_lo`` to ``y_hi``, starting at rest at ``y_lo``.
+
+    Parameters
+    ----------
+    kind : {"sine", "triangle"}
+    frequency_hz : float
+        Its frequency (Hz), > 0.
+    fs : float
+        Sampling rate (Hz); rounded to a whole number of samples per cycle.
+    y_lo, y_hi : float
+        Lowest and highest desired output (output unit), ``y_lo < y_hi``.
+    cycles, warmup_cycles : int
+        Scored cycles and the cycles before them.
+    """
+    if kind not in REFERENCE_KINDS:
+        raise ParameterError(f"reference must be one of {REFERENCE_KINDS} or a file, "
+                             f"got {kind!r}")
+    if not (frequency_hz > 0 and fs > 0 and y_hi > y_lo):
+        raise ParameterError(f"reference needs frequency > 0, fs > 0, y_lo < y_hi; got "
+                             f"{frequency_hz}, {fs}, {y_lo}, {y_hi}")
+    per_cycle = max(8, round(fs / frequency_hz))
+    n = per_cycle * (cycles + warmup_cycles)
+    phase = (np.arange(n) % per_cycle) / per_cycle
+    shape = (0.5 - 0.5 * np.cos(2 * np.pi * phase) if kind == "sine"
+             else 1.0 - 2.0 * np.abs(phase - 0.5))
+    t = np.arange(n) / (per_cycle * frequency_hz)
+    scored = np.arange(n) >= per_cycle * warmup_cycles
+    return Reference(t, y_lo + (y_hi - y_lo) * shape, scored, kind, float(frequency_hz), True)
+
+
+def load_reference(path: str | Path) -> Reference:
+    """A reference from a CSV file with a header naming ``t`` and ``y`` (s, output unit).
+
+    Every sample is scored; the file should start at rest (the inverse of dynamics
+    needs its pre-actuation before the motion starts). Raises DataError naming the file,
+    column and row of a problem.
+    """
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except OSError as exc:
+        raise DataError(f"{path}: cannot read reference file: {exc.strerror}") from None
+    lines = [ln for ln in text.splitlines() if ln.strip()]
+    if not lines:
+        raise DataError(f"{path}: reference file is empty")
+    header = [h.strip() for h in lines[0].split(",")]
+    missing = [c for c in ("t", "y") if c not in header]
+    if missing:
+        raise DataError(f"{path}: header must name columns 't' and 'y', missing "
+                        f"{missing} in {header}")
+    it, iy = header.index("t"), header.index("y")
+    rows = []
+    for row, line in enumerate(lines[1:], start=2):
+        cells = line.split(",")
+        try:
+            rows.append((float(cells[it]), float(cells[iy])))
+        except (ValueError, IndexError):
+            raise DataError(f"{path}: row {row}: expected numbers in columns 't' and 'y', "
+                            f"got {line!r}") from None
+    arr = np.array(rows)
+    if arr.shape[0] < 8:
+        raise DataError(f"{path}: expected at least 8 samples, got {arr.shape[0]}")
+    bad = np.flatnonzero(~np.isfinite(arr).all(axis=1))
+    if bad.size:
+        raise DataError(f"{path}: row {int(bad[0]) + 2}: values must be finite")
+    steps = np.diff(arr[:, 0])
+    if np.any(steps <= 0):
+        i = int(np.flatnonzero(steps <= 0)[0])
+        raise DataError(f"{path}: column 't', row {i + 3}: time must increase, "
+                        f"{arr[i + 1, 0]!r} follows {arr[i, 0]!r}")
+    t = arr[:, 0] - arr[0, 0]
+    if np.ptp(arr[:, 1]) <= 0:
+        raise DataError(f"{path}: column 'y' is constant: nothing to track")
+    return Reference(t, arr[:, 1].copy(), np.ones(t.size, dtype=bool), path.name, None, False)
+
+
+# ------------------------------------------------------------------------------ results
+
+
+@dataclass(frozen=True)
+class CompensationRow:
+    """Tracking errors at one frequency (all in % of the reference's stroke).
+
+    Attributes
+    ----------
+    frequency_hz : float or None
+    reference : str
+    uncompensated_nrmse_percent, uncompensated_max_percent : float
+        The scaled input (a straight line fitted to the measured loop, inverted).
+    nominal_nrmse_percent, nominal_max_percent : float
+        The exact inverse of the MAP.
+    posterior_nrmse_percent, posterior_max_percent : float
+        The posterior-mean inverse.
+    robust_nrmse_percent, robust_max_percent : float
+        The robust inverse (smallest ``robust_quantile`` of ``|error|`` over draws).
+    predicted_band_percent : (float, float)
+        Central 90 % interval of the posterior command's tracking NRMSE predicted from
+        held-out draws.
+    nominal_predicted_band_percent : (float, float)
+        The same for the nominal command.
+    realised_inside_band : bool
+        Whether the plant's NRMSE under the posterior command lies in that interval.
+    output_coverage : float
+        Fraction of scored samples where the plant's output lies in the predicted 90 %
+        pointwise output band.
+    plants_inside_band : float or None
+        With posterior-draw plants: the fraction of held-out plants whose NRMSE lies in
+        the band (≈ 0.9 when the uncertainty is propagated correctly).
+    mean_over_plants : dict or None
+        With posterior-draw plants: the mean NRMSE over plants of each command.
+    n_saturated : int
+        Samples where a designed command hit the command limits.
+    model_error_percent : float
+        Largest deviation of the model's own (posterior-mean) output from the reference
+        under the posterior command: how exactly the inverse was computed.
+    curves : dict
+        ``t``, ``y_d``, ``scored``, the commands ``u_<label>``, the plant outputs
+        ``y_<label>`` (the first plant), the tracking NRMSE on every plant
+        ``nrmse_<label>`` and the 90 % band ``band_lo``/``band_hi`` of the posterior
+        command, for figures and paired comparisons (not in :meth:`to_dict`).
+    """
+
+    frequency_hz: float | None
+    reference: str
+    uncompensated_nrmse_percent: float
+    uncompensated_max_percent: float
+    nominal_nrmse_percent: float
+    nominal_max_percent: float
+    posterior_nrmse_percent: float
+    posterior_max_percent: float
+    robust_nrmse_percent: float
+    robust_max_percent: float
+    predicted_band_percent: tuple[float, float]
+    nominal_predicted_band_percent: tuple[float, float]
+    realised_inside_band: bool
+    output_coverage: float
+    plants_inside_band: float | None
+    mean_over_plants: dict[str, float] | None
+    n_saturated: int
+    model_error_percent: float
+    curves: dict[str, np.ndarray] = field(default_factory=dict, repr=False)
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready fields (no curves)."""
+        out = {k: getattr(self, k) for k in self.__dataclass_fields__ if k != "curves"}
+        out["predicted_band_percent"] = list(self.predicted_band_percent)
+        out["nominal_predicted_band_percent"] = list(self.nominal_predicted_band_percent)
+        return out
+
+    @property
+    def label(self) -> str:
+        """``"10 Hz"`` or the reference name."""
+        return self.reference if self.frequency_hz is None else f"{self.frequency_hz:g} Hz"
+
+    def __str__(self) -> str:
+        lo, hi = self.predicted_band_percent
+        inside = "inside" if self.realised_inside_band else "OUTSIDE"
+        return (f"{self.label:>10}  none {self.uncompensated_nrmse_percent:7.3f}  nominal "
+                f"{self.nominal_nrmse_percent:7.3f}  posterior {self.posterior_nrmse_percent:7.3f}"
+                f"  robust {self.robust_nrmse_percent:7.3f}  band [{lo:.3f}, {hi:.3f}] "
+                f"{inside}")
+
+
+@dataclass(frozen=True)
+class CompensationResult:
+    """Feedforward compensation of one model, per frequency.
+
+    Attributes
+    ----------
+    model : str
+    plant : str
+        What the commands were evaluated on, in words.
+    plant_kind : str
+        ``"virtual actuator"`` or ``"posterior draw"``.
+    rows : tuple of CompensationRow
+        Ascending frequency.
+    statements : tuple of str
+        Plain-language findings (error growing with frequency, bands missed).
+    converged : bool
+        Whether the fit behind the design converged.
+    settings : dict
+    """
+
+    model: str
+    plant: str
+    plant_kind: str
+    rows: tuple[CompensationRow, ...]
+    statements: tuple[str, ...]
+    converged: bool
+    settings: dict[str, Any]
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready summary; ``per_frequency`` is the list of row dicts."""
+        return {"model": self.model, "plant": self.plant, "plant_kind": self.plant_kind,
+                "converged": self.converged, "per_frequency": [r.to_dict() for r in self.rows],
+                "statements": list(self.statements), "settings": dict(self.settings)}
+
+    def __str__(self) -> str:
+        head = (f"feedforward compensation with {self.model} (tracking NRMSE, % of stroke); "
+                f"plant: {self.plant}")
+        return "\n".join([head, *(str(r) for r in self.rows), *self.statements])
+
+
+# ------------------------------------------------------------------------------ driver
+
+
+def _split_draws(fit: FitResult, sizes: tuple[int, ...], seed: int) -> list[Draws]:
+    """Disjoint sets of posterior draws (design, prediction, plants) as model draws."""
+    post = fit.posterior
+    z = fit.sampling.draws(sum(sizes), seed=seed)
+    if z.shape[0] < sum(sizes):
+        raise ParameterError(f"the posterior holds {z.shape[0]} draws, {sum(sizes)} needed "
+                             "(design + prediction + plants); sample longer")
+    z = z[np.random.default_rng(seed).permutation(z.shape[0])]
+    out, start = [], 0
+    for size in sizes:
+        out.append(_as_draws(post, z[start:start + size]))
+        start += size
+    return out
+
+
+def _as_draws(post: Any, z: np.ndarray) -> Draws:
+    theta, _, off = post._split_theta(post.space.unpack(np.atleast_2d(z)))
+    n = np.atleast_2d(z).shape[0]
+    return Draws(theta, np.broadcast_to(np.asarray(off, dtype=float).ravel(), (n,)).copy())
+
+
+def _plant_from_data(data: Dataset) -> VirtualActuator | None:
+    for rec in data:
+        truth = rec.metadata.get("truth")
+        if truth is not None:
+            return VirtualActuator.from_truth(truth).without("noise")
+    return None
+
+
+def _scaled_input(records: Dataset) -> tuple[float, float]:
+    """``(a, b)`` of the least-squares line ``y = a + b u`` through the measured loops."""
+    u = np.concatenate([r.u[r.scored] for r in records])
+    y = np.concatenate([r.y[r.scored] for r in records])
+    b, a = np.polyfit(u, y, 1)
+    if not b != 0:
+        raise DataError(f"{records.name}: output does not change with the input")
+    return float(a), float(b)
+
+
+def _trend_statements(rows: list[CompensationRow], model: str) -> list[str]:
+    out = []
+    freq = [r for r in rows if r.frequency_hz is not None]
+    if len(freq) >= 2:
+        first, last = freq[0], freq[-1]
+        lo, hi = last.predicted_band_percent
+        # growth beyond what the posterior itself predicts: the top frequency misses its
+        # band, and its error exceeds the lowest frequency's by more than the band's width
+        if (last.posterior_nrmse_percent > hi and last.posterior_nrmse_percent
+                - first.posterior_nrmse_percent > hi - lo):
+            out.append(f"The tracking error of {model} grows with frequency "
+                       f"({first.posterior_nrmse_percent:.3g} % at {first.frequency_hz:g} Hz to "
+                       f"{last.posterior_nrmse_percent:.3g} % at {last.frequency_hz:g} Hz, beyond "
+                       f"its predicted band [{lo:.3g}, {hi:.3g}] %): the model misses "
+                       "rate-dependent dynamics; a composition with linear dynamics "
+                       f"('{model}+second_order') or a rate-dependent model should help.")
+    for r in rows:
+        if not r.realised_inside_band:
+            lo, hi = r.predicted_band_percent
+            out.append(f"At {r.label} the realised error {r.posterior_nrmse_percent:.3g} % lies "
+                       f"outside the predicted 90 % band [{lo:.3g}, {hi:.3g}] %: the model's "
+                       "uncertainty does not cover the plant there.")
+        if r.n_saturated:
+            out.append(f"At {r.label} {r.n_saturated} command samples hit the command limits: "
+                       "the reference is out of the actuator's reach there.")
+    return out
+
+
+def compensate(
+    data: Dataset | Record,
+    model: HysteresisModel | str,
+    *,
+    fit: FitResult | None = None,
+    plant: VirtualActuator | str | None = None,
+    reference: str | Reference = "sine",
+    cycles: int = 2,
+    warmup_cycles: int = 1,
+    n_design_draws: int = 24,
+    n_predict_draws: int = 100,
+    n_plants: int = 50,
+    robust_quantile: float = 0.9,
+    u_margin: float = 0.25,
+    seed: int = 0,
+    likelihood: str = "gaussian",
+    n_walkers: int | None = None,
+    max_steps: int = 5_000,
+    first_chunk: int = 500,
+    checkpoint: str | Path | None = None,
+    progress: bool = False,
+) -> CompensationResult:
+    """Design feedforward from the posterior of ``model`` and evaluate it per frequency.
+
+    Parameters
+    ----------
+    data : Dataset or Record
+        Measured loops; each frequency in them gets a reference at that frequency.
+    model : HysteresisModel or str
+        Model or spec string (``"pi_play+second_order"``).
+    fit : FitResult, optional
+        A posterior of ``model`` given ``data`` already sampled; default: sampled here.
+    plant : VirtualActuator, "posterior" or None
+        What the commands are run on. None: the virtual actuator named by the records'
+        ``truth`` metadata if any, else held-out posterior draws.
+    reference : {"sine", "triangle"} or Reference
+        Built-in shape (spanning the central 80 % of the data's output range, at every
+        frequency of the data and its sampling rate) or one trajectory (from
+        :func:`load_reference`), evaluated once.
+    cycles, warmup_cycles : int
+        Scored cycles of a built-in reference and unscored cycles before them.
+    n_design_draws : int
+        Posterior draws the posterior-aware commands are designed on.
+    n_predict_draws : int
+        Held-out draws the bands are predicted from.
+    n_plants : int
+        Held-out draws used as plants when no virtual actuator is available.
+    robust_quantile : float
+        Quantile of ``|error|`` the robust command minimises.
+    u_margin : float
+        Command limits: the data's input range widened by this fraction of its span
+        at each end.
+    seed : int
+        Seeds the fit and the choice of draws; same seed, same result.
+    likelihood, n_walkers, max_steps, first_chunk, checkpoint, progress
+        As :func:`~bayeshyst.inference.fit.fit_model` (ignored with ``fit``).
+
+    Returns
+    -------
+    CompensationResult
+    """
+    if isinstance(data, Record):
+        data = Dataset((data,), name=data.name)
+    for name, value, low in (("cycles", cycles, 1), ("warmup_cycles", warmup_cycles, 0),
+                             ("n_design_draws", n_design_draws, 1),
+                             ("n_predict_draws", n_predict_draws, 10),
+                             ("n_plants", n_plants, 1)):
+        if isinstance(value, bool) or not isinstance(value, int) or value < low:
+            raise ParameterError(f"{name} must be an integer >= {low}, got {value!r}")
+    if not (math.isfinite(u_margin) and u_margin >= 0):
+        raise ParameterError(f"u_margin must be >= 0, got {u_margin}")
+    if fit is None:
+        fit = fit_model(data, model, likelihood, seed=seed, n_walkers=n_walkers,
+                        max_steps=max_steps, first_chunk=first_chunk, checkpoint=checkpoint,
+                        progress=progress)
+    post = fit.posterior
+    model = post.model
+    if plant is None:
+        plant = _plant_from_data(data) or "posterior"
+    elif isinstance(plant, str) and plant != "posterior":
+        raise ParameterError(f"plant must be a VirtualActuator, 'posterior' or None, "
+                             f"got {plant!r}")
+    virtual = isinstance(plant, VirtualActuator)
+    sizes = (n_design_draws, n_predict_draws) + (() if virtual else (n_plants,))
+    design, predict, *rest = _split_draws(fit, sizes, seed)
+    nominal = _as_draws(post, fit.sampling.start.z)
+    if virtual:
+        plant_text = (f"virtual actuator ({', '.join(plant.effects)}), the simulator that "
+                      "generated the data, noise off")
+        def run_plant(t: np.ndarray, u: np.ndarray) -> np.ndarray:
+            return plant.simulate(t, u)[None, :]
+    else:
+        plants = rest[0]
+        plant_text = (f"{plants.size} posterior draws of {model.name} held out from design "
+                      "and prediction (no ground truth: this measures how the model's "
+                      "uncertainty propagates, not how well it fits the actuator)")
+        def run_plant(t: np.ndarray, u: np.ndarray) -> np.ndarray:
+            return predict_outputs(model, u, t, plants)
+    u_all = np.concatenate([r.u for r in data])
+    lo_u, hi_u = float(u_all.min()), float(u_all.max())
+    u_limits = (lo_u - u_margin * (hi_u - lo_u), hi_u + u_margin * (hi_u - lo_u))
+    y_all = np.concatenate([r.y for r in data])
+    y_lo = float(y_all.min()) + REFERENCE_MARGIN * float(np.ptp(y_all))
+    y_hi = float(y_all.max()) - REFERENCE_MARGIN * float(np.ptp(y_all))
+    if isinstance(reference, Reference):
+        refs = [(reference, data)]
+    else:
+        groups = data.by_frequency()
+        refs = []
+        for f, group in groups.items():
+            if f is None:
+                continue
+            refs.append((reference_signal(reference, f, group[0].fs, y_lo, y_hi,
+                                          cycles=cycles, warmup_cycles=warmup_cycles), group))
+        if not refs:
+            raise DataError(f"{data.name}: no record has a frequency_hz; pass a reference "
+                            "file or label the records' frequencies")
+    rows = []
+    for ref, group in refs:
+        rows.append(_evaluate(model, ref, group, nominal, design, predict, run_plant,
+                              u_limits, robust_quantile, virtual))
+    statements = _trend_statements(rows, model.name)
+    settings = {"reference": reference.kind if isinstance(reference, Reference) else reference,
+                "cycles": cycles, "warmup_cycles": warmup_cycles,
+                "n_design_draws": n_design_draws, "n_predict_draws": n_predict_draws,
+                "n_plants": 0 if virtual else n_plants, "robust_quantile": robust_quantile,
+                "band": BAND, "u_limits": list(u_limits), "seed": seed,
+                "percent_of": "peak-to-peak of the reference"}
+    return CompensationResult(model.name, plant_text,
+                              "virtual actuator" if virtual else "posterior draw",
+                              tuple(rows), tuple(statements), bool(fit.converged), settings)
+
+
+def _evaluate(model: HysteresisModel, ref: Reference, group: Dataset, nominal: Draws,
+              design: Draws, predict: Draws, run_plant: Any, u_limits: tuple[float, float],
+              q: float, virtual: bool) -> CompensationRow:
+    t, y_d, mask, stroke = ref.t, ref.y_d, ref.scored, ref.stroke
+    a, b = _scaled_input(group)
+    u_scaled = (y_d - a) / b
+    commands: dict[str, Feedforward] = {
+        "uncompensated": Feedforward("uncompensated", u_scaled,
+                                     predict_outputs(model, u_scaled, t, predict)),
+    }
+    common: Mapping[str, Any] = {"u_limits": u_limits, "periodic": ref.periodic}
+    commands["nominal"] = design_feedforward(model, y_d, t, nominal, predict, label="nominal",
+                                             **common)
+    commands["posterior"] = design_feedforward(model, y_d, t, design, predict,
+                                               label="posterior", **common)
+    commands["robust"] = design_feedforward(model, y_d, t, design, predict, label="robust",
+                                            objective="quantile", quantile=q, **common)
+    curves: dict[str, np.ndarray] = {"t": t, "y_d": y_d, "scored": mask}
+    realised: dict[str, tuple[float, float]] = {}
+    over_plants: dict[str, float] = {}
+    for label, ff in commands.items():
+        y_plant = run_plant(t, ff.u)
+        nrmse, mx = tracking_percent(y_plant, y_d, stroke, mask)
+        realised[label] = (float(nrmse[0]), float(mx[0]))
+        over_plants[label] = float(np.mean(nrmse))
+        curves[f"nrmse_{label}"] = nrmse
+        curves[f"u_{label}"] = ff.u
+        curves[f"y_{label}"] = y_plant[0]
+        if label == "posterior":
+            posterior_plants = nrmse
+    post_ff = commands["posterior"]
+    band_lo, band_hi = post_ff.band()
+    curves["band_lo"], curves["band_hi"] = band_lo, band_hi
+    lo, hi = np.quantile(post_ff.error_distribution(y_d, stroke, mask),
+                         [(1 - BAND) / 2, (1 + BAND) / 2])
+    nlo, nhi = np.quantile(commands["nominal"].error_distribution(y_d, stroke, mask),
+                           [(1 - BAND) / 2, (1 + BAND) / 2])
+    y_post = curves["y_posterior"]
+    inside = (y_post >= band_lo) & (y_post <= band_hi)
+    model_mean = np.nanmean(post_ff.inversion.y, axis=0)
+    return CompensationRow(
+        frequency_hz=ref.frequency_hz, reference=ref.kind,
+        uncompensated_nrmse_percent=realised["uncompensated"][0],
+        uncompensated_max_percent=realised["uncompensated"][1],
+        nominal_nrmse_percent=realised["nominal"][0],
+        nominal_max_percent=realised["nominal"][1],
+        posterior_nrmse_percent=realised["posterior"][0],
+        posterior_max_percent=realised["posterior"][1],
+        robust_nrmse_percent=realised["robust"][0],
+        robust_max_percent=realised["robust"][1],
+        predicted_band_percent=(float(lo), float(hi)),
+        nominal_predicted_band_percent=(float(nlo), float(nhi)),
+        realised_inside_band=bool(lo <= realised["posterior"][0] <= hi),
+        output_coverage=float(np.mean(inside[mask])),
+        plants_inside_band=(None if virtual else
+                            float(np.mean((posterior_plants >= lo) & (posterior_plants <= hi)))),
+        mean_over_plants=None if virtual else over_plants,
+        n_saturated=int(sum(ff.inversion.n_saturated for ff in commands.values()
+                            if ff.inversion is not None)),
+        model_error_percent=float(100.0 * np.max(np.abs(model_mean - y_d)[mask]) / stroke),
+        curves=curves,
+    )

@@ -1,0 +1,168 @@
+"""Posterior-aware feedforward: commands designed from posterior draws, with predicted bands.
+
+Three commands for one reference ``y_d`` (MODELS.md §8):
+
+* **nominal** -- the exact inverse of one parameter vector (the MAP);
+* **posterior** -- the command whose *posterior-mean* output meets ``y_d`` (all design
+  draws' states carried together, :func:`~bayeshyst.inverse.numerical.invert`);
+* **robust** -- the command minimising a chosen quantile over draws of ``|y - y_d|``.
+
+Each is then *predicted* on a separate set of posterior draws (not the ones it was
+designed on, so the band is not flattered by the design): the pointwise output band
+and the distribution of the tracking error that a plant drawn from the posterior
+would show.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from bayeshyst.errors import ParameterError
+from bayeshyst.inverse.numerical import Inversion, invert
+from bayeshyst.models.base import HysteresisModel
+
+__all__ = [
+    "BAND",
+    "Draws",
+    "Feedforward",
+    "design_feedforward",
+    "predict_outputs",
+    "tracking_percent",
+]
+
+#: Probability of the predicted bands (5-95 %).
+BAND = 0.9
+
+
+@dataclass(frozen=True)
+class Draws:
+    """Parameter vectors of a model with their observation offsets.
+
+    Attributes
+    ----------
+    theta : dict
+        ``name -> array (S, *shape)``, the model's parameters.
+    offset : ndarray, shape (S,)
+        Observation offsets added to the model output (zeros without one).
+    """
+
+    theta: dict[str, np.ndarray]
+    offset: np.ndarray
+
+    @property
+    def size(self) -> int:
+        """Number of draws ``S``."""
+        return int(self.offset.size)
+
+    def take(self, index: Any) -> Draws:
+        """The draws at ``index`` (slice or integer array)."""
+        return Draws({k: np.asarray(v)[index] for k, v in self.theta.items()},
+                     np.asarray(self.offset)[index])
+
+
+def predict_outputs(model: HysteresisModel, u: np.ndarray, t: np.ndarray,
+                    draws: Draws) -> np.ndarray:
+    """Noise-free outputs ``(S, N)`` of every draw driven by ``u`` from rest (failed: NaN)."""
+    return model.run_batch(u, t, draws.theta).y + draws.offset[:, None]
+
+
+def tracking_percent(y: np.ndarray, y_d: np.ndarray, stroke: float,
+                     mask: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """RMS and max of ``y - y_d`` in % of ``stroke``, per row of ``y`` (..., N).
+
+    Parameters
+    ----------
+    y : ndarray, shape (N,) or (S, N)
+        Outputs.
+    y_d : ndarray, shape (N,)
+        Reference.
+    stroke : float
+        Peak-to-peak output the percentages refer to (> 0).
+    mask : ndarray of bool, shape (N,), optional
+        Samples scored (e.g. after the warm-up cycle); default all.
+    """
+    if not stroke > 0:
+        raise ParameterError(f"stroke must be positive, got {stroke}")
+    e = np.asarray(y, float) - np.asarray(y_d, float)
+    if mask is not None:
+        e = e[..., mask]
+    return (100.0 * np.sqrt(np.mean(e ** 2, axis=-1)) / stroke,
+            100.0 * np.max(np.abs(e), axis=-1) / stroke)
+
+
+@dataclass(frozen=True)
+class Feedforward:
+    """A feedforward command and what the posterior predicts it does.
+
+    Attributes
+    ----------
+    label : str
+        ``"uncompensated"``, ``"nominal"``, ``"posterior"`` or ``"robust"``.
+    u : ndarray, shape (N,)
+        The command (input unit).
+    predicted : ndarray, shape (P, N)
+        Outputs of the prediction draws under ``u`` (noise-free, output unit).
+    inversion : Inversion or None
+        How the command was found (None for the scaled input).
+    """
+
+    label: str
+    u: np.ndarray
+    predicted: np.ndarray
+    inversion: Inversion | None = None
+
+    def band(self, prob: float = BAND) -> tuple[np.ndarray, np.ndarray]:
+        """Pointwise central ``prob`` band ``(lo, hi)`` of the predicted output, each (N,)."""
+        ok = np.all(np.isfinite(self.predicted), axis=1)
+        lo, hi = np.quantile(self.predicted[ok], [(1 - prob) / 2, (1 + prob) / 2], axis=0)
+        return lo, hi
+
+    def error_distribution(self, y_d: np.ndarray, stroke: float,
+                           mask: np.ndarray | None = None) -> np.ndarray:
+        """Predicted tracking NRMSE (% of stroke) of every prediction draw, shape (P,)."""
+        ok = np.all(np.isfinite(self.predicted), axis=1)
+        return tracking_percent(self.predicted[ok], y_d, stroke, mask)[0]
+
+    def __str__(self) -> str:
+        inv = "" if self.inversion is None else f", {self.inversion}"
+        return f"Feedforward({self.label}, {self.u.size} samples{inv})"
+
+
+def design_feedforward(model: HysteresisModel, y_d: Any, t: Any, design: Draws,
+                       predict: Draws, *, label: str, objective: str = "mean",
+                       quantile: float = 0.9,
+                       u_limits: tuple[float, float] = (-np.inf, np.inf),
+                       periodic: bool = False) -> Feedforward:
+    """Design a command on ``design`` draws and predict it on ``predict`` draws.
+
+    Parameters
+    ----------
+    model : HysteresisModel
+    y_d, t : array_like, shape (N,)
+        Reference (output unit) and times (s).
+    design : Draws
+        One draw (the nominal inverse) or many (posterior-aware).
+    predict : Draws
+        Draws the command's outputs are predicted on (held out from ``design``).
+    label : str
+        Name of the command in reports.
+    objective, quantile, u_limits, periodic
+        As :func:`~bayeshyst.inverse.numerical.invert`.
+
+    Returns
+    -------
+    Feedforward
+    """
+    inv = invert(model, y_d, t, design.theta, objective=objective, quantile=quantile,
+                 u_limits=u_limits, offset=design.offset, periodic=periodic)
+    return Feedforward(label, inv.u, predict_outputs(model, inv.u, np.asarray(t, float),
+                                                     predict), inv)
+
+
+def stack_theta(thetas: list[Mapping[str, Any]]) -> dict[str, np.ndarray]:
+    """``S`` single parameter vectors as one batched theta (arrays ``(S, *shape)``)."""
+    return {k: np.stack([np.asarray(th[k], float) for th in thetas]) for k in thetas[0]}
