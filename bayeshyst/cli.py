@@ -170,6 +170,67 @@ def _cmd_compare(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def _probability(text: str) -> float:
+    """An argparse type: a number strictly between 0 and 1."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number in (0, 1), got {text!r}") from None
+    if not 0.0 < value < 1.0:
+        raise argparse.ArgumentTypeError(f"expected a number in (0, 1), got {value:g}")
+    return value
+
+
+def _cmd_compensate(args: argparse.Namespace) -> int:
+    from bayeshyst.data import load
+    from bayeshyst.inference.fit import fit_model
+    from bayeshyst.inverse.compensate import REFERENCE_KINDS, compensate, load_reference
+    from bayeshyst.likelihoods import get_likelihood
+    from bayeshyst.models import get as get_model
+    from bayeshyst.report.compensate_outputs import write_compensation_outputs
+
+    # validate everything cheap before the long part starts
+    data = load(args.data)
+    model = get_model(args.model)
+    likelihood = get_likelihood(args.likelihood)
+    if args.reference in REFERENCE_KINDS:
+        reference: Any = args.reference
+        if not data.frequencies:
+            raise DataError(f"{args.data}: no record has a frequency_hz, so there is no "
+                            f"frequency to put a {args.reference} reference at; label the "
+                            "records' frequencies or pass --reference FILE.csv")
+    elif Path(args.reference).is_file():
+        reference = load_reference(args.reference)
+    else:
+        raise DataError(f"{args.reference}: no such reference file (--reference takes "
+                        f"{' or '.join(REFERENCE_KINDS)} or a CSV file with columns t,y)")
+    out = Path(args.out)
+    checkpoint = None if args.no_checkpoint else out / "checkpoint.h5"
+    if not args.quiet:
+        freqs = ", ".join(f"{f:g}" for f in data.frequencies) or "none given"
+        ref = args.reference if isinstance(reference, str) else f"file {args.reference}"
+        print(f"bayeshyst compensate: {model.name} / {likelihood.name} on {data.name} "
+              f"({len(data)} record(s); frequencies [Hz]: {freqs}); reference: {ref}",
+              file=sys.stderr)
+    fit = fit_model(data, model, likelihood, seed=args.seed, n_walkers=args.walkers,
+                    max_steps=args.steps, checkpoint=checkpoint, progress=not args.quiet)
+    result = compensate(data, model, fit=fit, reference=reference,
+                        plant=None if args.plant == "auto" else args.plant,
+                        n_design_draws=args.design_draws, robust_quantile=args.quantile,
+                        seed=args.seed)
+    written = write_compensation_outputs(result, out, figures=not args.no_figures, fit=fit,
+                                         data_path=str(args.data))
+    if args.json:
+        sys.stdout.write((out / "summary.json").read_text())
+    else:
+        summary = json.loads((out / "summary.json").read_text())
+        print(result)
+        for w in summary["warnings"]:
+            print(f"warning: {w}")
+        print(f"outputs in {out}/: " + ", ".join(p.name for p in written))
+    return EXIT_OK
+
+
 def _add_run_options(p: argparse.ArgumentParser, out_default: str, steps_help: str) -> None:
     """The options every command that samples shares: data, likelihood, output folder,
     seed, sampler budget, walkers, and what is printed and drawn."""
@@ -222,6 +283,29 @@ def build_parser() -> argparse.ArgumentParser:
     p_cmp.add_argument("--gp-train", type=_positive_int, default=1000,
                        help="training-subset size of the GP models (default 1000)")
     p_cmp.set_defaults(func=_cmd_compare)
+
+    p_comp = sub.add_parser("compensate", help="design feedforward commands from the posterior "
+                            "of one model and score their tracking per frequency")
+    p_comp.add_argument("--model", required=True,
+                        help="model name or spec string, e.g. pi_play+second_order")
+    _add_run_options(p_comp, "bayeshyst-compensate", "step budget per ensemble (default 20000)")
+    p_comp.add_argument("--reference", default="sine", metavar="sine|triangle|FILE",
+                        help="reference to track: a sine or triangle at every frequency of "
+                             "the data (default sine), or a CSV file with header t,y "
+                             "(s, output unit), tracked once")
+    p_comp.add_argument("--design-draws", type=_positive_int, default=24, metavar="N",
+                        help="posterior draws the posterior-aware commands are designed on "
+                             "(default 24)")
+    p_comp.add_argument("--quantile", type=_probability, default=0.9, metavar="Q",
+                        help="quantile of |error| over draws the robust command minimises, "
+                             "in (0, 1) (default 0.9)")
+    p_comp.add_argument("--plant", choices=("auto", "posterior"), default="auto",
+                        help="what the commands are run on: auto (default) = the virtual "
+                             "actuator named in the data's sidecar if any, else held-out "
+                             "posterior draws; posterior = always held-out draws")
+    p_comp.add_argument("--no-checkpoint", action="store_true",
+                        help="do not checkpoint to OUT/checkpoint.h5 (and do not resume)")
+    p_comp.set_defaults(func=_cmd_compensate)
     return parser
 
 

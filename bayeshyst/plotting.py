@@ -36,7 +36,8 @@ from bayeshyst.inference.posterior import Posterior
 from bayeshyst.inference.sampling import SamplingResult
 from bayeshyst.params import ParamSpace
 
-__all__ = ["plot_corner", "plot_loops", "plot_model_comparison", "plot_residuals", "plot_trace"]
+__all__ = ["plot_compensation", "plot_corner", "plot_loops", "plot_model_comparison",
+           "plot_residuals", "plot_trace"]
 
 DPI = 120
 _RED = "#c0392b"
@@ -601,3 +602,170 @@ def plot_model_comparison(result: Any, path: str | os.PathLike[str]) -> Path:
     """
     path = _png_path(path)
     return _save(_build_model_comparison(result), path)
+
+
+# ---------------------------------------------------------------------- compensation
+#: Rows of per-frequency panels drawn at most by :func:`plot_compensation`.
+COMPENSATION_MAX_ROWS = 6
+_COMMANDS = (("uncompensated", "uncompensated (scaled input)", "0.45"),
+             ("nominal", "nominal (MAP inverse)", "C1"),
+             ("posterior", "posterior-aware", "C0"),
+             ("robust", "robust", "C2"))
+
+
+def _time_axis(t: np.ndarray) -> tuple[np.ndarray, str]:
+    """Times in s, or in ms when the record is shorter than half a second."""
+    span = float(t[-1] - t[0]) if t.size else 0.0
+    return (1e3 * t, "t [ms]") if 0 < span < 0.5 else (t, "t [s]")
+
+
+def _build_compensation(result: Any, *, y_unit: str = "") -> Figure:
+    from bayeshyst.inverse.compensate import CompensationResult
+
+    if not isinstance(result, CompensationResult):
+        raise ParameterError(f"result must be a CompensationResult, got "
+                             f"{type(result).__name__}")
+    if not result.rows:
+        raise ParameterError("the compensation result has no rows: nothing to plot")
+    rows = list(result.rows[:COMPENSATION_MAX_ROWS])
+    n = len(rows)
+    fig = _figure(14.0, 2.9 * n + 1.2)
+    grid = fig.add_gridspec(n, 3, width_ratios=[1.5, 1.5, 1.2])
+    y_name = _label("y", y_unit)
+    for i, row in enumerate(rows):
+        c = row.curves
+        sc = np.asarray(c["scored"], dtype=bool)
+        t, t_label = _time_axis(np.asarray(c["t"], dtype=float)[sc])
+        y_d = np.asarray(c["y_d"], dtype=float)
+        stroke = float(np.ptp(y_d)) or 1.0
+        ax_y = fig.add_subplot(grid[i, 0])
+        ax_e = fig.add_subplot(grid[i, 1], sharex=ax_y)
+        # left: what the plant did under the designed commands, with the predicted band
+        ax_y.fill_between(t, np.asarray(c["band_lo"])[sc], np.asarray(c["band_hi"])[sc],
+                          color="C0", alpha=0.25, lw=0,
+                          label="90 % predicted output (posterior cmd)")
+        ax_y.plot(t, y_d[sc], color="k", lw=1.6, ls="--", label="reference $y_d$")
+        ax_y.plot(t, np.asarray(c["y_nominal"])[sc], color="C1", lw=1.0,
+                  label="plant, nominal command")
+        ax_y.plot(t, np.asarray(c["y_posterior"])[sc], color="C0", lw=1.0,
+                  label="plant, posterior command")
+        ax_y.set_ylabel(y_name)
+        lo, hi = row.predicted_band_percent
+        inside = row.realised_inside_band
+        ax_y.set_title(f"{row.label}: plant output\nposterior command: NRMSE "
+                       f"{_fmt(row.posterior_nrmse_percent, '.3g')} %, predicted "
+                       f"[{_fmt(lo, '.3g')}, {_fmt(hi, '.3g')}] %"
+                       + ("" if inside else " (OUTSIDE)"),
+                       fontsize=8.5, color="black" if inside else _RED)
+        # middle: tracking error of every command in % of the reference's stroke
+        ax_e.fill_between(t, 100 * (np.asarray(c["band_lo"])[sc] - y_d[sc]) / stroke,
+                          100 * (np.asarray(c["band_hi"])[sc] - y_d[sc]) / stroke,
+                          color="C0", alpha=0.15, lw=0, label="90 % predicted (posterior)")
+        for key, name, color in _COMMANDS:
+            err = 100 * (np.asarray(c[f"y_{key}"], dtype=float)[sc] - y_d[sc]) / stroke
+            ax_e.plot(t, err, color=color, lw=0.9 if key != "uncompensated" else 1.2,
+                      label=name)
+        ax_e.axhline(0.0, color="k", lw=0.6)
+        ax_e.set_ylabel("$y - y_d$ [% of stroke]")
+        nrmse = ", ".join(f"{'none' if key == 'uncompensated' else key} "
+                          f"{_fmt(getattr(row, f'{key}_nrmse_percent'), '.3g')}"
+                          for key, _, _ in _COMMANDS)
+        ax_e.set_title(f"{row.label}: tracking error\nNRMSE [%]: {nrmse}", fontsize=8.5)
+        if i == 0:
+            # one legend per column, above the curves of the first row
+            for ax, ncols in ((ax_y, 2), (ax_e, 3)):
+                lo_, hi_ = ax.get_ylim()
+                ax.set_ylim(lo_, hi_ + 0.4 * (hi_ - lo_))
+                ax.legend(fontsize=6.5, loc="upper center", ncols=ncols)
+        if i == n - 1:
+            ax_y.set_xlabel(t_label)
+            ax_e.set_xlabel(t_label)
+        for ax in (ax_y, ax_e):
+            ax.grid(alpha=0.3)
+            ax.tick_params(labelsize=8)
+    # right: realised NRMSE of the four commands per frequency, predicted bands as bars
+    ax_f = fig.add_subplot(grid[:, 2])
+    every = list(result.rows)
+    freq = [r for r in every if r.frequency_hz is not None]
+    if freq:
+        f = np.array([r.frequency_hz for r in freq], dtype=float)
+        x_of = {key: f * 1.04 ** (j - 1.5) for j, (key, _, _) in enumerate(_COMMANDS)}
+        ax_f.set_xscale("log")
+        ax_f.set_xticks(f, [f"{x:g}" for x in f])
+        ax_f.xaxis.set_minor_formatter(NullFormatter())
+        ax_f.set_xlabel("excitation frequency [Hz]")
+    else:  # one reference file: the commands side by side
+        f = np.zeros(0)
+        freq = every[:1]
+        x_of = {key: np.array([j], dtype=float) for j, (key, _, _) in enumerate(_COMMANDS)}
+        ax_f.set_xticks(range(len(_COMMANDS)), [k for k, _, _ in _COMMANDS], rotation=20,
+                        fontsize=8)
+        ax_f.set_xlim(-0.6, len(_COMMANDS) - 0.4)
+        ax_f.set_xlabel(f"command (reference {every[0].reference})")
+    for key, name, color in _COMMANDS:
+        x = x_of[key]
+        y = np.array([getattr(r, f"{key}_nrmse_percent") for r in freq], dtype=float)
+        ax_f.plot(x, y, marker="o", ms=5, color=color, lw=1.0 if f.size else 0, label=name)
+        band = {"posterior": "predicted_band_percent",
+                "nominal": "nominal_predicted_band_percent"}.get(key)
+        if band is not None:
+            b = np.array([getattr(r, band) for r in freq], dtype=float).reshape(-1, 2)
+            ax_f.errorbar(x, b.mean(axis=1), yerr=np.abs(np.diff(b, axis=1)).ravel() / 2,
+                          fmt="none", ecolor=color, elinewidth=2.5, capsize=4, alpha=0.5,
+                          label=f"{key}: 90 % predicted band")
+            missed = np.array([not r.realised_inside_band for r in freq])
+            if key == "posterior" and missed.any():
+                ax_f.plot(x[missed], y[missed], "x", color=_RED, ms=10, mew=2,
+                          label="outside its predicted band")
+    positive = [getattr(r, f"{k}_nrmse_percent") for r in freq for k, _, _ in _COMMANDS]
+    positive = [v for v in positive if np.isfinite(v) and v > 0]
+    if positive and max(positive) / min(positive) > 20:
+        ax_f.set_yscale("log")
+    ax_f.set_ylabel("tracking NRMSE [% of stroke]")
+    ax_f.set_title("realised on the plant; bars: predicted 90 % band", fontsize=9)
+    ax_f.grid(alpha=0.3)
+    ax_f.legend(fontsize=7, loc="best")
+    plant = {"virtual actuator": "virtual actuator (the simulator behind the data, noise off)",
+             "posterior draw": "held-out posterior draws (no ground truth)"}.get(
+                 result.plant_kind, result.plant_kind)
+    title = f"feedforward compensation with {result.model}; plant: {plant}"
+    if len(every) > n:
+        title += f"\nfirst {n} of {len(every)} references shown (right panel: all)"
+    if result.converged:
+        fig.suptitle(title, fontsize=10)
+    else:
+        fig.suptitle(f"NOT CONVERGED: the fit behind the design did not converge\n{title}",
+                     fontsize=10, color=_RED, fontweight="bold")
+    return fig
+
+
+def plot_compensation(result: Any, path: str | os.PathLike[str], *, y_unit: str = "") -> Path:
+    """Feedforward tracking per frequency: plant outputs, errors, NRMSE against frequency.
+
+    One row per reference (at most :data:`COMPENSATION_MAX_ROWS`; the title says when
+    some are left out), over the scored samples: left, the reference, the plant's
+    output under the nominal and the posterior-aware commands and the 90 % band the
+    posterior predicts for the latter (shaded); middle, the tracking error ``y - y_d``
+    of the four commands (uncompensated, nominal, posterior, robust) in % of the
+    reference's stroke. Right, one panel for all rows: the realised tracking NRMSE of
+    the four commands against frequency (log axis) with the predicted 90 % bands of the
+    nominal and posterior commands as bars, a red x where the plant fell outside
+    (with a reference file: the four commands side by side). The title names the plant
+    and, in red, a fit that did not converge.
+
+    Parameters
+    ----------
+    result : CompensationResult
+        From :func:`bayeshyst.inverse.compensate.compensate`.
+    path : path-like
+        PNG file to write (atomically).
+    y_unit : str
+        Unit of the output for the axis labels (e.g. ``"um"``).
+
+    Returns
+    -------
+    Path
+        ``path``.
+    """
+    path = _png_path(path)
+    return _save(_build_compensation(result, y_unit=y_unit), path)

@@ -342,6 +342,21 @@ class Posterior:
         out[inside] = block
         return out
 
+    def model_draws(self, z: np.ndarray) -> tuple[dict[str, np.ndarray], np.ndarray]:
+        """The model's parameters and the observation offsets of ``W`` points ``z``.
+
+        Returns
+        -------
+        theta : dict
+            ``name -> array (W, *shape)``, the model's parameters only (no noise).
+        offset : ndarray, shape (W,)
+            ``obs.offset`` of each point (zeros when the posterior has none).
+        """
+        z = np.atleast_2d(np.asarray(z, dtype=float))
+        theta, _, off = self._split_theta(self.space.unpack(z))
+        return theta, np.broadcast_to(np.asarray(off, dtype=float).ravel(),
+                                      (z.shape[0],)).copy()
+
     def predict(self, z: np.ndarray) -> list[np.ndarray]:
         """Noise-free predictions (offset included) for ``W`` points, per record.
 

@@ -40,6 +40,7 @@ from bayeshyst.inverse.feedforward import (
     predict_outputs,
     tracking_percent,
 )
+from bayeshyst.models import get as get_model
 from bayeshyst.models.base import HysteresisModel
 
 __all__ = [
@@ -318,9 +319,7 @@ def _split_draws(fit: FitResult, sizes: tuple[int, ...], seed: int) -> list[Draw
 
 
 def _as_draws(post: Any, z: np.ndarray) -> Draws:
-    theta, _, off = post._split_theta(post.space.unpack(np.atleast_2d(z)))
-    n = np.atleast_2d(z).shape[0]
-    return Draws(theta, np.broadcast_to(np.asarray(off, dtype=float).ravel(), (n,)).copy())
+    return Draws(*post.model_draws(z))
 
 
 def _plant_from_data(data: Dataset) -> VirtualActuator | None:
@@ -400,7 +399,8 @@ def compensate(
     model : HysteresisModel or str
         Model or spec string (``"pi_play+second_order"``).
     fit : FitResult, optional
-        A posterior of ``model`` given ``data`` already sampled; default: sampled here.
+        A posterior of ``model`` given ``data`` already sampled (its model must be
+        ``model``); default: sampled here, and the sampler settings below then apply.
     plant : VirtualActuator, "posterior" or None
         What the commands are run on. None: the virtual actuator named by the records'
         ``truth`` metadata if any, else held-out posterior draws.
@@ -440,7 +440,14 @@ def compensate(
             raise ParameterError(f"{name} must be an integer >= {low}, got {value!r}")
     if not (math.isfinite(u_margin) and u_margin >= 0):
         raise ParameterError(f"u_margin must be >= 0, got {u_margin}")
-    if fit is None:
+    if not 0.0 < robust_quantile < 1.0:
+        raise ParameterError(f"robust_quantile must be in (0, 1), got {robust_quantile}")
+    if fit is not None:
+        wanted = get_model(model) if isinstance(model, str) else model
+        if wanted.name != fit.posterior.model.name:
+            raise ParameterError(f"fit is a posterior of {fit.posterior.model.name!r}, not of "
+                                 f"the model asked for, {wanted.name!r}")
+    else:
         fit = fit_model(data, model, likelihood, seed=seed, n_walkers=n_walkers,
                         max_steps=max_steps, first_chunk=first_chunk, checkpoint=checkpoint,
                         progress=progress)

@@ -15,7 +15,6 @@ would show.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -162,7 +161,3 @@ def design_feedforward(model: HysteresisModel, y_d: Any, t: Any, design: Draws,
     return Feedforward(label, inv.u, predict_outputs(model, inv.u, np.asarray(t, float),
                                                      predict), inv)
 
-
-def stack_theta(thetas: list[Mapping[str, Any]]) -> dict[str, np.ndarray]:
-    """``S`` single parameter vectors as one batched theta (arrays ``(S, *shape)``)."""
-    return {k: np.stack([np.asarray(th[k], float) for th in thetas]) for k in thetas[0]}
