@@ -226,3 +226,39 @@ def test_bad_arguments_are_refused():
         invert(model, np.ones(10), t, theta, u_limits=(5.0, 1.0))
     with pytest.raises(ParameterError, match="finite"):
         invert(model, np.full(10, np.nan), t, theta)
+
+
+# ---------------------------------------------------------------------- analytic
+
+
+def test_play_inverse_is_a_stop_model_and_a_direct_inverse_recovers_it():
+    from bayeshyst.data.record import Record
+    from bayeshyst.inverse.analytic import analytic_inverse, swap_input_output
+
+    model = get("pi_play(n_operators=5)")
+    t, u_true = smooth_input()
+    theta, y_d = invertible_theta(model, t, u_true)
+    one = {k: np.asarray(v)[0] for k, v in theta.items()}
+    exact = analytic_inverse(model, y_d, t, one)
+    inv = model.inverse_theta(one)
+    stop = get("pi_stop(n_operators=5)")
+    np.testing.assert_allclose(stop.simulate(y_d, t, inv.stop_theta), exact, atol=1e-9)
+    # identify the stop model on swapped data by least squares (it is linear in its
+    # weights for fixed thresholds): it must find the exact inverse's weights
+    rec = Record(t=t, u=u_true, y=y_d, name="truth")
+    swapped = swap_input_output(rec)[0]
+    np.testing.assert_array_equal(swapped.u, y_d)
+    phi = stop.regressors(swapped.u, swapped.t, {"r": inv.r})
+    beta, *_ = np.linalg.lstsq(phi, swapped.y, rcond=None)
+    np.testing.assert_allclose(beta, np.r_[inv.stop_theta["p0"], inv.stop_theta["w"]],
+                               rtol=1e-6, atol=1e-9)
+    command = stop.simulate(y_d, t, {"p0": beta[0], "w": beta[1:], "r": inv.r})
+    np.testing.assert_allclose(model.simulate(command, t, one), y_d, atol=1e-6 * np.ptp(y_d))
+
+
+def test_models_without_analytic_inverse_say_which_have_one():
+    from bayeshyst.errors import ModelError
+    from bayeshyst.inverse.analytic import analytic_inverse
+
+    with pytest.raises(ModelError, match="pi_play"):
+        analytic_inverse(get("bouc_wen"), np.ones(3), np.arange(3.0), {})
