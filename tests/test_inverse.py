@@ -129,26 +129,20 @@ def test_numerical_inverse_compositions(spec):
     assert inv.n_saturated == 0
 
 
-def test_analytic_and_numerical_inverse_agree_play_pi():
-    model = get("pi_play(n_operators=6)")
-    t, u_true = smooth_input()
-    theta, y_d = invertible_theta(model, t, u_true)
-    one = {k: np.asarray(v)[0] for k, v in theta.items()}
-    analytic = model.inverse(y_d, t, one)
-    numerical = invert(model, y_d, t, theta, u_limits=(-100.0, 250.0)).u
-    np.testing.assert_allclose(numerical, analytic, atol=1e-7 * 150)
-    np.testing.assert_allclose(analytic, u_true, atol=1e-7 * 150)
-
-
-def test_analytic_and_numerical_inverse_agree_mbw():
-    model = get("mbw")
-    t, u_true = smooth_input()
-    theta, y_d = invertible_theta(model, t, u_true)
-    one = {k: np.asarray(v)[0] for k, v in theta.items()}
-    analytic = model.inverse(y_d, t, one)
-    numerical = invert(model, y_d, t, theta, u_limits=(-100.0, 250.0)).u
+@pytest.mark.parametrize(("spec", "atol"), [
+    ("pi_play(n_operators=6)", 1e-7 * 150),
     # Eq. 55 is integrated with its own RK4 steps: agreement to its integration error
-    np.testing.assert_allclose(numerical, analytic, atol=1e-5 * 150)
+    ("mbw", 1e-5 * 150),
+])
+def test_analytic_and_numerical_inverse_agree(spec, atol):
+    model = get(spec)
+    t, u_true = smooth_input()
+    theta, y_d = invertible_theta(model, t, u_true)
+    one = {k: np.asarray(v)[0] for k, v in theta.items()}
+    analytic = model.inverse(y_d, t, one)
+    numerical = invert(model, y_d, t, theta, u_limits=(-100.0, 250.0)).u
+    np.testing.assert_allclose(numerical, analytic, atol=atol)
+    np.testing.assert_allclose(analytic, u_true, atol=atol)
 
 
 # ----------------------------------------------------------------------- many draws
