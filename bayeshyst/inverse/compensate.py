@@ -340,22 +340,26 @@ def _scaled_input(records: Dataset) -> tuple[float, float]:
     return float(a), float(b)
 
 
-def _trend_statements(rows: list[CompensationRow], model: str) -> list[str]:
+def _trend_statements(rows: list[CompensationRow], model: str,
+                      rate_dependent: bool) -> list[str]:
     out = []
     freq = [r for r in rows if r.frequency_hz is not None]
     if len(freq) >= 2:
         first, last = freq[0], freq[-1]
-        lo, hi = last.predicted_band_percent
-        # growth beyond what the posterior itself predicts: the top frequency misses its
-        # band, and its error exceeds the lowest frequency's by more than the band's width
-        if (last.posterior_nrmse_percent > hi and last.posterior_nrmse_percent
-                - first.posterior_nrmse_percent > hi - lo):
+        lo, hi = last.nominal_predicted_band_percent
+        # growth beyond what the posterior itself predicts: at the top frequency the MAP's
+        # inverse misses its band, and its error exceeds the lowest frequency's by more
+        # than the band's width
+        if (last.nominal_nrmse_percent > hi
+                and last.nominal_nrmse_percent - first.nominal_nrmse_percent > hi - lo):
+            advice = ("its rate dependence does not match the plant's" if rate_dependent else
+                      "a composition with linear dynamics "
+                      f"('{model}+second_order') or a rate-dependent model should help")
             out.append(f"The tracking error of {model} grows with frequency "
-                       f"({first.posterior_nrmse_percent:.3g} % at {first.frequency_hz:g} Hz to "
-                       f"{last.posterior_nrmse_percent:.3g} % at {last.frequency_hz:g} Hz, beyond "
+                       f"({first.nominal_nrmse_percent:.3g} % at {first.frequency_hz:g} Hz to "
+                       f"{last.nominal_nrmse_percent:.3g} % at {last.frequency_hz:g} Hz, beyond "
                        f"its predicted band [{lo:.3g}, {hi:.3g}] %): the model misses "
-                       "rate-dependent dynamics; a composition with linear dynamics "
-                       f"('{model}+second_order') or a rate-dependent model should help.")
+                       f"rate-dependent dynamics; {advice}.")
     for r in rows:
         if not r.realised_inside_band:
             lo, hi = r.predicted_band_percent
@@ -497,7 +501,7 @@ def compensate(
     for ref, group in refs:
         rows.append(_evaluate(model, ref, group, nominal, design, predict, run_plant,
                               u_limits, robust_quantile, virtual))
-    statements = _trend_statements(rows, model.name)
+    statements = _trend_statements(rows, model.name, model.rate_dependent)
     settings = {"reference": reference.kind if isinstance(reference, Reference) else reference,
                 "cycles": cycles, "warmup_cycles": warmup_cycles,
                 "n_design_draws": n_design_draws, "n_predict_draws": n_predict_draws,
@@ -519,7 +523,8 @@ def _evaluate(model: HysteresisModel, ref: Reference, group: Dataset, nominal: D
         "uncompensated": Feedforward("uncompensated", u_scaled,
                                      predict_outputs(model, u_scaled, t, predict)),
     }
-    common: Mapping[str, Any] = {"u_limits": u_limits, "periodic": ref.periodic}
+    common: Mapping[str, Any] = {"u_limits": u_limits, "periodic": ref.periodic,
+                                 "scored": mask}
     commands["nominal"] = design_feedforward(model, y_d, t, nominal, predict, label="nominal",
                                              **common)
     commands["posterior"] = design_feedforward(model, y_d, t, design, predict,

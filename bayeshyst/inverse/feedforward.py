@@ -135,7 +135,7 @@ def design_feedforward(model: HysteresisModel, y_d: Any, t: Any, design: Draws,
                        predict: Draws, *, label: str, objective: str = "mean",
                        quantile: float = 0.9,
                        u_limits: tuple[float, float] = (-np.inf, np.inf),
-                       periodic: bool = False) -> Feedforward:
+                       periodic: bool = False, scored: Any = None) -> Feedforward:
     """Design a command on ``design`` draws and predict it on ``predict`` draws.
 
     Parameters
@@ -149,7 +149,7 @@ def design_feedforward(model: HysteresisModel, y_d: Any, t: Any, design: Draws,
         Draws the command's outputs are predicted on (held out from ``design``).
     label : str
         Name of the command in reports.
-    objective, quantile, u_limits, periodic
+    objective, quantile, u_limits, periodic, scored
         As :func:`~bayeshyst.inverse.numerical.invert`.
 
     Returns
@@ -157,7 +157,7 @@ def design_feedforward(model: HysteresisModel, y_d: Any, t: Any, design: Draws,
     Feedforward
     """
     inv = invert(model, y_d, t, design.theta, objective=objective, quantile=quantile,
-                 u_limits=u_limits, offset=design.offset, periodic=periodic)
+                 u_limits=u_limits, offset=design.offset, periodic=periodic, scored=scored)
     return Feedforward(label, inv.u, predict_outputs(model, inv.u, np.asarray(t, float),
                                                      predict), inv)
 

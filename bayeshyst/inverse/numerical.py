@@ -77,8 +77,9 @@ class Inversion:
     quantile : float
         The quantile minimised by the robust objective.
     max_error : float
-        Largest ``|statistic_k - y_d,k|`` over the samples, where the statistic is the
-        mean over draws (``objective="mean"``) or the single draw (output unit).
+        Largest ``|mean_s y_s,k - y_d,k|`` over the scored samples (for
+        ``objective="quantile"``: the largest ``q``-quantile of ``|y_s,k - y_d,k|``)
+        (output unit).
     n_saturated : int
         Samples whose command reached a limit of ``u_limits`` (the target was out of
         reach; reported, never hidden).
@@ -89,7 +90,7 @@ class Inversion:
     n_evaluations : int
         One-step evaluations of the first stage.
     n_corrections : int
-        Reference corrections made for the posterior mean.
+        Reference corrections made for the posterior mean (the best iterate is kept).
     stages : tuple of str
         How the model was inverted, first stage first (``"pi_play+creep: per sample"``,
         ``"second_order: deconvolution"``).
@@ -332,7 +333,7 @@ def _golden(loss, a: float, b: float, xtol: float) -> float:
 def invert(model: HysteresisModel, y_d: Any, t: Any, thetas: Mapping[str, Any], *,
            objective: str = "mean", quantile: float = 0.9,
            u_limits: tuple[float, float] = (-math.inf, math.inf),
-           offset: Any = None, periodic: bool = False) -> Inversion:
+           offset: Any = None, periodic: bool = False, scored: Any = None) -> Inversion:
     """Command ``u`` that makes ``model`` follow ``y_d``, for ``S`` parameter vectors at once.
 
     Parameters
@@ -360,6 +361,11 @@ def invert(model: HysteresisModel, y_d: Any, t: Any, thetas: Mapping[str, Any], 
     periodic : bool
         ``y_d`` holds whole periods of a periodic reference (dynamics inverted as the
         periodic steady state).
+    scored : array_like of bool, shape (N,), optional
+        Samples the reference must be met on (``max_error`` and the posterior-mean
+        corrections use only these); default all. Leave out a warm-up whose transient no
+        command can remove: the model starts at rest, a periodic inverse assumes the
+        steady state.
 
     Returns
     -------
@@ -398,11 +404,16 @@ def invert(model: HysteresisModel, y_d: Any, t: Any, thetas: Mapping[str, Any], 
     ftol = FTOL_REL * span
     u_scale = hi - lo if math.isfinite(hi - lo) else 1.0
     xtol = XTOL_REL * max(u_scale, 1.0)
+    mask = np.ones(y_d.size, dtype=bool) if scored is None else np.asarray(scored, dtype=bool)
+    if mask.shape != y_d.shape or not mask.any():
+        raise ParameterError(f"scored must be a boolean mask of shape {y_d.shape} with at "
+                             f"least one True, got shape {mask.shape}")
     target = y_d[None, :] - off[:, None]
     correction = np.zeros_like(y_d)
     active = np.ones(n_draws, dtype=bool)
-    total_sat = total_mono = total_eval = 0
+    total_eval = 0
     n_corr = 0
+    best = None
     while True:
         v = target + correction[None, :]
         for stage in reversed(later):
@@ -413,22 +424,27 @@ def invert(model: HysteresisModel, y_d: Any, t: Any, thetas: Mapping[str, Any], 
                 v = deconvolve(block, th, v, t, periodic=periodic).w
         u, n_sat, n_mono, n_eval = _invert_first(first, v, t, objective, quantile, lo, hi,
                                                  u_scale, ftol, xtol, active)
-        total_sat, total_mono = n_sat, n_mono
         total_eval += n_eval
         traj = model.run_batch(u, t, theta_b)
         y = traj.y + off[:, None]
         active &= ~traj.failed
         stat = _objective_value(y, y_d[None, :], active, "mean", quantile)
-        err = float(np.max(np.abs(stat)))
+        err = float(np.max(np.abs(stat[mask])))
+        if best is not None and err >= best[0]:
+            # the fixed-point iteration stopped contracting: keep the best command
+            err, u, y, n_sat, n_mono = best
+            break
+        best = (err, u, y, n_sat, n_mono)
         # only the posterior mean behind per-draw dynamics needs the correction
         if (objective != "mean" or n_draws == 1 or not later or err <= 10 * ftol
                 or n_corr >= MAX_CORRECTIONS):
             break
-        correction = correction - stat
+        correction = correction - np.where(mask, stat, 0.0)
         n_corr += 1
     if objective == "quantile" and active.sum() > 1:
-        err = float(np.max(_objective_value(y, y_d[None, :], active, "quantile", quantile)))
+        err = float(np.max(_objective_value(y, y_d[None, :], active, "quantile",
+                                            quantile)[mask]))
     return Inversion(u=u, y=y, objective=objective, quantile=float(quantile), max_error=err,
-                     n_saturated=total_sat, n_nonmonotone=total_mono,
+                     n_saturated=n_sat, n_nonmonotone=n_mono,
                      n_failed_draws=int(n_draws - active.sum()), n_evaluations=total_eval,
                      n_corrections=n_corr, stages=tuple(labels))
