@@ -111,3 +111,22 @@ def test_deconvolution_needs_uniform_sampling():
     t[50:] += 0.3 / FS
     with pytest.raises(ParameterError, match="uniform"):
         deconvolve(Delay(), {"d": np.array([1 / FS])}, np.ones(100), t)
+
+
+def test_single_problem_path_equals_the_batched_path():
+    # the scalar fast path must take exactly the batched solver's steps
+    rng = np.random.default_rng(4)
+    for _ in range(20):
+        c = rng.uniform(-3, 3)
+        k1, k2 = rng.uniform(0.1, 3, 2)
+
+        def fun(x, c=c, k1=k1, k2=k2):
+            return k1 * x + k2 * np.maximum(x - 0.4, 0.0) + 0.3 * np.floor(2 * x) - c
+
+        one = solve_increasing(fun, np.array([0.2]), np.array([0.3]), lo=-2.0, hi=2.0,
+                               ftol=1e-12, xtol=1e-13)
+        both = solve_increasing(fun, np.array([0.2, 0.2]), np.array([0.3, 0.3]), lo=-2.0,
+                                hi=2.0, ftol=1e-12, xtol=1e-13)
+        assert one.x[0] == both.x[0] and one.residual[0] == both.residual[0]
+        assert one.saturated[0] == both.saturated[0]
+        assert one.nonmonotone[0] == both.nonmonotone[0]

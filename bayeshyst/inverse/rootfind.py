@@ -12,6 +12,7 @@ point whose residual is out of order with the bracket ends flags the problem.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -77,6 +78,11 @@ def solve_increasing(fun: Callable[[np.ndarray], np.ndarray], x0: np.ndarray,
     """
     x = np.clip(np.asarray(x0, dtype=float).copy(), lo, hi)
     step = np.maximum(np.asarray(step, dtype=float), xtol)
+    if x.size == 1:
+        # one problem (the shared command of the first stage, every sample): the same
+        # algorithm on Python floats, without the ~40 array operations per iteration
+        # that cost more than a one-sample model evaluation
+        return _solve_one(fun, float(x[0]), float(step[0]), lo, hi, ftol, xtol)
     g = fun(x)
     n_eval = 1
     size = x.size
@@ -167,3 +173,71 @@ def solve_increasing(fun: Callable[[np.ndarray], np.ndarray], x0: np.ndarray,
     x = np.where(use_a, a, np.where(use_b, b, x))
     g = np.where(use_a, fa, np.where(use_b, fb, g))
     return RootResult(x, g, saturated, nonmono, n_eval)
+
+
+def _solve_one(fun: Callable[[np.ndarray], np.ndarray], x: float, step: float, lo: float,
+               hi: float, ftol: float, xtol: float) -> RootResult:
+    """:func:`solve_increasing` for a single problem (same steps, scalar arithmetic)."""
+    def f(z: float) -> float:
+        return float(fun(np.array([z]))[0])
+
+    def result(x: float, g: float, sat: bool, mono: bool, n: int) -> RootResult:
+        return RootResult(np.array([x]), np.array([g]), np.array([sat]), np.array([mono]), n)
+
+    g = f(x)
+    n_eval = 1
+    tol_mono = 10.0 * ftol
+    if not math.isfinite(g) or abs(g) <= ftol:
+        return result(x, g, False, False, n_eval)
+    direction = 1.0 if g < 0 else -1.0
+    mono = False
+    prev_x, prev_g = x, g
+    for j in range(MAX_EXPANSIONS):
+        trial = min(max(x + direction * step * 2.0 ** j, lo), hi)
+        gt = f(trial)
+        n_eval += 1
+        if not math.isfinite(gt):
+            return result(prev_x, prev_g, False, mono, n_eval)
+        mono |= direction * (gt - prev_g) < -tol_mono
+        if abs(gt) <= ftol:
+            return result(trial, gt, False, mono, n_eval)
+        if (gt > 0) == (direction > 0):
+            a, fa, b, fb = (prev_x, prev_g, trial, gt) if direction > 0 else \
+                (trial, gt, prev_x, prev_g)
+            break
+        if trial >= hi or trial <= lo:
+            return result(trial, gt, True, mono, n_eval)
+        prev_x, prev_g = trial, gt
+    else:
+        return result(prev_x, prev_g, True, mono, n_eval)
+    ga, gb = fa, fb
+    side = 0.0
+    x, g = prev_x, prev_g
+    for _ in range(MAX_REFINE):
+        width = b - a
+        secant = b - gb * width / (gb - ga) if gb - ga > 0 else a - 1.0
+        trial = secant if a + 0.01 * width < secant < b - 0.01 * width else 0.5 * (a + b)
+        gt = f(trial)
+        n_eval += 1
+        if not math.isfinite(gt):
+            break
+        mono |= gt < fa - tol_mono or gt > fb + tol_mono
+        x, g = trial, gt
+        if abs(gt) <= ftol:
+            return result(x, g, False, mono, n_eval)
+        if gt < 0:
+            if side > 0:
+                gb *= 0.5
+            a, ga, fa, side = trial, gt, gt, 1.0
+        else:
+            if side < 0:
+                ga *= 0.5
+            b, gb, fb, side = trial, gt, gt, -1.0
+        if b - a <= xtol:
+            break
+    # a bracket shrunk onto a jump (a staircase model): keep the closer of its two ends
+    if abs(fa) < abs(g) and abs(fa) <= abs(fb):
+        x, g = a, fa
+    elif abs(fb) < abs(g):
+        x, g = b, fb
+    return result(x, g, False, mono, n_eval)
