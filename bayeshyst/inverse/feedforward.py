@@ -57,11 +57,6 @@ class Draws:
         """Number of draws ``S``."""
         return int(self.offset.size)
 
-    def take(self, index: Any) -> Draws:
-        """The draws at ``index`` (slice or integer array)."""
-        return Draws({k: np.asarray(v)[index] for k, v in self.theta.items()},
-                     np.asarray(self.offset)[index])
-
 
 def predict_outputs(model: HysteresisModel, u: np.ndarray, t: np.ndarray,
                     draws: Draws) -> np.ndarray:
