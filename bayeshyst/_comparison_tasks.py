@@ -44,8 +44,8 @@ from bayeshyst.inference.posterior import Posterior, cycle_units
 from bayeshyst.inference.sampling import sample_posterior
 
 __all__ = [
-    "GP_MODELS", "CompareSettings", "TaskResult", "TaskSpec", "heldout_log_density", "run_task",
-    "task_seed",
+    "GP_MODELS", "CompareSettings", "LooScores", "TaskResult", "TaskSpec", "heldout_log_density",
+    "loo_scores", "run_task", "task_seed",
 ]
 
 GP_MODELS = {"gp": "rate", "gp_memory": "memory"}
@@ -268,6 +268,39 @@ def _refit_bad_cycles(post: Posterior, res: Any, pointwise: np.ndarray, k: np.nd
     return pw, kk, len(todo), dp
 
 
+@dataclass(frozen=True)
+class LooScores:
+    """Leave-one-cycle-out scores of one sampled posterior (see :func:`loo_scores`).
+
+    ``pointwise`` (n_units,) is the PSIS-LOO elpd of each cycle, exact for the refitted
+    ones (their ``pareto_k`` is NaN); ``p_loo`` includes the refits' correction.
+    """
+
+    pointwise: np.ndarray
+    pareto_k: np.ndarray
+    n_refits: int
+    p_loo: float
+    idata: Any
+    waic: Any
+
+
+def loo_scores(post: Posterior, res: Any, settings: CompareSettings, seed: int,
+               notes: list[str]) -> LooScores:
+    """PSIS-LOO over cycles with exact refits of the cycles whose Pareto k is too high.
+
+    Appends what makes the numbers less trustworthy to ``notes`` (plain words).
+    """
+    idata = to_inference_data(post, res, draws_per_chain=settings.draws_per_chain,
+                              n_predictive=min(200, settings.n_lofo_draws), seed=seed)
+    lo, wa = loo(idata), waic(idata)
+    notes += [w for w in lo.warnings if "Pareto k >" not in w and w not in notes]
+    pw, k, n_refits, dp = _refit_bad_cycles(post, res, lo.pointwise, lo.pareto_k, settings,
+                                            seed, notes)
+    if n_refits:
+        notes.append(f"{n_refits} cycles with Pareto k > {PARETO_K_BAD} were refitted exactly")
+    return LooScores(pw, k, n_refits, lo.p + dp, idata, wa)
+
+
 def _run_parametric(data: Dataset, spec: TaskSpec, settings: CompareSettings, seed: int,
                     out_dir: Path | None) -> TaskResult:
     t0 = time.perf_counter()
@@ -289,14 +322,9 @@ def _run_parametric(data: Dataset, spec: TaskSpec, settings: CompareSettings, se
                           converged=res.converged, overall=overall, per_frequency=tuple(per),
                           warnings=tuple(notes), runtime_s=time.perf_counter() - t0,
                           failed_simulations=failed)
-    idata = to_inference_data(post, res, draws_per_chain=settings.draws_per_chain,
-                              n_predictive=min(200, settings.n_lofo_draws), seed=seed)
-    lo, wa = loo(idata), waic(idata)
-    notes += [w for w in lo.warnings if "Pareto k >" not in w and w not in notes]
-    pw, k, n_refits, dp = _refit_bad_cycles(post, res, lo.pointwise, lo.pareto_k, settings,
-                                            seed, notes)
-    if n_refits:
-        notes.append(f"{n_refits} cycles with Pareto k > {PARETO_K_BAD} were refitted exactly")
+    scores = loo_scores(post, res, settings, seed, notes)
+    idata, wa, pw, k, n_refits = (scores.idata, scores.waic, scores.pointwise,
+                                  scores.pareto_k, scores.n_refits)
     ll_map = float(np.sum(post.log_likelihood_units(res.start.z[None, :])))
     n_obs = sum(r.n_scored for r in train)
     bic = post.ndim * math.log(n_obs) - 2.0 * ll_map
@@ -304,7 +332,7 @@ def _run_parametric(data: Dataset, spec: TaskSpec, settings: CompareSettings, se
     path = None
     if out_dir is not None:
         path = str(save_netcdf(idata, out_dir / "posteriors" / f"{spec.key}.nc"))
-    return TaskResult(spec, pw, freqs, labels, p_loo=lo.p + dp, pareto_k=k,
+    return TaskResult(spec, pw, freqs, labels, p_loo=scores.p_loo, pareto_k=k,
                       waic_pointwise=wa.pointwise, bic=bic, n_params=post.ndim,
                       converged=res.converged, n_refits=n_refits, overall=overall,
                       per_frequency=tuple(per), warnings=tuple(notes),

@@ -1,0 +1,457 @@
+"""The closed loop: fit → residual tests → augment with the best-supported effect → refit
+→ keep it only if held-out prediction improves → repeat (:func:`diagnose`).
+
+Two gates stand between a residual pattern and an effect in ``effects_found``:
+
+1. its score test fires: Holm-adjusted p-value below ``alpha`` over all effects tested
+   on that residual (:mod:`bayeshyst.diagnosis.residual`);
+2. the augmented model predicts held-out cycles better: the paired difference of the
+   cycle-wise PSIS-LOO elpd (exact refits for Pareto k > 0.7) exceeds ``threshold``
+   standard errors (default 2, Vehtari, Gelman & Gabry 2017, §5.2).
+
+Fired effects are tried in order of support (Bayes factor; coloured noise last); the
+first that passes gate 2 is kept and the loop starts again from the augmented fit.
+Effects that fire but fail gate 2 are recorded as rejected steps. The loop stops when
+no test fires, when every fired effect is rejected, or after ``max_rounds``.
+"""
+
+from __future__ import annotations
+
+import math
+import zlib
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from bayeshyst._comparison_tasks import CompareSettings, loo_scores
+from bayeshyst.data.record import Dataset, Record
+from bayeshyst.diagnosis.effects import EFFECTS, get_effect
+from bayeshyst.diagnosis.residual import EffectTest, ResidualAnalysis, analyse_residual
+from bayeshyst.errors import DataError, ParameterError
+from bayeshyst.inference.fit import TrackingError, tracking_errors
+from bayeshyst.inference.posterior import Posterior
+from bayeshyst.inference.sampling import ParamSummary, SamplingResult, sample_posterior
+from bayeshyst.likelihoods import get_likelihood
+from bayeshyst.models import get as get_model
+from bayeshyst.models.base import HysteresisModel
+from bayeshyst.selection import paired_difference
+
+__all__ = ["DiagnosisFit", "DiagnosisResult", "DiagnosisSettings", "DiagnosisStep", "diagnose"]
+
+
+@dataclass(frozen=True)
+class DiagnosisSettings:
+    """Settings of a diagnosis (see :func:`diagnose`)."""
+
+    effects: tuple[str, ...] = tuple(EFFECTS)
+    alpha: float = 0.01
+    threshold: float = 2.0
+    max_rounds: int = 6
+    max_candidates: int = 2
+    max_ar_order: int = 10
+    n_walkers: int | None = None
+    max_steps: int = 20_000
+    first_chunk: int = 1_000
+    n_draws: int = 200
+    draws_per_chain: int = 30
+    max_refits: int = 5
+    seed: int = 0
+
+    def to_dict(self) -> dict[str, Any]:
+        return {k: (list(v) if isinstance(v, tuple) else v)
+                for k, v in self.__dict__.items()}
+
+
+@dataclass(frozen=True)
+class DiagnosisFit:
+    """One fitted model of the loop.
+
+    Attributes
+    ----------
+    label : str
+        Spec string (``"pi_play+creep"``) and likelihood (``" with likelihood ar1"``).
+    model : HysteresisModel
+    likelihood : str
+    posterior : Posterior
+    sampling : SamplingResult
+    overall : TrackingError
+    per_frequency : list of TrackingError
+    pointwise_elpd : ndarray, shape (n_cycles,)
+        Cycle-wise PSIS-LOO elpd (exact where refitted).
+    analysis : ResidualAnalysis
+        Residual and every effect's test on it.
+    warnings : tuple of str
+    idata : arviz.InferenceData
+    """
+
+    label: str
+    model: HysteresisModel
+    likelihood: str
+    posterior: Posterior
+    sampling: SamplingResult
+    overall: TrackingError
+    per_frequency: list[TrackingError]
+    pointwise_elpd: np.ndarray
+    analysis: ResidualAnalysis
+    warnings: tuple[str, ...]
+    idata: Any = field(repr=False, default=None)
+
+    @property
+    def elpd(self) -> float:
+        return float(np.sum(self.pointwise_elpd))
+
+
+def _te(e: TrackingError | None) -> dict[str, Any] | None:
+    if e is None:
+        return None
+    return {"frequency_hz": e.frequency_hz, "rmse": e.rmse, "max_error": e.max_error,
+            "nrmse_percent": e.nrmse_percent, "max_error_percent": e.max_error_percent}
+
+
+@dataclass(frozen=True)
+class DiagnosisStep:
+    """One augmentation tried.
+
+    Attributes
+    ----------
+    index : int
+        Round of the loop (1-based).
+    effect : str
+    test : EffectTest
+        The test that proposed it, on the residual of ``model_before``.
+    model_before, model_after : str
+        Labels of the fit before and the augmented fit.
+    accepted : bool
+    reason : str
+        Plain words: why it was kept or not.
+    before, after : TrackingError
+        Overall error of the posterior-mean prediction.
+    per_frequency : tuple of (TrackingError, TrackingError)
+        Before and after at each excitation frequency.
+    delta_elpd, delta_elpd_se : float
+        Paired cycle-wise elpd difference (after − before) and its standard error.
+    added_parameters : tuple of ParamSummary
+        Posterior of the added block's (or noise model's) parameters.
+    converged : bool
+        Whether the augmented fit's sampler converged.
+    """
+
+    index: int
+    effect: str
+    test: EffectTest
+    model_before: str
+    model_after: str
+    accepted: bool
+    reason: str
+    before: TrackingError
+    after: TrackingError
+    per_frequency: tuple[tuple[TrackingError, TrackingError], ...]
+    delta_elpd: float
+    delta_elpd_se: float
+    added_parameters: tuple[ParamSummary, ...]
+    converged: bool
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready; the keys of the issue's ``steps`` entries come first."""
+        return {
+            "effect": self.effect, "statistic": self.test.statistic,
+            "statistic_value": self.test.value, "p_value": self.test.p_value,
+            "p_adjusted": self.test.p_adjusted,
+            "bayes_factor_log": self.test.log_bayes_factor,
+            "rmse_before": self.before.rmse, "rmse_after": self.after.rmse,
+            "max_error_before": self.before.max_error, "max_error_after": self.after.max_error,
+            "delta_elpd": self.delta_elpd, "delta_elpd_se": self.delta_elpd_se,
+            "accepted": self.accepted, "reason": self.reason, "round": self.index,
+            "model_before": self.model_before, "model_after": self.model_after,
+            "nrmse_percent_before": self.before.nrmse_percent,
+            "nrmse_percent_after": self.after.nrmse_percent,
+            "per_frequency": [{"frequency_hz": b.frequency_hz, "rmse_before": b.rmse,
+                               "rmse_after": a.rmse, "max_error_before": b.max_error,
+                               "max_error_after": a.max_error} for b, a in self.per_frequency],
+            "test": self.test.to_dict(),
+            "added_parameters": [{"name": p.label, "unit": p.unit, "mean": p.mean, "sd": p.sd,
+                                  "hdi_low": p.hdi_lo, "hdi_high": p.hdi_hi, "hdi_prob": p.prob}
+                                 for p in self.added_parameters],
+            "converged": self.converged,
+        }
+
+    def __str__(self) -> str:
+        verdict = "ACCEPTED" if self.accepted else "rejected"
+        lines = [f"round {self.index}: {self.effect} -> {self.model_after}: {verdict} "
+                 f"({self.reason})",
+                 f"  test: {self.test}",
+                 f"  RMSE {self.before.rmse:.4g} -> {self.after.rmse:.4g}, max "
+                 f"{self.before.max_error:.4g} -> {self.after.max_error:.4g}; "
+                 f"delta elpd {self.delta_elpd:.1f} +- {self.delta_elpd_se:.1f}"]
+        for b, a in self.per_frequency:
+            if b.frequency_hz is not None:
+                lines.append(f"  {b.frequency_hz:>8g} Hz: RMSE {b.rmse:.4g} -> {a.rmse:.4g}, "
+                             f"max {b.max_error:.4g} -> {a.max_error:.4g}")
+        lines += [f"  {p}" for p in self.added_parameters]
+        return "\n".join(lines)
+
+
+@dataclass(frozen=True)
+class DiagnosisResult:
+    """What the closed loop found.
+
+    Attributes
+    ----------
+    base_model, final_model : str
+        Labels (spec and likelihood).
+    effects_found : tuple of str
+        Accepted effects in the order added; empty when the base model explains the data.
+    steps : tuple of DiagnosisStep
+        Every augmentation tried (accepted or not).
+    base, final : DiagnosisFit
+    rounds : tuple of ResidualAnalysis
+        The tests of every round (the last one is the final model's).
+    settings : DiagnosisSettings
+    """
+
+    base_model: str
+    final_model: str
+    effects_found: tuple[str, ...]
+    steps: tuple[DiagnosisStep, ...]
+    base: DiagnosisFit
+    final: DiagnosisFit
+    rounds: tuple[ResidualAnalysis, ...]
+    settings: DiagnosisSettings
+    warnings: tuple[str, ...] = ()
+
+    def to_dict(self) -> dict[str, Any]:
+        """The ``summary.json`` content."""
+        return {
+            "base_model": self.base_model,
+            "final_model": self.final_model,
+            "effects_found": list(self.effects_found),
+            "steps": [s.to_dict() for s in self.steps],
+            "before": _te(self.base.overall), "after": _te(self.final.overall),
+            "per_frequency": [{"frequency_hz": b.frequency_hz, "before": _te(b),
+                               "after": _te(a)}
+                              for b, a in zip(self.base.per_frequency,
+                                              self.final.per_frequency, strict=True)],
+            "rounds": [{"model": lab, "ar_order": r.ar_order,
+                        "tests": [t.to_dict() for t in r.tests]}
+                       for lab, r in zip(self._round_labels(), self.rounds, strict=True)],
+            "cycles": [{"record": c.record, "cycle": c.cycle, "frequency_hz": c.frequency_hz,
+                        "rms_before": c.rms, "max_before": c.max_abs,
+                        "rms_after": d.rms, "max_after": d.max_abs}
+                       for c, d in zip(self.base.analysis.cycles, self.final.analysis.cycles,
+                                       strict=True)],
+            "converged": bool(self.base.sampling.converged and self.final.sampling.converged),
+            "warnings": list(self.warnings),
+            "settings": self.settings.to_dict(),
+        }
+
+    def _round_labels(self) -> list[str]:
+        labels = [self.base_model]
+        labels += [s.model_after for s in self.steps if s.accepted]
+        return labels[:len(self.rounds)]
+
+    def __str__(self) -> str:
+        found = ", ".join(self.effects_found) or "none (the base model explains the data)"
+        lines = [f"diagnosis of {self.base_model}: effects found: {found}",
+                 f"final model: {self.final_model}",
+                 f"error before: {self.base.overall}", f"error after:  {self.final.overall}"]
+        for lab, r in zip(self._round_labels(), self.rounds, strict=True):
+            lines += [f"-- tests on the residual of {lab} (AR({r.ar_order}) whitening)", str(r)]
+        lines += [str(s) for s in self.steps]
+        lines += [f"warning: {w}" for w in self.warnings]
+        return "\n".join(lines)
+
+
+# --------------------------------------------------------------------------- the loop
+def _seed(seed: int, label: str) -> int:
+    ss = np.random.SeedSequence([int(seed), zlib.crc32(label.encode())])
+    return int(ss.generate_state(1)[0])
+
+
+def _slug(label: str) -> str:
+    keep = "".join(c if c.isalnum() or c in "._" else "-" for c in label).strip("-")
+    return f"{keep[:60]}-{zlib.crc32(label.encode()):08x}"
+
+
+def _fit(data: Dataset, model: HysteresisModel, likelihood: str, label: str,
+         st: DiagnosisSettings, checkpoint_dir: Path | None, progress: bool) -> DiagnosisFit:
+    seed = _seed(st.seed, label)
+    post = Posterior(model, data, likelihood)
+    ckpt = None if checkpoint_dir is None else checkpoint_dir / f"{_slug(label)}.h5"
+    # augmented models have more parameters: keep the ensemble at least 2 ndim + 2
+    walkers = None if st.n_walkers is None else max(st.n_walkers, 2 * post.ndim + 2)
+    res = sample_posterior(post, n_walkers=walkers, max_steps=st.max_steps,
+                           first_chunk=st.first_chunk, seed=seed, checkpoint=ckpt,
+                           progress=progress)
+    notes = [] if res.converged else [f"{label}: the sampler did not converge within its "
+                                      f"budget ({st.max_steps} steps)"]
+    draws = res.draws(st.n_draws, seed=seed)
+    overall, per, _ = tracking_errors(post, draws)
+    settings = CompareSettings(likelihood=likelihood, n_walkers=walkers,
+                               max_steps=st.max_steps, first_chunk=st.first_chunk,
+                               draws_per_chain=st.draws_per_chain, max_refits=st.max_refits)
+    loo_notes: list[str] = []
+    scores = loo_scores(post, res, settings, seed, loo_notes)
+    notes += [f"{label}: {n}" for n in loo_notes]
+    if res.counts.failed:
+        notes.append(f"{label}: {res.counts.failed} simulations failed during sampling "
+                     f"(log-probability -inf)")
+    analysis = analyse_residual(post, res, draws, effects=st.effects, alpha=st.alpha,
+                                max_ar_order=st.max_ar_order)
+    return DiagnosisFit(label, model, likelihood, post, res, overall, list(per),
+                        scores.pointwise, analysis, tuple(notes), scores.idata)
+
+
+def _added(fit: DiagnosisFit, before: DiagnosisFit) -> tuple[ParamSummary, ...]:
+    old = set(before.posterior.space.names)
+    # composed names are namespaced (static.w): compare on the last component's block
+    old_tail = {n.split(".", 1)[-1] if n.startswith("static.") else n for n in old}
+    out = []
+    for p in fit.sampling.summary():
+        name = p.label.split("[")[0]
+        tail = name.split(".", 1)[-1] if name.startswith("static.") else name
+        if tail not in old_tail and name not in old:
+            out.append(p)
+    return tuple(out)
+
+
+def _check_settings(st: DiagnosisSettings) -> None:
+    bad = [e for e in st.effects if e not in EFFECTS]
+    if bad:
+        raise ParameterError(f"effects: unknown {bad}; valid: {', '.join(EFFECTS)}")
+    if not (0.0 < st.alpha < 1.0):
+        raise ParameterError(f"alpha must be in (0, 1), got {st.alpha}")
+    if not (math.isfinite(st.threshold) and st.threshold >= 0):
+        raise ParameterError(f"threshold (standard errors) must be >= 0, got {st.threshold}")
+    for name in ("max_rounds", "max_candidates", "n_draws"):
+        if int(getattr(st, name)) < 1:
+            raise ParameterError(f"{name} must be >= 1, got {getattr(st, name)}")
+
+
+def diagnose(
+    data: Dataset | Record,
+    model: HysteresisModel | str,
+    likelihood: str = "gaussian",
+    *,
+    effects: Sequence[str] | None = None,
+    alpha: float = 0.01,
+    threshold: float = 2.0,
+    max_rounds: int = 6,
+    max_candidates: int = 2,
+    seed: int = 0,
+    n_walkers: int | None = None,
+    max_steps: int = 20_000,
+    first_chunk: int = 1_000,
+    n_draws: int = 200,
+    max_refits: int = 5,
+    checkpoint_dir: str | Path | None = None,
+    progress: bool = False,
+    on_fit: Callable[[DiagnosisFit], None] | None = None,
+) -> DiagnosisResult:
+    """Find what a fitted model misses, add it, refit, and report the error before and after.
+
+    Parameters
+    ----------
+    data : Dataset or Record
+        Measured records (frequencies in the metadata make the per-frequency report).
+    model : HysteresisModel or str
+        Base model or spec string (``"bouc_wen"``, ``"pi_play(n_operators=8)"``).
+    likelihood : str
+        Base likelihood; ``colored_noise`` switches it to ``"ar1"``.
+    effects : sequence of str, optional
+        Candidate effects (default all: creep, rate_dependence, asymmetry, drift, delay,
+        colored_noise).
+    alpha : float
+        Family-wise level of the residual tests (Holm over the effects of a round).
+    threshold : float
+        Standard errors by which the augmented model's cycle-wise elpd must exceed the
+        current one's for the effect to be kept.
+    max_rounds : int
+        Most effects added.
+    max_candidates : int
+        Fired effects refitted per round before giving up on the round.
+    seed : int
+        Every fit's seed derives from it and the fit's label: same seed, same result.
+    n_walkers, max_steps, first_chunk
+        Sampler budget per fit (:func:`~bayeshyst.inference.sampling.sample_posterior`).
+    n_draws : int
+        Posterior draws averaged for predictions and residuals.
+    max_refits : int
+        Cycles per fit whose PSIS-LOO is unreliable (Pareto k > 0.7) that are refitted
+        exactly, worst first (each refit costs a fit).
+    checkpoint_dir : path, optional
+        Each fit checkpoints here (``<label>-<crc>.h5``); a rerun resumes finished fits.
+    progress : bool
+        Show the sampler's progress.
+    on_fit : callable, optional
+        Called with every :class:`DiagnosisFit` as it completes (progress reports).
+
+    Returns
+    -------
+    DiagnosisResult
+    """
+    if isinstance(data, Record):
+        data = Dataset((data,), name=data.name)
+    if not isinstance(data, Dataset):
+        raise DataError(f"data must be a Dataset or Record, got {type(data).__name__}")
+    st = DiagnosisSettings(
+        effects=tuple(EFFECTS) if effects is None else tuple(effects), alpha=float(alpha),
+        threshold=float(threshold), max_rounds=int(max_rounds),
+        max_candidates=int(max_candidates), n_walkers=n_walkers, max_steps=int(max_steps),
+        first_chunk=int(first_chunk), n_draws=int(n_draws), max_refits=int(max_refits),
+        seed=int(seed))
+    _check_settings(st)
+    base_label = model if isinstance(model, str) else model.name
+    base_model = get_model(model) if isinstance(model, str) else model
+    likelihood = get_likelihood(likelihood).name
+    ckdir = None if checkpoint_dir is None else Path(checkpoint_dir)
+    if ckdir is not None:
+        ckdir.mkdir(parents=True, exist_ok=True)
+
+    def fit(m: HysteresisModel, lik: str, label: str) -> DiagnosisFit:
+        f = _fit(data, m, lik, label, st, ckdir, progress)
+        if on_fit is not None:
+            on_fit(f)
+        return f
+
+    def lab(spec: str, lik: str) -> str:
+        return spec if lik == "gaussian" else f"{spec} with likelihood {lik}"
+
+    current = fit(base_model, likelihood, lab(base_label, likelihood))
+    base, spec = current, base_label
+    rounds, steps, found = [current.analysis], [], []
+    warnings = list(current.warnings)
+    for rnd in range(1, st.max_rounds + 1):
+        fired = current.analysis.fired()
+        if not fired:
+            break
+        accepted = None
+        for test in fired[:st.max_candidates]:
+            eff = get_effect(test.effect)
+            new_model, new_lik, suffix = eff.augment(current.model, current.likelihood,
+                                                     test.coef, data)
+            new_spec = spec if suffix.startswith(" ") else spec + suffix
+            cand = fit(new_model, new_lik, lab(new_spec, new_lik))
+            warnings += [w for w in cand.warnings if w not in warnings]
+            d, se = paired_difference(cand.pointwise_elpd, current.pointwise_elpd)
+            ok = bool(math.isfinite(d) and math.isfinite(se) and d > st.threshold * se
+                      and d > 0)
+            reason = (f"held-out elpd improves by {d:.1f} > {st.threshold:g} x se {se:.1f}"
+                      if ok else f"held-out elpd changes by {d:.1f} (se {se:.1f}), not above "
+                      f"{st.threshold:g} x se")
+            per = tuple(zip(current.per_frequency, cand.per_frequency, strict=True))
+            steps.append(DiagnosisStep(rnd, test.effect, test, current.label, cand.label, ok,
+                                       reason, current.overall, cand.overall, per, d, se,
+                                       _added(cand, current), cand.sampling.converged))
+            if ok:
+                accepted = (cand, new_spec)
+                break
+        if accepted is None:
+            break
+        current, spec = accepted
+        found.append(steps[-1].effect)
+        rounds.append(current.analysis)
+    return DiagnosisResult(base.label, current.label, tuple(found), tuple(steps), base,
+                           current, tuple(rounds), st, tuple(warnings))
