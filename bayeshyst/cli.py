@@ -231,6 +231,76 @@ def _cmd_compensate(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def _effect_list(text: str) -> tuple[str, ...]:
+    """``creep,delay`` -> ``("creep", "delay")``; ModelError naming an unknown effect."""
+    from bayeshyst.diagnosis import get_effect
+
+    names = [n.strip() for n in text.split(",") if n.strip()]
+    if not names:
+        raise ParameterError(f"--effects: no effect named in {text!r}")
+    for n in names:
+        get_effect(n)  # raises, listing the valid names
+    return tuple(dict.fromkeys(names))
+
+
+def _non_negative_float(text: str) -> float:
+    """An argparse type: a finite number >= 0."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number >= 0, got {text!r}") from None
+    if not (np.isfinite(value) and value >= 0):
+        raise argparse.ArgumentTypeError(f"expected a number >= 0, got {text}")
+    return value
+
+
+def _cmd_diagnose(args: argparse.Namespace) -> int:
+    from bayeshyst.data import load
+    from bayeshyst.diagnosis import EFFECTS, diagnose
+    from bayeshyst.likelihoods import get_likelihood
+    from bayeshyst.models import get as get_model
+    from bayeshyst.report.diagnose_outputs import write_diagnosis_outputs
+
+    # validate everything cheap before the long part starts
+    data = load(args.data)
+    model = get_model(args.model)
+    likelihood = get_likelihood(args.likelihood)
+    effects = tuple(EFFECTS) if args.effects is None else _effect_list(args.effects)
+    out = Path(args.out)
+    checkpoints = None if args.no_checkpoint else out / "checkpoints"
+    n_fits = 0
+
+    def on_fit(fit: Any) -> None:
+        nonlocal n_fits
+        n_fits += 1
+        if args.quiet:
+            return
+        fired = [t.effect for t in fit.analysis.fired()]
+        conv = "converged" if fit.sampling.converged else "NOT converged"
+        print(f"bayeshyst diagnose: fit {n_fits} done: {fit.label} ({conv}); RMSE "
+              f"{fit.overall.rmse:.4g}, elpd {fit.elpd:.1f}; tests firing on its residual: "
+              f"{', '.join(fired) or 'none'}", file=sys.stderr, flush=True)
+
+    if not args.quiet:
+        freqs = ", ".join(f"{f:g}" for f in data.frequencies) or "none given"
+        print(f"bayeshyst diagnose: {model.name} / {likelihood.name} on {data.name} "
+              f"({len(data)} record(s); frequencies [Hz]: {freqs}); candidate effects: "
+              f"{', '.join(effects)}", file=sys.stderr)
+    result = diagnose(data, args.model, likelihood.name, effects=effects, alpha=args.alpha,
+                      threshold=args.threshold, max_rounds=args.max_rounds, seed=args.seed,
+                      n_walkers=args.walkers, max_steps=args.steps, checkpoint_dir=checkpoints,
+                      progress=not args.quiet, on_fit=on_fit)
+    written = write_diagnosis_outputs(result, out, data_name=str(args.data),
+                                      figures=not args.no_figures)
+    if args.json:
+        sys.stdout.write((out / "summary.json").read_text())
+    else:
+        print(result)
+        print(f"outputs in {out}/: " + ", ".join(p.name for p in written)
+              + ("" if checkpoints is None else ", checkpoints/"))
+    return EXIT_OK
+
+
 def _add_run_options(p: argparse.ArgumentParser, out_default: str, steps_help: str) -> None:
     """The options every command that samples shares: data, likelihood, output folder,
     seed, sampler budget, walkers, and what is printed and drawn."""
@@ -306,6 +376,27 @@ def build_parser() -> argparse.ArgumentParser:
     p_comp.add_argument("--no-checkpoint", action="store_true",
                         help="do not checkpoint to OUT/checkpoint.h5 (and do not resume)")
     p_comp.set_defaults(func=_cmd_compensate)
+
+    p_dg = sub.add_parser("diagnose", help="trace what a model leaves in its residual to a "
+                          "missing effect, add it, refit, and report the error before and after")
+    p_dg.add_argument("--model", required=True,
+                      help="base model name or spec string, e.g. pi_play(n_operators=8)")
+    _add_run_options(p_dg, "bayeshyst-diagnose",
+                     "step budget per ensemble of every fit (default 20000)")
+    p_dg.add_argument("--effects", default=None, metavar="A,B,...",
+                      help="candidate effects, comma-separated (default all: creep, "
+                           "rate_dependence, asymmetry, drift, delay, colored_noise)")
+    p_dg.add_argument("--alpha", type=_probability, default=0.01,
+                      help="family-wise level of the residual tests (Holm), in (0, 1) "
+                           "(default 0.01)")
+    p_dg.add_argument("--threshold", type=_non_negative_float, default=2.0, metavar="T",
+                      help="an effect is kept when the held-out elpd improves by more than "
+                           "T standard errors (default 2)")
+    p_dg.add_argument("--max-rounds", type=_positive_int, default=6, metavar="N",
+                      help="most effects added (default 6)")
+    p_dg.add_argument("--no-checkpoint", action="store_true",
+                      help="do not checkpoint to OUT/checkpoints/ (and do not resume)")
+    p_dg.set_defaults(func=_cmd_diagnose)
     return parser
 
 

@@ -36,8 +36,8 @@ from bayeshyst.inference.posterior import Posterior
 from bayeshyst.inference.sampling import SamplingResult
 from bayeshyst.params import ParamSpace
 
-__all__ = ["plot_compensation", "plot_corner", "plot_loops", "plot_model_comparison",
-           "plot_residuals", "plot_trace"]
+__all__ = ["plot_compensation", "plot_corner", "plot_diagnosis_residuals", "plot_effect_evidence",
+           "plot_loops", "plot_model_comparison", "plot_residuals", "plot_trace"]
 
 DPI = 120
 _RED = "#c0392b"
@@ -769,3 +769,148 @@ def plot_compensation(result: Any, path: str | os.PathLike[str], *, y_unit: str 
     """
     path = _png_path(path)
     return _save(_build_compensation(result, y_unit=y_unit), path)
+
+
+# ------------------------------------------------------------------------- diagnosis
+def _rms(x: np.ndarray) -> float:
+    return float(np.sqrt(np.mean(x ** 2))) if x.size else math.nan
+
+
+def _build_diagnosis_residuals(result: Any) -> Figure:
+    from bayeshyst.diagnosis import DiagnosisResult
+
+    if not isinstance(result, DiagnosisResult):
+        raise ParameterError(f"result must be a DiagnosisResult, got {type(result).__name__}")
+    base, final = result.base, result.final
+    same = final is base
+    records = list(base.posterior.data)
+    fig = _figure(10.0, 2.4 * len(records) + 1.0)
+    axes = fig.subplots(len(records), 1, squeeze=False)[:, 0]
+    fits = [(base, "before: " + result.base_model, "0.55")]
+    if not same:
+        fits.append((final, "after: " + result.final_model, "C0"))
+    for i, (ax, rec) in enumerate(zip(axes, records, strict=True)):
+        y_unit = _unit(rec.units.get("y", ""))
+        for fit, name, color in fits:
+            t, t_label = _time_axis(np.asarray(fit.analysis.time[i], dtype=float))
+            r = np.asarray(fit.analysis.residual[i], dtype=float)
+            rms = f"{_fmt(_rms(r))} {y_unit}".strip()
+            ax.plot(t, r, lw=0.7, color=color, label=f"{name} (RMS {rms})")
+        ax.axhline(0.0, color="k", lw=0.6)
+        f = "" if rec.frequency_hz is None else f" ({rec.frequency_hz:g} Hz)"
+        ax.set_title(f"{rec.name}{f}", fontsize=9)
+        ax.set_ylabel(_label("residual", rec.units.get("y", "")))
+        ax.legend(fontsize=7, loc="upper right")
+        ax.grid(alpha=0.3)
+        if i == len(records) - 1:
+            ax.set_xlabel(t_label)
+    found = ", ".join(result.effects_found) or "none"
+    title = (f"diagnosis of {result.base_model}: effects found: {found}\n"
+             "residual (measured − posterior-mean prediction) on the scored samples")
+    if same:
+        title += "; the base model was kept"
+    if base.sampling.converged and final.sampling.converged:
+        fig.suptitle(title, fontsize=10)
+    else:
+        which = [f.label for f in ((base,) if same else (base, final))
+                 if not f.sampling.converged]
+        fig.suptitle(f"NOT CONVERGED: {'; '.join(which)}\n{title}", fontsize=10, color=_RED,
+                     fontweight="bold")
+    return fig
+
+
+def plot_diagnosis_residuals(result: Any, path: str | os.PathLike[str]) -> Path:
+    """Residuals before and after the diagnosis, against time, one panel per record.
+
+    Grey: the residual of the base model's posterior-mean prediction; blue: that of the
+    final (augmented) model, when the loop kept an effect. The legend gives each one's
+    RMS over the record's scored samples; the title names the effects found and, in
+    red, a fit that did not converge.
+
+    Parameters
+    ----------
+    result : DiagnosisResult
+        From :func:`bayeshyst.diagnosis.diagnose`.
+    path : path-like
+        PNG file to write (atomically).
+
+    Returns
+    -------
+    Path
+        ``path``.
+    """
+    path = _png_path(path)
+    return _save(_build_diagnosis_residuals(result), path)
+
+
+def _build_effect_evidence(test: Any, *, y_unit: str = "") -> Figure:
+    from bayeshyst.diagnosis import EffectTest
+
+    if not isinstance(test, EffectTest):
+        raise ParameterError(f"test must be an EffectTest, got {type(test).__name__}")
+    if test.skipped is not None:
+        raise ParameterError(f"{test.effect} was not tested ({test.skipped}): no evidence "
+                             "to plot")
+    ev = test.evidence
+    missing = [k for k in ("x", "partial_residual", "component") if k not in ev]
+    if missing:
+        raise ParameterError(f"{test.effect}: the evidence lacks {missing}")
+    x = np.asarray(ev["x"], dtype=float)
+    r = np.asarray(ev["partial_residual"], dtype=float)
+    c = np.asarray(ev["component"], dtype=float)
+    if not x.shape == r.shape == c.shape:
+        raise ParameterError(f"{test.effect}: evidence arrays of different shapes "
+                             f"{x.shape}, {r.shape}, {c.shape}")
+    ok = np.isfinite(x) & np.isfinite(r) & np.isfinite(c)
+    u = _unit(y_unit)
+    x_label = str(ev.get("x_label", "") or "x")
+    if u:
+        x_label = re.sub(r"\bunit\b", u, x_label)
+    fig = _figure(6.4, 4.6)
+    ax = fig.add_subplot()
+    color = _RED if test.significant else "C0"
+    ax.plot(x[ok], r[ok], ".", ms=2.0, color="0.75", label="partial residual")
+    rms = f"{_fmt(test.explained_rms)} {u}".strip()
+    ax.plot(x[ok], c[ok], ".", ms=2.5, color=color,
+            label=f"fitted {test.effect} component (RMS {rms})")
+    ax.axhline(0.0, color="k", lw=0.6)
+    ax.set_xlabel(x_label)
+    ax.set_ylabel(_label("residual", y_unit))
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=7, loc="best", markerscale=4)
+    verdict = "FIRES" if test.significant else "does not fire"
+    fig.suptitle(f"{test.effect}: {verdict}\n{test.statistic} = {_fmt(test.value, '.3g')}, "
+                 f"p = {_fmt(test.p_value, '.2g')} (Holm {_fmt(test.p_adjusted, '.2g')}), "
+                 f"log BF {_fmt(test.log_bayes_factor, '.1f')}", fontsize=10,
+                 color=color if test.significant else "black")
+    return fig
+
+
+def plot_effect_evidence(test: Any, path: str | os.PathLike[str], *, y_unit: str = "") -> Path:
+    """The evidence behind one effect's residual test, as a scatter plot.
+
+    Grey: the residual beyond what the fit's own parameters can absorb (for coloured
+    noise: the residual after the fit and the significant structural effects) against
+    the effect's explaining variable (time for creep and drift, the model output's rate
+    for delay and rate dependence, the normalised output for asymmetry, the previous
+    residual for coloured noise). Coloured (red when the test fires): the effect's fitted
+    contribution. The title gives the statistic, the p-value (unadjusted and Holm) and
+    the log Bayes factor.
+
+    Parameters
+    ----------
+    test : EffectTest
+        A test that was carried out; a skipped test (``test.skipped``) has no evidence
+        and raises :class:`~bayeshyst.errors.ParameterError`, writing nothing.
+    path : path-like
+        PNG file to write (atomically).
+    y_unit : str
+        Unit of the output (e.g. ``"um"``), for the labels.
+
+    Returns
+    -------
+    Path
+        ``path``.
+    """
+    path = _png_path(path)
+    return _save(_build_effect_evidence(test, y_unit=y_unit), path)
