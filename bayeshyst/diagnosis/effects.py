@@ -127,6 +127,12 @@ class Effect(ABC):
                 data: Any) -> tuple[HysteresisModel, str, str]:
         """(augmented model, likelihood, spec suffix) given the test's coefficients."""
 
+    def initial(self, coef: np.ndarray, estimates: Mapping[str, float]) -> dict[str, Any]:
+        """The added parameters at the test's estimate (``"creep.c"``, ``"noise.phi"``):
+        a warm start for the augmented fit (the score coefficients of a block that is
+        linear in its parameters *are* those parameters to first order)."""
+        return {}
+
     def interpret(self, coef: np.ndarray, cov: np.ndarray, data: Any) -> dict[str, float]:
         """Physical reading of the test's coefficients ``coef`` (k,) with covariance
         ``cov`` (k, k) (rough, first-order)."""
@@ -184,9 +190,12 @@ class CreepEffect(_BlockEffect):
     def unit_thetas(self, block, data):
         return {"c": np.eye(self.n_terms)}, 1.0
 
+    def initial(self, coef, estimates):
+        return {"creep.c": np.asarray(coef, float)}
+
     def interpret(self, coef, cov, data):
-        # y = w + sum c_j (x_j - w): with one lag per decade, sum(c) / decades ~ creep
-        # per decade of time (fraction of a step)
+        # y = w + sum c_j (x_j - w): the step response climbs by sum(c) over the decades
+        # the lags span plus the one the slowest lag takes to settle (rough)
         tau = Creep(n_terms=self.n_terms).time_constants(data)
         decades = max(math.log10(tau[-1] / tau[0]), 1.0) if tau.size > 1 else 1.0
         return {"creep_per_decade_percent": float(100.0 * np.sum(coef) / (decades + 1.0))}
@@ -206,6 +215,9 @@ class DriftEffect(_BlockEffect):
 
     def unit_thetas(self, block, data):
         return {"g": np.array([[1.0], [0.0]]), "d": np.array([[0.0], [1.0]])}, 1.0
+
+    def initial(self, coef, estimates):
+        return {"drift.g": np.asarray(coef[:1], float), "drift.d": np.asarray(coef[1:], float)}
 
     def interpret(self, coef, cov, data):
         ts = time_scales(data)
@@ -236,6 +248,9 @@ class Asymmetry(_BlockEffect):
     def evidence_axis(self, rec):
         lo, hi = float(np.min(rec.w)), float(np.max(rec.w))
         return (rec.w - 0.5 * (lo + hi)) / max(0.5 * (hi - lo), 1e-300)
+
+    def initial(self, coef, estimates):
+        return {"asym_output.a2": float(coef[0])}
 
     def interpret(self, coef, cov, data):
         return {"a2": float(coef[0])}
@@ -269,6 +284,9 @@ class DelayEffect(_BlockEffect):
         return (Composite(model, (blk,)), likelihood,
                 f"+delay(max_delay_samples={blk.max_delay_samples})")
 
+    def initial(self, coef, estimates):
+        return {"delay.d": float(coef[0])}
+
     def interpret(self, coef, cov, data):
         return {"delay_s": float(coef[0])}
 
@@ -293,6 +311,12 @@ class RateDependence(Effect):
 
     def augment(self, model, likelihood, coef, data):
         return Composite(model, (SecondOrder(),)), likelihood, "+second_order"
+
+    def initial(self, coef, estimates):
+        if "natural_frequency_hz" not in estimates:
+            return {}
+        return {"second_order.f_n": estimates["natural_frequency_hz"],
+                "second_order.zeta": max(estimates.get("damping_ratio", 0.3), 1e-3)}
 
     def interpret(self, coef, cov, data):
         # G(s) ~ 1 - (2 zeta / wn) s - ((1 - 4 zeta^2) / wn^2) s^2 (zeta << 1/2)
@@ -323,6 +347,9 @@ class ColoredNoise(Effect):
 
     def augment(self, model, likelihood, coef, data):
         return model, "ar1", " with likelihood ar1"
+
+    def initial(self, coef, estimates):
+        return {"noise.phi": float(estimates.get("lag1_autocorrelation", 0.0))}
 
     def interpret(self, coef, cov, data):
         return {"lag1_autocorrelation": float(coef[0])}

@@ -29,9 +29,15 @@ import numpy as np
 from bayeshyst._comparison_tasks import CompareSettings, loo_scores
 from bayeshyst.data.record import Dataset, Record
 from bayeshyst.diagnosis.effects import EFFECTS, get_effect
-from bayeshyst.diagnosis.residual import EffectTest, ResidualAnalysis, analyse_residual
+from bayeshyst.diagnosis.residual import (
+    EffectTest,
+    ResidualAnalysis,
+    analyse_residual,
+    best_point,
+)
 from bayeshyst.errors import DataError, ParameterError
 from bayeshyst.inference.fit import TrackingError, tracking_errors
+from bayeshyst.inference.optimize import find_map
 from bayeshyst.inference.posterior import Posterior
 from bayeshyst.inference.sampling import ParamSummary, SamplingResult, sample_posterior
 from bayeshyst.likelihoods import get_likelihood
@@ -275,16 +281,45 @@ def _slug(label: str) -> str:
     return f"{keep[:60]}-{zlib.crc32(label.encode()):08x}"
 
 
+def _warm_start(post: Posterior, previous: DiagnosisFit, added: dict[str, Any],
+                seed: int) -> np.ndarray | None:
+    """A point of the augmented posterior: the previous fit's best point (its names
+    carried into the composite's ``static.`` namespace), the added parameters at the
+    test's estimate, anything else from one prior draw. None if it has no finite
+    density (the MAP search then starts from its own screen alone)."""
+    old = previous.posterior.space.unpack(best_point(previous.sampling))
+    space = post.space
+    theta = space.unpack(space.sample_prior(np.random.default_rng(seed), 1)[0])
+    for name in space.names:
+        for src in (name, name.removeprefix("static.")):
+            if src in old and np.shape(old[src]) == np.shape(theta[name]):
+                theta[name] = old[src]
+                break
+        if name in added and np.shape(added[name]) == np.shape(theta[name]):
+            theta[name] = added[name]
+    try:
+        z = space.pack(theta)
+    except (ValueError, FloatingPointError):
+        return None
+    return z if np.isfinite(post.log_prob(z)) else None
+
+
 def _fit(data: Dataset, model: HysteresisModel, likelihood: str, label: str,
-         st: DiagnosisSettings, checkpoint_dir: Path | None, progress: bool) -> DiagnosisFit:
+         st: DiagnosisSettings, checkpoint_dir: Path | None, progress: bool,
+         warm: tuple[DiagnosisFit, dict[str, Any]] | None = None) -> DiagnosisFit:
     seed = _seed(st.seed, label)
     post = Posterior(model, data, likelihood)
+    start = None
+    if warm is not None:
+        x0 = _warm_start(post, warm[0], warm[1], seed)
+        if x0 is not None:  # an extra start of the MAP search, not a replacement
+            start = find_map(post, seed=np.random.default_rng(seed), x0=x0)
     ckpt = None if checkpoint_dir is None else checkpoint_dir / f"{_slug(label)}.h5"
     # augmented models have more parameters: keep the ensemble at least 2 ndim + 2
     walkers = None if st.n_walkers is None else max(st.n_walkers, 2 * post.ndim + 2)
     res = sample_posterior(post, n_walkers=walkers, max_steps=st.max_steps,
                            first_chunk=st.first_chunk, seed=seed, checkpoint=ckpt,
-                           progress=progress)
+                           progress=progress, start=start)
     notes = [] if res.converged else [f"{label}: the sampler did not converge within its "
                                       f"budget ({st.max_steps} steps)"]
     draws = res.draws(st.n_draws, seed=seed)
@@ -410,8 +445,9 @@ def diagnose(
     if ckdir is not None:
         ckdir.mkdir(parents=True, exist_ok=True)
 
-    def fit(m: HysteresisModel, lik: str, label: str) -> DiagnosisFit:
-        f = _fit(data, m, lik, label, st, ckdir, progress)
+    def fit(m: HysteresisModel, lik: str, label: str,
+            warm: tuple[DiagnosisFit, dict[str, Any]] | None = None) -> DiagnosisFit:
+        f = _fit(data, m, lik, label, st, ckdir, progress, warm)
         if on_fit is not None:
             on_fit(f)
         return f
@@ -433,7 +469,8 @@ def diagnose(
             new_model, new_lik, suffix = eff.augment(current.model, current.likelihood,
                                                      test.coef, data)
             new_spec = spec if suffix.startswith(" ") else spec + suffix
-            cand = fit(new_model, new_lik, lab(new_spec, new_lik))
+            cand = fit(new_model, new_lik, lab(new_spec, new_lik),
+                       (current, eff.initial(test.coef, test.estimates)))
             warnings += [w for w in cand.warnings if w not in warnings]
             d, se = paired_difference(cand.pointwise_elpd, current.pointwise_elpd)
             ok = bool(math.isfinite(d) and math.isfinite(se) and d > st.threshold * se

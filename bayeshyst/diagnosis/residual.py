@@ -52,7 +52,7 @@ from bayeshyst.diagnosis.stats import (
 from bayeshyst.inference.posterior import Posterior, cycle_units
 from bayeshyst.inference.sampling import SamplingResult
 
-__all__ = ["CycleResidual", "EffectTest", "ResidualAnalysis", "analyse_residual"]
+__all__ = ["CycleResidual", "EffectTest", "ResidualAnalysis", "analyse_residual", "best_point"]
 
 #: points kept per evidence plot (evenly thinned)
 _EVIDENCE_POINTS = 4000
@@ -219,7 +219,7 @@ def _z_crit(alpha: float) -> float:
 
 
 # ------------------------------------------------------------------------ the residual
-def _best_point(res: SamplingResult) -> np.ndarray:
+def best_point(res: SamplingResult) -> np.ndarray:
     """The highest-posterior point seen (MAP start or a sampled draw)."""
     lp = np.asarray(res.log_prob)
     z = res.chains.reshape(-1, res.chains.shape[-1])
@@ -321,7 +321,7 @@ def analyse_residual(
     names = list(EFFECTS) if effects is None else list(effects)
     data = post.data
     sigs, means = _signals(post, draws)
-    jac = _jacobian(post, _best_point(res))
+    jac = _jacobian(post, best_point(res))
     resid, times, segs, js, freqs = [], [], [], [], []
     start = 0
     for rec, sig, m, jr in zip(data, sigs, means, jac, strict=True):

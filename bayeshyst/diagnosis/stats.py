@@ -42,6 +42,9 @@ __all__ = [
 
 Segments = Sequence[tuple[int, int]]
 
+#: a regressor whose part outside span(Z) is below this fraction of its norm adds no rank
+_SPAN_RTOL = 1e-8
+
 
 def orthonormal_basis(a: np.ndarray, rtol: float = 1e-10) -> np.ndarray:
     """Orthonormal basis (n, rank) of the column space of ``a`` (n, q).
@@ -212,7 +215,12 @@ def f_test(y: np.ndarray, z: np.ndarray, x: np.ndarray) -> FTest:
     n = y.size
     qz = orthonormal_basis(z)
     yr = project_out(qz, y)
-    xr = project_out(qz, np.asarray(x, dtype=float).reshape(n, -1))
+    x = np.asarray(x, dtype=float).reshape(n, -1)
+    xr = project_out(qz, x)
+    # a column of X inside span(Z) leaves rounding noise after the projection; judge it
+    # against the column's own size, before orthonormal_basis rescales it to unit norm
+    inside = np.linalg.norm(xr, axis=0) <= _SPAN_RTOL * np.linalg.norm(x, axis=0)
+    xr[:, inside] = 0.0
     qx = orthonormal_basis(xr)
     df1 = int(qx.shape[1])
     df2 = n - qz.shape[1] - df1
