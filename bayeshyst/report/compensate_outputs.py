@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import csv
 import io
-import math
 import re
 from pathlib import Path
 from typing import Any
@@ -21,7 +20,7 @@ import numpy as np
 from bayeshyst.files import atomic_path
 from bayeshyst.inference.fit import FitResult
 from bayeshyst.inverse.compensate import CompensationResult, CompensationRow
-from bayeshyst.report.files import write_json
+from bayeshyst.report.files import csv_cell, write_json
 
 __all__ = ["COMMANDS", "CSV_COLUMNS", "compensation_summary", "curve_prefix",
            "write_compensation_outputs"]
@@ -91,16 +90,6 @@ def compensation_summary(result: CompensationResult, *, fit: FitResult | None = 
     return out
 
 
-def _cell(value: Any) -> Any:
-    if value is None:
-        return ""
-    if isinstance(value, bool | np.bool_):
-        return bool(value)
-    if isinstance(value, float | np.floating):
-        return float(value) if math.isfinite(value) else ""
-    return value
-
-
 def _csv_text(result: CompensationResult) -> str:
     buf = io.StringIO()
     writer = csv.writer(buf, lineterminator="\n")
@@ -113,7 +102,7 @@ def _csv_text(result: CompensationResult) -> str:
         for c in COMMANDS:
             d[f"mean_over_plants_{c}_nrmse_percent"] = (
                 None if row.mean_over_plants is None else row.mean_over_plants.get(c))
-        writer.writerow([_cell(d[c]) for c in CSV_COLUMNS])
+        writer.writerow([csv_cell(d[c]) for c in CSV_COLUMNS])
     return buf.getvalue()
 
 

@@ -5,16 +5,13 @@ from __future__ import annotations
 
 import csv
 import io
-import math
 import re
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from bayeshyst.diagnosis import DiagnosisFit, DiagnosisResult, EffectTest
 from bayeshyst.files import atomic_path
-from bayeshyst.report.files import write_json
+from bayeshyst.report.files import csv_cell, write_json
 
 __all__ = ["STEP_COLUMNS", "diagnosis_summary", "evidence_figures", "write_diagnosis_outputs"]
 
@@ -25,24 +22,13 @@ STEP_COLUMNS = ("round", "effect", "accepted", "statistic", "statistic_value", "
                 "model_before", "model_after")
 
 
-def _cell(value: Any) -> Any:
-    """A CSV cell: missing and non-finite numbers are empty."""
-    if value is None:
-        return ""
-    if isinstance(value, bool | np.bool_):
-        return bool(value)
-    if isinstance(value, float | np.floating):
-        return repr(float(value)) if math.isfinite(value) else ""
-    return value
-
-
 def _steps_csv(result: DiagnosisResult) -> str:
     buf = io.StringIO()
     writer = csv.writer(buf, lineterminator="\n")
     writer.writerow(STEP_COLUMNS)
     for step in result.steps:
         d = step.to_dict()
-        writer.writerow([_cell(d[c]) for c in STEP_COLUMNS])
+        writer.writerow([csv_cell(d[c]) for c in STEP_COLUMNS])
     return buf.getvalue()
 
 

@@ -12,7 +12,19 @@ import numpy as np
 
 from bayeshyst.files import atomic_path
 
-__all__ = ["atomic_path", "jsonable", "write_json"]
+__all__ = ["atomic_path", "csv_cell", "jsonable", "write_json"]
+
+
+def csv_cell(value: Any) -> Any:
+    """A CSV cell: empty for None and non-finite numbers (no "nan" in tables), plain
+    ``bool``/``float`` for numpy scalars, anything else as is."""
+    if value is None:
+        return ""
+    if isinstance(value, bool | np.bool_):
+        return bool(value)
+    if isinstance(value, float | np.floating):
+        return float(value) if math.isfinite(value) else ""
+    return value
 
 
 def jsonable(obj: Any) -> Any:
