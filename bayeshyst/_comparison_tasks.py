@@ -44,8 +44,8 @@ from bayeshyst.inference.posterior import Posterior, cycle_units
 from bayeshyst.inference.sampling import sample_posterior
 
 __all__ = [
-    "GP_MODELS", "CompareSettings", "LooScores", "TaskResult", "TaskSpec", "heldout_log_density",
-    "loo_scores", "run_task", "task_seed",
+    "GP_MODELS", "CompareSettings", "LooScores", "TaskResult", "TaskSpec", "derived_seed",
+    "heldout_log_density", "loo_scores", "run_task", "task_seed",
 ]
 
 GP_MODELS = {"gp": "rate", "gp_memory": "memory"}
@@ -94,11 +94,16 @@ class TaskSpec:
         return f"{slug}__{self.scope}_{where}"
 
 
-def task_seed(seed: int, spec: TaskSpec) -> int:
-    """A per-task seed that depends only on the user's seed and the task (not on the
-    order or the process the task runs in): same seed, same numbers."""
-    ss = np.random.SeedSequence([int(seed), zlib.crc32(spec.key.encode())])
+def derived_seed(seed: int, key: str) -> int:
+    """A seed that depends only on the user's seed and a job's identity ``key`` (not on
+    the order or the process the job runs in): same seed, same numbers."""
+    ss = np.random.SeedSequence([int(seed), zlib.crc32(key.encode())])
     return int(ss.generate_state(1)[0])
+
+
+def task_seed(seed: int, spec: TaskSpec) -> int:
+    """The per-task seed of a comparison task (:func:`derived_seed` of its key)."""
+    return derived_seed(seed, spec.key)
 
 
 @dataclass(frozen=True)

@@ -26,7 +26,7 @@ from typing import Any
 
 import numpy as np
 
-from bayeshyst._comparison_tasks import CompareSettings, loo_scores
+from bayeshyst._comparison_tasks import CompareSettings, derived_seed, loo_scores
 from bayeshyst.data.record import Dataset, Record
 from bayeshyst.diagnosis.effects import EFFECTS, get_effect
 from bayeshyst.diagnosis.residual import (
@@ -36,7 +36,7 @@ from bayeshyst.diagnosis.residual import (
     best_point,
 )
 from bayeshyst.errors import DataError, ParameterError
-from bayeshyst.inference.fit import TrackingError, tracking_errors
+from bayeshyst.inference.fit import TrackingError, errors_by_frequency
 from bayeshyst.inference.optimize import find_map
 from bayeshyst.inference.posterior import Posterior
 from bayeshyst.inference.sampling import ParamSummary, SamplingResult, sample_posterior
@@ -271,11 +271,6 @@ class DiagnosisResult:
 
 
 # --------------------------------------------------------------------------- the loop
-def _seed(seed: int, label: str) -> int:
-    ss = np.random.SeedSequence([int(seed), zlib.crc32(label.encode())])
-    return int(ss.generate_state(1)[0])
-
-
 def _slug(label: str) -> str:
     keep = "".join(c if c.isalnum() or c in "._" else "-" for c in label).strip("-")
     return f"{keep[:60]}-{zlib.crc32(label.encode()):08x}"
@@ -307,7 +302,7 @@ def _warm_start(post: Posterior, previous: DiagnosisFit, added: dict[str, Any],
 def _fit(data: Dataset, model: HysteresisModel, likelihood: str, label: str,
          st: DiagnosisSettings, checkpoint_dir: Path | None, progress: bool,
          warm: tuple[DiagnosisFit, dict[str, Any]] | None = None) -> DiagnosisFit:
-    seed = _seed(st.seed, label)
+    seed = derived_seed(st.seed, label)
     post = Posterior(model, data, likelihood)
     start = None
     if warm is not None:
@@ -323,7 +318,6 @@ def _fit(data: Dataset, model: HysteresisModel, likelihood: str, label: str,
     notes = [] if res.converged else [f"{label}: the sampler did not converge within its "
                                       f"budget ({st.max_steps} steps)"]
     draws = res.draws(st.n_draws, seed=seed)
-    overall, per, _ = tracking_errors(post, draws)
     settings = CompareSettings(likelihood=likelihood, n_walkers=walkers,
                                max_steps=st.max_steps, first_chunk=st.first_chunk,
                                draws_per_chain=st.draws_per_chain, max_refits=st.max_refits)
@@ -335,21 +329,19 @@ def _fit(data: Dataset, model: HysteresisModel, likelihood: str, label: str,
                      f"(log-probability -inf)")
     analysis = analyse_residual(post, res, draws, effects=st.effects, alpha=st.alpha,
                                 max_ar_order=st.max_ar_order)
+    overall, per = errors_by_frequency(data, analysis.mean_prediction)
     return DiagnosisFit(label, model, likelihood, post, res, overall, list(per),
                         scores.pointwise, analysis, tuple(notes), scores.idata)
 
 
 def _added(fit: DiagnosisFit, before: DiagnosisFit) -> tuple[ParamSummary, ...]:
-    old = set(before.posterior.space.names)
-    # composed names are namespaced (static.w): compare on the last component's block
-    old_tail = {n.split(".", 1)[-1] if n.startswith("static.") else n for n in old}
-    out = []
-    for p in fit.sampling.summary():
-        name = p.label.split("[")[0]
-        tail = name.split(".", 1)[-1] if name.startswith("static.") else name
-        if tail not in old_tail and name not in old:
-            out.append(p)
-    return tuple(out)
+    """Posterior summaries of the parameters the augmentation added (a composite
+    carries the previous model's parameters under ``static.``)."""
+    def base(name: str) -> str:
+        return name.removeprefix("static.")
+
+    old = {base(n) for n in before.posterior.space.names}
+    return tuple(p for p in fit.sampling.summary() if base(p.label.split("[")[0]) not in old)
 
 
 def _check_settings(st: DiagnosisSettings) -> None:

@@ -168,6 +168,8 @@ class ResidualAnalysis:
     time : list of ndarray
         The matching times (s).
     cycles : tuple of CycleResidual
+    mean_prediction : list of ndarray
+        Posterior-mean prediction per record (full records, offset included).
     ar_order : int
         Order of the AR error model used for whitening.
     alpha : float
@@ -178,6 +180,7 @@ class ResidualAnalysis:
     residual: list[np.ndarray]
     time: list[np.ndarray]
     cycles: tuple[CycleResidual, ...]
+    mean_prediction: list[np.ndarray]
     ar_order: int
     alpha: float
 
@@ -414,5 +417,5 @@ def analyse_residual(
             t.log_bayes_factor, t.partial_r2, rms, 100.0 * rms / ptp, per_f, est,
             bool(adj[name] < alpha), ar_order=order, coef=t.coef, cov=t.cov,
             evidence=evidence))
-    return ResidualAnalysis(tuple(tests), resid, times, _cycles(data, resid), ar.order,
+    return ResidualAnalysis(tuple(tests), resid, times, _cycles(data, resid), means, ar.order,
                             float(alpha))
