@@ -301,6 +301,76 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def _report_run(data: Any, data_path: str, models: tuple[str, ...], settings: Any,
+                args: argparse.Namespace, command: str) -> int:
+    """The shared part of ``report`` and ``demo``: run every stage, write, print."""
+    from bayeshyst.report.report_outputs import write_report_outputs
+    from bayeshyst.workflow import run_report
+
+    out = Path(args.out)
+    n_fits = 0
+
+    def on_fit(fit: Any) -> None:
+        nonlocal n_fits
+        n_fits += 1
+        if not args.quiet:
+            conv = "converged" if fit.sampling.converged else "NOT converged"
+            print(f"bayeshyst {command}: diagnosis fit {n_fits} done: {fit.label} ({conv}); "
+                  f"RMSE {fit.overall.rmse:.4g}", file=sys.stderr, flush=True)
+
+    if not args.quiet:
+        freqs = ", ".join(f"{f:g}" for f in data.frequencies) or "none given"
+        print(f"bayeshyst {command}: {data.name} ({len(data)} record(s); frequencies [Hz]: "
+              f"{freqs}); models: {', '.join(models)}", file=sys.stderr)
+    result = run_report(data, models, settings=settings, seed=args.seed, out_dir=out,
+                        progress=not args.quiet, on_fit=on_fit)
+    summary = write_report_outputs(result, out, data_path=data_path,
+                                   figures=not args.no_figures)
+    if args.json:
+        sys.stdout.write((out / "summary.json").read_text())
+    else:
+        print(result)
+        for w in summary["warnings"]:
+            print(f"warning: {w}")
+        print(f"report: {out / 'report.html'}  (numbers: {out / 'summary.json'})")
+    return EXIT_OK
+
+
+def _report_settings(args: argparse.Namespace) -> Any:
+    from bayeshyst.workflow import ReportSettings
+
+    return ReportSettings(
+        likelihood=args.likelihood, max_steps=args.steps,
+        first_chunk=min(1_000, args.steps), n_walkers=args.walkers, lofo=not args.no_lofo,
+        max_refits=args.max_refits, effects=None if args.effects is None
+        else _effect_list(args.effects), max_rounds=args.max_rounds, n_jobs=args.jobs)
+
+
+def _cmd_report(args: argparse.Namespace) -> int:
+    from bayeshyst.data import load
+    from bayeshyst.selection import check_models
+    from bayeshyst.workflow import DEFAULT_MODELS
+
+    # validate everything cheap before the long part starts
+    data = load(args.data)
+    models = check_models(args.models) if args.models else DEFAULT_MODELS
+    settings = _report_settings(args)
+    return _report_run(data, str(args.data), models, settings, args, "report")
+
+
+def _cmd_demo(args: argparse.Namespace) -> int:
+    from bayeshyst.data import load
+    from bayeshyst.workflow import DEMO_DEFAULT, DEMO_QUICK, bundled_data
+
+    plan = DEMO_QUICK if args.quick else DEMO_DEFAULT
+    path = bundled_data("virtual_multifreq.csv", fallback_dir=Path(args.out) / "data")
+    data = load(path)
+    if not args.quiet:
+        print(f"bayeshyst demo ({plan.description}) on the bundled virtual actuator data "
+              f"{path.name}", file=sys.stderr)
+    return _report_run(data, path.name, plan.models, plan.settings, args, "demo")
+
+
 def _add_run_options(p: argparse.ArgumentParser, out_default: str, steps_help: str) -> None:
     """The options every command that samples shares: data, likelihood, output folder,
     seed, sampler budget, walkers, and what is printed and drawn."""
@@ -397,6 +467,37 @@ def build_parser() -> argparse.ArgumentParser:
     p_dg.add_argument("--no-checkpoint", action="store_true",
                       help="do not checkpoint to OUT/checkpoints/ (and do not resume)")
     p_dg.set_defaults(func=_cmd_diagnose)
+
+    p_rep = sub.add_parser("report", help="the whole study on one dataset: compare models per "
+                           "frequency, diagnose the best, design feedforward; one HTML report")
+    p_rep.add_argument("--models", default=None,
+                       help="comma-separated model specs (default "
+                            "pi_play,bouc_wen,pi_play+second_order,gp_memory)")
+    _add_run_options(p_rep, "bayeshyst-report",
+                     "step budget per ensemble of every fit (default 20000)")
+    p_rep.add_argument("--jobs", type=_positive_int, default=None,
+                       help="worker processes of the comparison (default: one per core)")
+    p_rep.add_argument("--no-lofo", action="store_true",
+                       help="skip the leave-one-frequency-out fits")
+    p_rep.add_argument("--max-refits", type=_non_negative_int, default=5,
+                       help="exact refits per fit for cycles with Pareto k > 0.7 (default 5)")
+    p_rep.add_argument("--effects", default=None, metavar="A,B,...",
+                       help="candidate effects of the diagnosis (default all)")
+    p_rep.add_argument("--max-rounds", type=_positive_int, default=6, metavar="N",
+                       help="most effects the diagnosis adds (default 6)")
+    p_rep.set_defaults(func=_cmd_report)
+
+    p_demo = sub.add_parser("demo", help="the whole study (bayeshyst report) on the bundled "
+                            "virtual-actuator data")
+    p_demo.add_argument("--quick", action="store_true",
+                        help="about a minute: 2 models, short chains (nothing converges)")
+    p_demo.add_argument("--out", default="bayeshyst-demo",
+                        help="output folder (default bayeshyst-demo)")
+    p_demo.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    p_demo.add_argument("--json", action="store_true", help="print summary.json to stdout")
+    p_demo.add_argument("--quiet", action="store_true", help="no progress on stderr")
+    p_demo.add_argument("--no-figures", action="store_true", help="skip the figures")
+    p_demo.set_defaults(func=_cmd_demo)
     return parser
 
 

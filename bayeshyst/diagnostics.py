@@ -32,8 +32,9 @@ import xarray as xr
 
 from bayeshyst.errors import ParameterError
 from bayeshyst.files import atomic_path
+from bayeshyst.inference.convergence import hdi
 from bayeshyst.inference.posterior import NOISE, Posterior
-from bayeshyst.inference.sampling import SamplingResult
+from bayeshyst.inference.sampling import ParamSummary, SamplingResult
 from bayeshyst.params import ParamSpace
 
 __all__ = [
@@ -43,6 +44,8 @@ __all__ = [
     "elpd_by_group",
     "load_netcdf",
     "loo",
+    "posterior_summary",
+    "sampling_report",
     "save_netcdf",
     "to_inference_data",
     "waic",
@@ -393,6 +396,59 @@ def load_netcdf(path: str | os.PathLike[str]) -> az.InferenceData:
     if not path.is_file():
         raise FileNotFoundError(f"no netCDF file at {path}")
     return az.from_netcdf(path)
+
+
+def posterior_summary(idata: az.InferenceData, prob: float = 0.9) -> list[ParamSummary]:
+    """Mean, sd and ``prob`` HDI of every free scalar element of a saved posterior.
+
+    The same numbers as :meth:`SamplingResult.summary`, computed from the draws kept in
+    ``idata`` (thinned: ``draws_per_chain`` per walker) instead of the full chains.
+    Vector parameters give one row per element, labelled ``name[i]``.
+    """
+    if not isinstance(idata, az.InferenceData) or "posterior" not in idata.groups():
+        raise ParameterError("idata has no posterior group (build it with to_inference_data)")
+    if not 0.0 < prob < 1.0:
+        raise ParameterError(f"prob must be in (0, 1), got {prob!r}")
+    out = []
+    for name, var in idata.posterior.data_vars.items():
+        x = np.asarray(var.values, dtype=float)
+        x = x.reshape(x.shape[0] * x.shape[1], -1)
+        extra = var.shape[2:]
+        for j in range(x.shape[1]):
+            label = str(name) if not extra else f"{name}[{j}]"
+            lo, hi = hdi(x[:, j], prob)
+            out.append(ParamSummary(label, str(var.attrs.get("unit", "")),
+                                    float(np.mean(x[:, j])), float(np.std(x[:, j], ddof=1)),
+                                    lo, hi, prob))
+    return out
+
+
+def sampling_report(idata: az.InferenceData) -> dict[str, Any]:
+    """The sampler's convergence report and counts saved with a posterior: ``converged``
+    (bool), ``convergence_reasons`` (list), ``rhat_max``, ``ess_bulk_min``,
+    ``ess_tail_min``, ``tau_max``, ``n_steps``, ``evaluations``, ``failed_simulations``,
+    ``runtime_s``, ``model``, ``likelihood`` (judged on the full chains, not the saved
+    draws). Missing entries are ``None``."""
+    stats = getattr(idata, "sample_stats", None)
+    attrs = dict(stats.attrs) if stats is not None else {}
+
+    def num(key: str) -> float | None:
+        v = attrs.get(key)
+        return None if v is None or not math.isfinite(float(v)) else float(v)
+
+    reasons = str(attrs.get("convergence_reasons", "") or "")
+    return {
+        "model": attrs.get("model"), "likelihood": attrs.get("likelihood"),
+        "converged": bool(int(attrs["converged"])) if "converged" in attrs else None,
+        "convergence_reasons": [r.strip() for r in reasons.split(";") if r.strip()],
+        "rhat_max": num("rhat_max"), "ess_bulk_min": num("ess_bulk_min"),
+        "ess_tail_min": num("ess_tail_min"), "tau_max": num("tau_max"),
+        "n_steps": None if "n_steps" not in attrs else int(attrs["n_steps"]),
+        "evaluations": None if "evaluations" not in attrs else int(attrs["evaluations"]),
+        "failed_simulations": (None if "failed_simulations" not in attrs
+                               else int(attrs["failed_simulations"])),
+        "runtime_s": num("runtime_s"),
+    }
 
 
 # --------------------------------------------------------------------- LOO and WAIC

@@ -36,8 +36,9 @@ from bayeshyst.inference.posterior import Posterior
 from bayeshyst.inference.sampling import SamplingResult
 from bayeshyst.params import ParamSpace
 
-__all__ = ["plot_compensation", "plot_corner", "plot_diagnosis_residuals", "plot_effect_evidence",
-           "plot_loops", "plot_model_comparison", "plot_residuals", "plot_trace"]
+__all__ = ["plot_compensation", "plot_corner", "plot_diagnosis_residuals", "plot_draws_corner",
+           "plot_effect_evidence", "plot_loops", "plot_model_comparison", "plot_residuals",
+           "plot_trace"]
 
 DPI = 120
 _RED = "#c0392b"
@@ -360,17 +361,11 @@ def _limits(x: np.ndarray) -> tuple[float, float]:
     return lo - pad, hi + pad
 
 
-def _build_corner(result: SamplingResult, *, params: Any = None, max_params: int = 8,
-                  prob: float = 0.9, bins: int = 40) -> Figure:
-    """The figure of :func:`plot_corner` (``k (k + 1) / 2`` axes for ``k`` elements)."""
-    _check_result(result)
-    max_params = _positive_int(max_params, "max_params")
-    prob = _prob(prob)
-    elements, total = _elements(result.space, params, max_params)
-    x = _values(result, elements).reshape(-1, len(elements))
-    map_theta = result.space.unpack(np.asarray(result.start.z, dtype=float))
-    best = [float(np.ravel(map_theta[e.name])[e.index]) for e in elements]
-    k = len(elements)
+def _corner_grid(x: np.ndarray, labels: list[str], axis_labels: list[str],
+                 best: list[float] | None, prob: float, bins: int) -> Figure:
+    """Corner plot of draws ``x`` (n, k): HDI-shaded histograms on the diagonal, 2-D
+    histograms with 50/90 % contours below it, ``best`` (if given) in red."""
+    k = len(labels)
     fig = _figure(max(4.0, 2.1 * k), max(4.0, 2.1 * k) + 0.6)
     axes = fig.subplots(k, k, squeeze=False)
     for i in range(k):
@@ -385,9 +380,10 @@ def _build_corner(result: SamplingResult, *, params: Any = None, max_params: int
                 ax.axvspan(lo, hi, color="C0", alpha=0.12, lw=0)
                 for edge in (lo, hi):
                     ax.axvline(edge, color="C0", ls="--", lw=0.8)
-                ax.axvline(best[i], color=_RED, lw=1.0)
+                if best is not None:
+                    ax.axvline(best[i], color=_RED, lw=1.0)
                 ax.set_yticks([])
-                ax.set_title(f"{elements[i].label}: {prob:.0%} HDI\n[{_fmt(lo)}, {_fmt(hi)}]",
+                ax.set_title(f"{labels[i]}: {prob:.0%} HDI\n[{_fmt(lo)}, {_fmt(hi)}]",
                              fontsize=8)
             else:
                 h, xe, ye = np.histogram2d(x[:, j], x[:, i], bins=bins)
@@ -396,21 +392,60 @@ def _build_corner(result: SamplingResult, *, params: Any = None, max_params: int
                 if len(levels) > 1 or (levels and levels[0] < h.max()):
                     xc, yc = 0.5 * (xe[1:] + xe[:-1]), 0.5 * (ye[1:] + ye[:-1])
                     ax.contour(xc, yc, h.T, levels=levels, colors="k", linewidths=0.6)
-                ax.plot(best[j], best[i], "x", color=_RED, ms=6, mew=1.5)
+                if best is not None:
+                    ax.plot(best[j], best[i], "x", color=_RED, ms=6, mew=1.5)
             if i == k - 1:
-                ax.set_xlabel(elements[j].axis_label, fontsize=8)
+                ax.set_xlabel(axis_labels[j], fontsize=8)
             else:
                 ax.tick_params(labelbottom=False)
             if j == 0 and i > 0:
-                ax.set_ylabel(elements[i].axis_label, fontsize=8)
+                ax.set_ylabel(axis_labels[i], fontsize=8)
             elif j > 0:
                 ax.tick_params(labelleft=False)
             ax.tick_params(labelsize=7)
             ax.set_xlim(*_limits(x[:, j]))
             if j < i:
                 ax.set_ylim(*_limits(x[:, i]))
-    _title(fig, result, _shown(k, total, f"posterior (MAP in red, {prob:.0%} HDI dashed, "
-                                         f"contours 50/90 %)"))
+    return fig
+
+
+def _build_corner(result: SamplingResult, *, params: Any = None, max_params: int = 8,
+                  prob: float = 0.9, bins: int = 40) -> Figure:
+    """The figure of :func:`plot_corner` (``k (k + 1) / 2`` axes for ``k`` elements)."""
+    _check_result(result)
+    max_params = _positive_int(max_params, "max_params")
+    prob = _prob(prob)
+    elements, total = _elements(result.space, params, max_params)
+    x = _values(result, elements).reshape(-1, len(elements))
+    map_theta = result.space.unpack(np.asarray(result.start.z, dtype=float))
+    best = [float(np.ravel(map_theta[e.name])[e.index]) for e in elements]
+    fig = _corner_grid(x, [e.label for e in elements], [e.axis_label for e in elements],
+                       best, prob, bins)
+    _title(fig, result, _shown(len(elements), total, f"posterior (MAP in red, {prob:.0%} HDI "
+                                                     f"dashed, contours 50/90 %)"))
+    return fig
+
+
+def _build_draws_corner(draws: dict[str, np.ndarray], units: dict[str, str], title: str,
+                        *, prob: float = 0.9, bins: int = 30) -> Figure:
+    """The figure of :func:`plot_draws_corner`."""
+    prob = _prob(prob)
+    if not draws:
+        raise ParameterError("draws: no parameter to plot")
+    cols = []
+    for name, v in draws.items():
+        v = np.asarray(v, dtype=float).ravel()
+        if v.size < 2 or not np.all(np.isfinite(v)):
+            raise ParameterError(f"draws[{name!r}]: expected >= 2 finite draws, got {v.size} "
+                                 f"({int(np.sum(~np.isfinite(v)))} non-finite)")
+        cols.append(v)
+    if len({c.size for c in cols}) != 1:
+        raise ParameterError(f"draws: every parameter needs the same number of draws, got "
+                             f"{ {k: c.size for k, c in zip(draws, cols, strict=True)} }")
+    names = list(draws)
+    fig = _corner_grid(np.stack(cols, axis=-1), names,
+                       [_label(n, units.get(n, "")) for n in names], None, prob, bins)
+    fig.suptitle(title, fontsize=10)
     return fig
 
 
@@ -447,6 +482,28 @@ def plot_corner(result: SamplingResult, path: str | os.PathLike[str], *,
     """
     path = _png_path(path)
     return _save(_build_corner(result, params=params, max_params=max_params, prob=prob), path)
+
+
+def plot_draws_corner(draws: dict[str, np.ndarray], path: str | os.PathLike[str], *,
+                      units: dict[str, str] | None = None, title: str = "posterior",
+                      prob: float = 0.9) -> Path:
+    """Corner plot of posterior draws given as arrays (e.g. read from a saved netCDF).
+
+    Parameters
+    ----------
+    draws : dict of str to ndarray, each shape (n_draws,)
+        Scalar parameter name -> its draws (same count for every parameter).
+    path : path-like
+        Target PNG file.
+    units : dict of str to str, optional
+        Unit of each parameter, for the axis labels.
+    title : str
+        Figure title (say there whether the run converged).
+    prob : float
+        Mass of the HDI shaded on the diagonal.
+    """
+    path = _png_path(path)
+    return _save(_build_draws_corner(draws, units or {}, title, prob=prob), path)
 
 
 # ------------------------------------------------------------------------- residuals

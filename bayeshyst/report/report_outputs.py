@@ -1,0 +1,528 @@
+"""What ``bayeshyst report`` (and ``bayeshyst demo``) writes: one self-contained HTML
+report, ``summary.json`` and every posterior as netCDF.
+
+Layout of ``out``::
+
+    report.html          the report (figures embedded: one file to send or archive)
+    summary.json         every number the report shows, by section (written last)
+    figures/             the report's own figures as PNG (data overview, corners, trace)
+    compare/             what ``bayeshyst compare`` writes (table, figure, posteriors/*.nc)
+    diagnose/            what ``bayeshyst diagnose`` writes (posterior_base/final.nc, ...)
+    compensate/          what ``bayeshyst compensate`` writes (posterior.nc, curves, ...)
+
+Every user-provided string (data and record names, file paths, metadata) reaches the
+HTML through :mod:`bayeshyst.report.html`, which escapes it.
+"""
+
+from __future__ import annotations
+
+import json
+import platform
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from bayeshyst import __version__
+from bayeshyst.data.record import Dataset
+from bayeshyst.files import atomic_path
+from bayeshyst.report import html as H
+from bayeshyst.report.compare_outputs import write_comparison_outputs
+from bayeshyst.report.compensate_outputs import COMMANDS, write_compensation_outputs
+from bayeshyst.report.diagnose_outputs import evidence_figures, write_diagnosis_outputs
+from bayeshyst.report.files import jsonable, write_json
+from bayeshyst.workflow import ReportResult
+
+__all__ = ["SECTIONS", "data_overview", "write_report_outputs"]
+
+#: Sections of ``summary.json`` (and of the HTML report), in order.
+SECTIONS = ("data", "posteriors", "model_selection", "diagnosis", "compensation")
+
+#: Parameters of the Bouc–Wen corner plot the report always shows when Bouc–Wen is fitted.
+BOUC_WEN_CORNER = ("alpha", "beta", "gamma", "n")
+
+_METADATA_SHOWN = 6  # metadata entries listed per record (the rest are in summary.json)
+_INLINE_CHARS = 40  # longer metadata values are named, not shown (they are in summary.json)
+CORNER_MAX = 6  # parameters in the final model's corner plot (k (k + 1) / 2 panels)
+
+
+# ----------------------------------------------------------------------------- data
+def _unit(u: str) -> str:
+    return "µm" if u == "um" else u
+
+
+def _short(value: Any, limit: int = 120) -> str:
+    s = value if isinstance(value, str) else json.dumps(jsonable(value), default=str)
+    return s if len(s) <= limit else s[: limit - 1] + "…"
+
+
+def data_overview(data: Dataset, data_path: str | None) -> dict[str, Any]:
+    """The ``data`` section of ``summary.json``: the file and one entry per record."""
+    recs = []
+    for r in data:
+        meta = {k: v for k, v in r.metadata.items()}
+        recs.append({
+            "name": r.name, "frequency_hz": r.frequency_hz, "n": r.n, "fs_hz": r.fs,
+            "duration_s": r.duration, "warmup": r.warmup, "n_scored": r.n_scored,
+            "units": dict(r.units), "u_range": [float(np.min(r.u)), float(np.max(r.u))],
+            "y_range": [float(np.min(r.y)), float(np.max(r.y))], "stroke": r.stroke,
+            "metadata": jsonable(meta),
+        })
+    return {"path": data_path, "name": data.name, "n_records": len(data),
+            "n_samples": data.n_samples, "frequencies_hz": list(data.frequencies),
+            "records": recs}
+
+
+def _data_html(section: dict[str, Any], figure: Path | None) -> H.Markup:
+    rows = []
+    for r in section["records"]:
+        meta = r["metadata"] or {}
+        # scalars inline; structured entries (a simulator's truth, an excitation) by name
+        def inline(v: Any) -> bool:
+            return not isinstance(v, dict | list) and len(str(v)) <= _INLINE_CHARS
+
+        scalars = [f"{k}: {v}" for k, v in meta.items() if inline(v)]
+        nested = [k for k, v in meta.items() if not inline(v)]
+        items = scalars[:_METADATA_SHOWN]
+        hidden = len(scalars) - len(items)
+        if nested or hidden:
+            items.append(f"in summary.json: {', '.join(nested)}"
+                         + (f" and {hidden} more" if hidden else ""))
+        u, y = _unit(r["units"].get("u", "")), _unit(r["units"].get("y", ""))
+        rows.append([r["name"], r["frequency_hz"], r["fs_hz"], r["n"], r["n_scored"],
+                     f"{r['u_range'][0]:.4g} … {r['u_range'][1]:.4g} {u}",
+                     f"{r['y_range'][0]:.4g} … {r['y_range'][1]:.4g} {y}",
+                     H.Markup("<br>".join(H.text(i) for i in items)) if items else "—"])
+    parts = [H.paragraph(f"{section['n_records']} record(s), {section['n_samples']} samples; "
+                         "excitation frequencies [Hz]: "
+                         f"{', '.join(f'{f:g}' for f in section['frequencies_hz']) or 'none'}"
+                         f". File: {section['path'] or section['name']}.")]
+    parts.append(H.table(["record", "frequency [Hz]", "fs [Hz]", "samples", "scored",
+                          "input range", "output range", "metadata"], rows,
+                         numeric=[False, True, True, True, True, False, False, False]))
+    if figure is not None:
+        parts.append(H.figure(figure, "Measured loops per excitation frequency (scored part "
+                              "in colour, warm-up in grey)."))
+    return H.join(parts)
+
+
+# ----------------------------------------------------------------------- posteriors
+def _conv_words(rep: dict[str, Any]) -> str:
+    """The convergence verdict of a fit in plain words."""
+    if rep.get("converged"):
+        return (f"converged: R-hat {rep['rhat_max']:.3f} (≤ 1.01 needed), smallest bulk ESS "
+                f"{rep['ess_bulk_min']:.0f}, after {rep['n_steps']} steps per ensemble.")
+    reasons = "; ".join(rep.get("convergence_reasons") or []) or "no report saved"
+    return ("NOT converged — the intervals below are not reliable; rerun with a larger "
+            f"step budget (--steps). Why: {reasons}.")
+
+
+def _posteriors(result: ReportResult, out: Path, figures: bool) -> tuple[dict[str, Any],
+                                                                        list[Path]]:
+    """Per parametric model: its joint fit's posterior (from the comparison's netCDF)."""
+    from bayeshyst import diagnostics
+
+    entries = []
+    figs: list[Path] = []
+    for task in result.comparison.tasks:
+        if task.spec.scope != "joint" or not task.ok or not task.netcdf:
+            continue
+        idata = diagnostics.load_netcdf(task.netcdf)
+        rep = diagnostics.sampling_report(idata)
+        params = [{"label": p.label, "unit": p.unit, "mean": p.mean, "sd": p.sd,
+                   "hdi_5": p.hdi_lo, "hdi_95": p.hdi_hi}
+                  for p in diagnostics.posterior_summary(idata, 0.9)]
+        entry = {"model": task.spec.model, "scope": "all frequencies jointly",
+                 "posterior": str(Path(task.netcdf).relative_to(out)),
+                 "sampling": rep, "params": params, "verdict": _conv_words(rep),
+                 "corner": None}
+        names = set(idata.posterior.data_vars)
+        if figures and set(BOUC_WEN_CORNER) <= names:
+            draws = {k: np.asarray(idata.posterior[k].values).ravel() for k in BOUC_WEN_CORNER}
+            units = {k: str(idata.posterior[k].attrs.get("unit", "")) for k in BOUC_WEN_CORNER}
+            from bayeshyst.plotting import plot_draws_corner
+
+            title = (f"{task.spec.model}, all frequencies: posterior of α, β, γ, n "
+                     f"({draws['alpha'].size} saved draws; "
+                     f"{'converged' if rep['converged'] else 'NOT CONVERGED'})")
+            slug = task.spec.key.split("__")[0]
+            p = plot_draws_corner(draws, out / "figures" / f"corner_{slug}.png", units=units,
+                                  title=title)
+            figs.append(p)
+            entry["corner"] = str(p.relative_to(out))
+        entries.append(entry)
+    section: dict[str, Any] = {"models": entries, "chosen": None, "base_converged": None}
+    if result.diagnosis is not None:
+        section["base_converged"] = bool(result.diagnosis.base.sampling.converged)
+        fit = result.diagnosis.final
+        c = fit.sampling.convergence
+        section["chosen"] = {
+            "model": fit.label, "converged": c.converged,
+            "convergence_reasons": list(c.reasons), "rhat_max": c.rhat_max,
+            "ess_bulk_min": c.ess_bulk_min, "n_steps": c.n_steps,
+            "failed_simulations": fit.sampling.counts.failed,
+            "params": [{"label": p.label, "unit": p.unit, "mean": p.mean, "sd": p.sd,
+                        "hdi_5": p.hdi_lo, "hdi_95": p.hdi_hi}
+                       for p in fit.sampling.summary(0.9)],
+            "trace": None, "corner": None}
+        if figures:
+            from bayeshyst.plotting import plot_corner, plot_trace
+
+            tr = plot_trace(fit.sampling, out / "figures" / "trace_final.png")
+            co = plot_corner(fit.sampling, out / "figures" / "corner_final.png",
+                             max_params=CORNER_MAX)
+            figs += [tr, co]
+            section["chosen"]["trace"] = str(tr.relative_to(out))
+            section["chosen"]["corner"] = str(co.relative_to(out))
+    return section, figs
+
+
+def _param_table(params: list[dict[str, Any]]) -> H.Markup:
+    return H.table(["parameter", "unit", "mean", "sd", "90 % HDI low", "90 % HDI high"],
+                   [[p["label"], p["unit"] or "1", p["mean"], p["sd"], p["hdi_5"],
+                     p["hdi_95"]] for p in params],
+                   numeric=[False, False, True, True, True, True])
+
+
+def _posteriors_html(section: dict[str, Any], out: Path) -> H.Markup:
+    parts = [H.paragraph(
+        "Every parametric model fitted to all frequencies jointly: posterior mean, standard "
+        "deviation and 90 % highest-density interval of each parameter (from the draws "
+        "saved with the fit), and the sampler's convergence verdict (judged on the full "
+        "chains: R-hat < 1.01 across walkers and independent ensembles, ESS ≥ 400, ≥ 50 "
+        "autocorrelation times).")]
+    for e in section["models"]:
+        ok = e["sampling"]["converged"]
+        parts.append(H.Markup(f"<h3>{H.text(e['model'])} {H.badge(ok)}</h3>"))
+        parts.append(H.paragraph(e["verdict"], cls=None if ok else "warn"))
+        if e["sampling"].get("failed_simulations"):
+            parts.append(H.paragraph(f"{e['sampling']['failed_simulations']} posterior "
+                                     "evaluations had failed simulations (zero density).",
+                                     cls="warn"))
+        parts.append(H.details(f"parameters of {e['model']} ({len(e['params'])})",
+                               _param_table(e["params"])))
+        if e["corner"]:
+            parts.append(H.figure(out / e["corner"], f"{e['model']}: joint posterior of the "
+                                  "Bouc–Wen shape parameters α, β, γ, n (90 % HDI shaded on "
+                                  "the diagonal; contours hold 50 and 90 % of the draws). "
+                                  "A ridge means the data fix a combination, not each one."))
+    ch = section.get("chosen")
+    if ch:
+        parts.append(H.Markup(f"<h3>Model the feedforward uses: {H.text(ch['model'])} "
+                              f"{H.badge(ch['converged'])}</h3>"))
+        parts.append(H.paragraph(
+            "The model the residual diagnosis ended with, sampled on all frequencies. "
+            + _conv_words({"converged": ch["converged"], "rhat_max": ch["rhat_max"],
+                           "ess_bulk_min": ch["ess_bulk_min"], "n_steps": ch["n_steps"],
+                           "convergence_reasons": ch["convergence_reasons"]}),
+            cls=None if ch["converged"] else "warn"))
+        parts.append(_param_table(ch["params"]))
+        if ch["trace"]:
+            parts.append(H.details("traces and rank plots of the final model", H.figure(
+                out / ch["trace"], "Traces and rank plots of the final model (chains should "
+                "overlap; ranks should be uniform).")))
+        if ch["corner"]:
+            parts.append(H.details("corner plot of the final model", H.figure(
+                out / ch["corner"], "Corner plot of the final model (MAP in red; first "
+                f"{CORNER_MAX} parameters).")))
+    return H.join(parts)
+
+
+# ------------------------------------------------------------------ model selection
+def _selection_html(summary: dict[str, Any], out: Path) -> H.Markup:
+    parts = [H.paragraph(
+        "Each model fitted to each frequency's records and ranked by PSIS-LOO with one "
+        "input cycle as the left-out unit (Δelpd and its paired standard error relative to "
+        "the best; a difference under about 2 se is not a difference). elpd LOFO: the "
+        "model fitted to all other frequencies, scored on this one (extrapolation across "
+        "frequency). NRMSE: posterior-mean tracking error in % of the measured stroke.")]
+    for fc in [*summary["per_frequency"], summary["overall"]]:
+        label = ("all frequencies jointly" if fc is summary["overall"] else
+                 ("unknown frequency" if fc["frequency_hz"] is None
+                  else f"{fc['frequency_hz']:g} Hz"))
+        rows = []
+        for s in fc["ranking"]:
+            if s.get("error"):
+                rows.append([s["model"], None, None, None, None, None, None, None,
+                             H.Markup(f'<span class="badge bad">failed</span> '
+                                      f"{H.text(_short(s['error']))}")])
+                continue
+            rows.append([s["model"], s["elpd_loo"], s["se"], s["delta_elpd"], s["delta_se"],
+                         s["weight"], s["elpd_lofo"], s["nrmse_percent"],
+                         H.badge(s["converged"], "yes", "NO")])
+        parts.append(H.Markup(f"<h3>{H.text(label)}</h3>"))
+        parts.append(H.paragraph(fc.get("statement", "")))
+        parts.append(H.table(["model", "elpd LOO", "se", "Δelpd", "Δ se", "stacking weight",
+                              "elpd LOFO", "NRMSE %", "converged"], rows,
+                             numeric=[False, True, True, True, True, True, True, True, False],
+                             formats=[None, ".1f", ".1f", ".1f", ".1f", ".2f", ".1f", ".3f",
+                                      None]))
+    fig = out / "compare" / "compare.png"
+    if fig.is_file():
+        parts.append(H.figure(fig, "elpd and tracking error of every model against "
+                                   "excitation frequency."))
+    return H.join(parts)
+
+
+# ------------------------------------------------------------------------ diagnosis
+def _diagnosis_html(summary: dict[str, Any] | None, out: Path,
+                    evidence: list[str]) -> H.Markup:
+    if summary is None:
+        return H.paragraph("No parametric model fitted, so nothing was diagnosed.", cls="warn")
+    found = summary["effects_found"]
+    b, a = summary["before"], summary["after"]
+    unit = _unit(summary.get("output_unit") or "")
+    parts = [H.paragraph(
+        f"The residual of {summary['base_model']} was tested for the structure each missing "
+        "effect would leave (score tests on the fit's own sensitivities, AR-whitened, Holm "
+        "over effects); a fired effect was added and kept only when the held-out elpd "
+        "improved by more than "
+        f"{summary['settings'].get('threshold', 2):g} paired standard errors.")]
+    if found:
+        parts.append(H.paragraph(
+            f"Effects found, in the order added: {', '.join(found)}. Final model: "
+            f"{summary['final_model']}. RMSE {b['rmse']:.4g} → {a['rmse']:.4g} {unit}; max "
+            f"error {b['max_error']:.4g} → {a['max_error']:.4g} {unit}."))
+    else:
+        parts.append(H.paragraph(f"No effect was added: {summary['base_model']} leaves no "
+                                 "structure the candidate effects explain (or none improved "
+                                 f"held-out elpd). RMSE {b['rmse']:.4g} {unit}."))
+    rows = [[s["round"], s["effect"], s.get("bayes_factor_log"), s.get("p_adjusted"),
+             s.get("delta_elpd"), s.get("delta_elpd_se"), s.get("rmse_before"),
+             s.get("rmse_after"), H.badge(s["accepted"], "kept", "rejected"),
+             s.get("reason") or ""] for s in summary["steps"]]
+    if rows:
+        parts.append(H.table(["round", "effect", "log BF", "p (Holm)", "Δelpd", "se",
+                              f"RMSE before [{unit}]", f"RMSE after [{unit}]", "decision",
+                              "why"], rows,
+                             numeric=[True, False, True, True, True, True, True, True, False,
+                                      False]))
+    parts.append(H.table(
+        ["frequency [Hz]", f"RMSE before [{unit}]", f"RMSE after [{unit}]",
+         "NRMSE % before", "NRMSE % after", "max % before", "max % after"],
+        [[p["frequency_hz"], p["before"]["rmse"], p["after"]["rmse"],
+          p["before"]["nrmse_percent"], p["after"]["nrmse_percent"],
+          p["before"]["max_error_percent"], p["after"]["max_error_percent"]]
+         for p in summary["per_frequency"] if p["frequency_hz"] is not None],
+        caption="Tracking error of the posterior mean, before and after"))
+    for w in summary.get("warnings", []):
+        parts.append(H.paragraph(w, cls="warn"))
+    fig = out / "diagnose" / "residuals.png"
+    if fig.is_file():
+        parts.append(H.figure(fig, "Residual of the base model and of the final model."))
+    for name in evidence:
+        parts.append(H.figure(out / "diagnose" / name,
+                              f"Evidence behind the test of {name[9:-4].replace('_', ' ')}."))
+    return H.join(parts)
+
+
+# --------------------------------------------------------------------- compensation
+def _compensation_html(summary: dict[str, Any] | None, out: Path) -> H.Markup:
+    if summary is None:
+        return H.paragraph("No parametric model fitted, so no feedforward was designed.",
+                           cls="warn")
+    parts = [H.paragraph(
+        f"Feedforward commands designed from the posterior of {summary['model']} and run on "
+        f"{summary['plant']}. nominal: inverse of the MAP model; posterior: minimises the "
+        "error averaged over posterior draws; robust: minimises the "
+        f"{summary['settings'].get('robust_quantile', 0.9):.0%} quantile of the error over "
+        "draws. The band is the predicted 90 % range of the robust command's error "
+        "(from held-out draws); 'inside' says whether the realised error fell in it.")]
+    rows = []
+    for r in summary["per_frequency"]:
+        band = r.get("predicted_band_percent") or [None, None]
+        rows.append([r["frequency_hz"], r["reference"],
+                     *[r.get(f"{c}_nrmse_percent") for c in COMMANDS],
+                     r.get("robust_max_percent"), band[0], band[1],
+                     H.badge(r.get("realised_inside_band"), "yes", "no")])
+    parts.append(H.table(["frequency [Hz]", "reference",
+                          *[f"{c} NRMSE %" for c in COMMANDS], "robust max %",
+                          "band low %", "band high %", "inside band"], rows,
+                         numeric=[True, False, True, True, True, True, True, True, True,
+                                  False]))
+    for s in summary.get("statements", []):
+        parts.append(H.paragraph(s))
+    for w in summary.get("warnings", []):
+        parts.append(H.paragraph(w, cls="warn"))
+    fig = out / "compensate" / "compensate.png"
+    if fig.is_file():
+        parts.append(H.figure(fig, "Tracking with each command per frequency, with the "
+                                   "predicted band."))
+    return H.join(parts)
+
+
+# ------------------------------------------------------------------------- overview
+def _convergence_headline(summary: dict[str, Any]) -> str | None:
+    """One sentence counting the fits that did not converge, or None when all did."""
+    fits = summary["model_selection"].get("fits", [])
+    bad_cmp = sum(1 for f in fits if f.get("error") is None and not f.get("converged"))
+    dg = summary["diagnosis"]
+    n_dg = 0 if dg is None else 1 + len(dg["steps"])
+    bad_dg = 0
+    if dg is not None:
+        bad_dg = sum(1 for s in dg["steps"] if not s.get("converged"))
+        bad_dg += 0 if summary["posteriors"].get("base_converged", True) else 1
+    if not bad_cmp and not bad_dg:
+        return None
+    return (f"{bad_cmp} of {len(fits)} comparison fits and {bad_dg} of {n_dg} diagnosis fits "
+            "did NOT converge: their intervals, rankings and decisions are indicative only "
+            "(raise the step budget).")
+
+
+def _glance_html(summary: dict[str, Any]) -> H.Markup:
+    sel = summary["model_selection"]
+    rows = [["all frequencies" if k == "all" else k, v or "—"]
+            for k, v in sel["winners"].items()]
+    parts = [H.table(["frequency", "best model (PSIS-LOO)"], rows,
+                     caption="Model selection"),
+             H.paragraph(f"Overall best: {sel['overall']['best'] or '—'}. Diagnosed and "
+                         f"inverted: {summary['chosen_model'] or '—'}.")]
+    dg = summary["diagnosis"]
+    if dg is not None:
+        parts.append(H.paragraph(
+            f"Residual diagnosis: {', '.join(dg['effects_found']) or 'no effect'} added; "
+            f"RMSE {H.number(dg['before']['rmse'])} → {H.number(dg['after']['rmse'])} "
+            f"{_unit(dg.get('output_unit') or '')}."))
+    comp = summary["compensation"]
+    if comp is not None and comp["per_frequency"]:
+        pieces = [f"{r['frequency_hz']:g} Hz: "
+                  f"{H.number(r.get('uncompensated_nrmse_percent'), '.2f')} → "
+                  f"{H.number(r.get('robust_nrmse_percent'), '.2f')} %"
+                  for r in comp["per_frequency"] if r.get("frequency_hz") is not None]
+        if pieces:
+            parts.append(H.paragraph(
+                "Feedforward (robust command), tracking NRMSE uncompensated → compensated on "
+                f"{comp['plant_kind']}: " + "; ".join(pieces) + "."))
+    warnings = summary["warnings"]
+    headline = _convergence_headline(summary)
+    if headline:
+        parts.append(H.paragraph(headline, cls="warn"))
+    if warnings:
+        items = "".join(f"<li>{H.text(w)}</li>" for w in warnings)
+        parts.append(H.details(f"all {len(warnings)} warnings of this run",
+                               H.Markup(f"<ul>{items}</ul>")))
+    else:
+        parts.append(H.paragraph("Every fit converged; no warnings."))
+    return H.join(parts)
+
+
+def _reproduce_html(summary: dict[str, Any]) -> H.Markup:
+    rt = summary["runtime_s"]
+    return H.join([
+        H.paragraph(f"bayeshyst {summary['versions']['bayeshyst']}, Python "
+                    f"{summary['versions']['python']}, seed {summary['seed']}. Same data, "
+                    "settings and seed give the same numbers."),
+        H.table(["setting", "value"], [[k, _short(v)] for k, v in summary["settings"].items()],
+                numeric=[False, False]),
+        H.paragraph("Wall time: " + ", ".join(f"{k} {v:.1f} s" for k, v in rt.items()) + "."),
+        H.paragraph("Files next to this report: summary.json (every number shown here), "
+                    "compare/, diagnose/, compensate/ (each command's own outputs, posteriors "
+                    "as netCDF), figures/."),
+    ])
+
+
+# --------------------------------------------------------------------------- writer
+def _warnings(result: ReportResult, sel: dict[str, Any], dg: dict[str, Any] | None,
+              comp: dict[str, Any] | None) -> list[str]:
+    out = list(result.warnings)
+    out += sel.get("warnings", [])
+    if dg is not None:
+        if not dg.get("converged", True):
+            out.append("a fit of the residual diagnosis did NOT converge: its decisions rest "
+                       "on unreliable posteriors")
+        out += dg.get("warnings", [])
+    if comp is not None:
+        out += comp.get("warnings", [])
+    return list(dict.fromkeys(out))
+
+
+def write_report_outputs(result: ReportResult, out_dir: str | Path, *,
+                         data_path: str | None = None, title: str | None = None,
+                         figures: bool = True) -> dict[str, Any]:
+    """Write ``report.html``, ``summary.json`` and each stage's files into ``out_dir``.
+
+    Parameters
+    ----------
+    result : ReportResult
+    out_dir : path-like
+        Created if needed; the comparison's posteriors must already be under
+        ``out_dir/compare`` (pass the same folder to :func:`~bayeshyst.workflow.run_report`).
+    data_path : str, optional
+        The data file, shown in the report and recorded in the summary.
+    title : str, optional
+        Report title (default: "bayeshyst report: <data name>").
+    figures : bool
+        Draw and embed the figures.
+
+    Returns
+    -------
+    dict
+        The summary written (sections :data:`SECTIONS` plus ``command``, ``chosen_model``,
+        ``warnings``, ``settings``, ``seed``, ``runtime_s``, ``versions``, ``files``).
+    """
+    if not isinstance(result, ReportResult):
+        raise TypeError(f"result must be a ReportResult, got {type(result).__name__}")
+    out = Path(out_dir)
+    (out / "figures").mkdir(parents=True, exist_ok=True)
+    data_sec = data_overview(result.data, data_path)
+    overview = None
+    if figures:
+        from bayeshyst.report.figures import plot_data_overview
+
+        overview = plot_data_overview(result.data, out / "figures" / "data_loops.png")
+    sel = write_comparison_outputs(result.comparison, out / "compare", data_path=data_path,
+                                   figures=figures)
+    dg = comp = None
+    evidence: list[str] = []
+    if result.diagnosis is not None:
+        write_diagnosis_outputs(result.diagnosis, out / "diagnose", data_name=data_path,
+                                figures=figures)
+        dg = json.loads((out / "diagnose" / "summary.json").read_text())
+        if figures:
+            kept = {s.effect for s in result.diagnosis.steps}
+            evidence = [n for n, t in evidence_figures(result.diagnosis)
+                        if t.effect in kept or t.significant]
+    if result.compensation is not None:
+        write_compensation_outputs(result.compensation, out / "compensate", figures=figures,
+                                   fit=result.final_fit, data_path=data_path)
+        comp = json.loads((out / "compensate" / "summary.json").read_text())
+    post_sec, _ = _posteriors(result, out, figures)
+    summary: dict[str, Any] = {
+        "command": "report",
+        "title": title or f"bayeshyst report: {result.data.name}",
+        "chosen_model": result.chosen_model,
+        "data": data_sec,
+        "posteriors": post_sec,
+        "model_selection": sel,
+        "diagnosis": dg,
+        "compensation": comp,
+        "warnings": _warnings(result, sel, dg, comp),
+        "settings": result.settings.to_dict(),
+        "seed": result.seed,
+        "runtime_s": {k: round(v, 2) for k, v in result.runtime_s.items()},
+        "versions": {"bayeshyst": __version__, "python": platform.python_version(),
+                     "numpy": np.__version__},
+        "files": {"report": "report.html", "summary": "summary.json",
+                  "figures": sorted(str(p.relative_to(out))
+                                    for p in (out / "figures").glob("*.png"))},
+    }
+    summary = jsonable(summary)
+    sections = [
+        ("glance", "At a glance", _glance_html(summary)),
+        ("data", "Data", _data_html(data_sec, overview)),
+        ("posteriors", "Posteriors and convergence", _posteriors_html(post_sec, out)),
+        ("model-selection", "Model selection per frequency", _selection_html(sel, out)),
+        ("diagnosis", "Residual diagnosis: what the model misses",
+         _diagnosis_html(dg, out, evidence)),
+        ("compensation", "Feedforward compensation per frequency",
+         _compensation_html(comp, out)),
+        ("reproduce", "How this was made", _reproduce_html(summary)),
+    ]
+    subtitle = (f"data: {data_path or result.data.name} · models: "
+                f"{', '.join(result.comparison.models)} · seed {result.seed}")
+    document = H.page(summary["title"], subtitle, sections)
+    with atomic_path(out / "report.html") as tmp:
+        tmp.write_text(document, encoding="utf-8")
+    write_json(out / "summary.json", summary)
+    return summary
+

@@ -1,0 +1,336 @@
+"""The whole study on one dataset: compare, diagnose, compensate (``bayeshyst report``).
+
+:func:`run_report` is what a user's report is made of, in the order an engineer would
+do it by hand:
+
+1. **model selection per frequency** — :func:`~bayeshyst.selection.compare_models`
+   fits every model to every frequency's records, to all records jointly and (when
+   there are several frequencies) to all-but-one frequency, and ranks them by
+   cycle-wise PSIS-LOO;
+2. **residual diagnosis** of the best *parametric* model over all frequencies (the
+   Gaussian-process models have no physical structure to add an effect to, and no
+   inverse) — :func:`~bayeshyst.diagnosis.diagnose` finds what its residual still
+   holds, adds the effect, refits and keeps it only if held-out elpd improves;
+3. **uncertainty-aware feedforward** with the model the diagnosis ended with —
+   :func:`~bayeshyst.inverse.compensate.compensate` designs nominal, posterior-mean and
+   robust commands from that posterior and scores them per frequency with bands.
+
+Each stage checkpoints under ``out_dir`` (the comparison's fits and the diagnosis'
+fits), so an interrupted report resumes where it stopped. Writing the files
+(HTML, ``summary.json``, netCDF) is :func:`bayeshyst.report.report_outputs.write_report_outputs`.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+from bayeshyst._comparison_tasks import GP_MODELS
+from bayeshyst.data.record import Dataset, Record
+from bayeshyst.diagnosis import DiagnosisResult, diagnose
+from bayeshyst.diagnosis.loop import DiagnosisFit
+from bayeshyst.errors import DataError, ParameterError
+from bayeshyst.inference.fit import FitResult
+from bayeshyst.inverse.compensate import CompensationResult, compensate
+from bayeshyst.likelihoods import get_likelihood
+from bayeshyst.selection import ComparisonResult, check_models, compare_models
+
+__all__ = ["DEFAULT_MODELS", "DEMO_DEFAULT", "DEMO_QUICK", "DemoPlan", "ReportResult",
+           "ReportSettings", "bundled_data", "choose_model", "fit_result", "run_report"]
+
+#: Models compared when the user names none: the two classic phenomenological families,
+#: a rate-dependent PI, and the Gaussian-process peer.
+DEFAULT_MODELS = ("pi_play", "bouc_wen", "pi_play+second_order", "gp_memory")
+
+
+@dataclass(frozen=True)
+class ReportSettings:
+    """Budgets and options of every stage of :func:`run_report`.
+
+    Attributes
+    ----------
+    likelihood : str
+        Observation model of every parametric fit (``gaussian``, ``student_t``, ``ar1``).
+    max_steps, first_chunk : int
+        Sampler step budget per ensemble and steps before the first convergence check,
+        for every fit (comparison and diagnosis).
+    n_walkers : int or None
+        Walkers per ensemble (default ``max(32, 4 ndim)``).
+    lofo : bool
+        Run the leave-one-frequency-out fits of the comparison.
+    max_refits : int
+        Exact leave-one-cycle-out refits per fit for cycles with Pareto k > 0.7.
+    gp_n_train : int
+        Training subset of the Gaussian-process models.
+    effects : tuple of str or None
+        Candidate effects of the diagnosis (None: all).
+    max_rounds, max_candidates : int
+        Diagnosis: most effects added; fired effects refitted per round.
+    design_draws : int
+        Posterior draws the posterior-aware feedforward commands are designed on.
+    robust_quantile : float
+        Quantile of ``|error|`` over draws the robust command minimises.
+    n_jobs : int or None
+        Worker processes of the comparison (default: one per core).
+    """
+
+    likelihood: str = "gaussian"
+    max_steps: int = 20_000
+    first_chunk: int = 1_000
+    n_walkers: int | None = None
+    lofo: bool = True
+    max_refits: int = 5
+    gp_n_train: int = 1000
+    effects: tuple[str, ...] | None = None
+    max_rounds: int = 6
+    max_candidates: int = 2
+    design_draws: int = 24
+    robust_quantile: float = 0.9
+    n_jobs: int | None = None
+
+    def __post_init__(self) -> None:
+        for name in ("max_steps", "first_chunk", "max_rounds", "max_candidates",
+                     "design_draws", "gp_n_train"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, int) or v < 1:
+                raise ParameterError(f"{name} must be a positive integer, got {v!r}")
+        if isinstance(self.max_refits, bool) or not isinstance(self.max_refits, int) \
+                or self.max_refits < 0:
+            raise ParameterError(f"max_refits must be an integer >= 0, got {self.max_refits!r}")
+        if not 0.0 < self.robust_quantile < 1.0:
+            raise ParameterError(f"robust_quantile must be in (0, 1), got "
+                                 f"{self.robust_quantile!r}")
+        get_likelihood(self.likelihood)
+
+    def to_dict(self) -> dict[str, Any]:
+        d = asdict(self)
+        d["effects"] = None if self.effects is None else list(self.effects)
+        return d
+
+
+@dataclass(frozen=True)
+class ReportResult:
+    """Everything :func:`run_report` found.
+
+    Attributes
+    ----------
+    data : Dataset
+    comparison : ComparisonResult
+    chosen_model : str or None
+        The parametric model diagnosed and compensated (best by joint PSIS-LOO among the
+        parametric models that fitted); None when none did.
+    diagnosis : DiagnosisResult or None
+    compensation : CompensationResult or None
+        Designed from the diagnosis' final model.
+    settings : ReportSettings
+    seed : int
+    warnings : tuple of str
+        Plain-language cautions of the run as a whole (each stage keeps its own too).
+    runtime_s : dict of str to float
+        Wall time per stage.
+    """
+
+    data: Dataset
+    comparison: ComparisonResult
+    chosen_model: str | None
+    diagnosis: DiagnosisResult | None
+    compensation: CompensationResult | None
+    settings: ReportSettings
+    seed: int
+    warnings: tuple[str, ...] = ()
+    runtime_s: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def final_fit(self) -> FitResult | None:
+        """The posterior the feedforward was designed from."""
+        return None if self.diagnosis is None else fit_result(self.diagnosis.final)
+
+    def __str__(self) -> str:
+        parts = [str(self.comparison)]
+        if self.chosen_model is not None:
+            parts.append(f"diagnosed and compensated: {self.chosen_model}")
+        if self.diagnosis is not None:
+            parts.append(str(self.diagnosis))
+        if self.compensation is not None:
+            parts.append(str(self.compensation))
+        parts += [f"warning: {w}" for w in self.warnings]
+        total = sum(self.runtime_s.values())
+        parts.append(f"total {total:.1f} s (" + ", ".join(
+            f"{k} {v:.1f} s" for k, v in self.runtime_s.items()) + ")")
+        return "\n\n".join(parts)
+
+
+def fit_result(fit: DiagnosisFit) -> FitResult:
+    """A diagnosis fit as the :class:`FitResult` the compensation and the fit writers take."""
+    return FitResult(fit.posterior, fit.sampling, fit.overall, list(fit.per_frequency),
+                     list(fit.analysis.mean_prediction))
+
+
+def choose_model(comparison: ComparisonResult) -> tuple[str | None, list[str]]:
+    """The parametric model to diagnose: the best by joint PSIS-LOO that fitted.
+
+    Returns
+    -------
+    model : str or None
+        None when no parametric model fitted.
+    notes : list of str
+        Why another model than the overall best was taken, in words.
+    """
+    notes = []
+    ranking = [s for s in comparison.overall.scores if s.error is None]
+    parametric = [s for s in ranking if s.model not in GP_MODELS]
+    if not parametric:
+        return None, ["no parametric model fitted all frequencies jointly, so there is no "
+                      "model to diagnose or to invert"]
+    chosen = parametric[0]
+    if ranking and ranking[0].model != chosen.model:
+        best = ranking[0]
+        notes.append(
+            f"{best.model} ranks first over all frequencies, but a Gaussian-process model "
+            f"has no physical structure to add an effect to and no inverse: the diagnosis "
+            f"and the feedforward use the best parametric model, {chosen.model} "
+            f"(elpd {chosen.elpd_loo - best.elpd_loo:+.1f} ± {chosen.delta_se:.1f} "
+            f"relative to it)")
+    return chosen.model, notes
+
+
+def _stage(progress: bool, text: str) -> None:
+    if progress:
+        print(f"bayeshyst report: {text}", file=sys.stderr, flush=True)
+
+
+def run_report(
+    data: Dataset | Record,
+    models: tuple[str, ...] | str = DEFAULT_MODELS,
+    *,
+    settings: ReportSettings | None = None,
+    seed: int = 0,
+    out_dir: str | Path | None = None,
+    progress: bool = False,
+    on_fit: Callable[[DiagnosisFit], None] | None = None,
+) -> ReportResult:
+    """Compare ``models`` per frequency, diagnose the best parametric one, design feedforward.
+
+    Parameters
+    ----------
+    data : Dataset or Record
+        Measured loops; records grouped by ``frequency_hz``.
+    models : tuple of str or comma-separated str
+        Model specs to compare (``"gp"``/``"gp_memory"`` take part in the comparison only).
+    settings : ReportSettings, optional
+        Budgets of every stage (default :class:`ReportSettings()`).
+    seed : int
+        Same seed, same numbers.
+    out_dir : path, optional
+        Posteriors and resumable checkpoints of every fit go under it
+        (``compare/``, ``diagnose/checkpoints/``).
+    progress : bool
+        One line per stage and per finished fit on stderr.
+    on_fit : callable, optional
+        Called with each diagnosis fit as it finishes.
+
+    Returns
+    -------
+    ReportResult
+    """
+    settings = ReportSettings() if settings is None else settings
+    if not isinstance(settings, ReportSettings):
+        raise ParameterError(f"settings must be a ReportSettings, got {type(settings).__name__}")
+    if isinstance(data, Record):
+        data = Dataset((data,), name=data.name)
+    if not isinstance(data, Dataset):
+        raise DataError(f"data must be a Dataset or Record, got {type(data).__name__}")
+    names = check_models(models)
+    out = None if out_dir is None else Path(out_dir)
+    times: dict[str, float] = {}
+    s = settings
+
+    _stage(progress, f"1/3 comparing {', '.join(names)} per frequency")
+    t0 = time.perf_counter()
+    comparison = compare_models(
+        data, names, likelihood=s.likelihood, seed=seed, n_walkers=s.n_walkers,
+        max_steps=s.max_steps, first_chunk=s.first_chunk, lofo=s.lofo,
+        max_refits=s.max_refits, gp_n_train=s.gp_n_train, n_jobs=s.n_jobs,
+        out_dir=None if out is None else out / "compare", progress=progress)
+    times["compare"] = time.perf_counter() - t0
+
+    chosen, warnings = choose_model(comparison)
+    diagnosis = compensation = None
+    if chosen is not None:
+        _stage(progress, f"2/3 diagnosing the residual of {chosen}")
+        t0 = time.perf_counter()
+        diagnosis = diagnose(
+            data, chosen, s.likelihood, effects=s.effects, max_rounds=s.max_rounds,
+            max_candidates=s.max_candidates, seed=seed, n_walkers=s.n_walkers,
+            max_steps=s.max_steps, first_chunk=s.first_chunk, max_refits=s.max_refits,
+            checkpoint_dir=None if out is None else out / "diagnose" / "checkpoints",
+            progress=progress, on_fit=on_fit)
+        times["diagnose"] = time.perf_counter() - t0
+        final = diagnosis.final
+        _stage(progress, f"3/3 designing feedforward with {final.label}")
+        t0 = time.perf_counter()
+        compensation = compensate(data, final.model, fit=fit_result(final),
+                                  n_design_draws=s.design_draws,
+                                  robust_quantile=s.robust_quantile, seed=seed)
+        times["compensate"] = time.perf_counter() - t0
+    return ReportResult(data, comparison, chosen, diagnosis, compensation, settings, int(seed),
+                        tuple(warnings), times)
+
+
+# ------------------------------------------------------------------------------ demo
+@dataclass(frozen=True)
+class DemoPlan:
+    """What ``bayeshyst demo`` runs: models and budgets sized for a 2-core laptop."""
+
+    models: tuple[str, ...]
+    settings: ReportSettings
+    description: str
+
+
+#: ``bayeshyst demo --quick``: two cheap models, short chains, no leave-one-frequency-out,
+#: one diagnosis round. Shows every section in about a minute; nothing converges at
+#: this budget and the report says so.
+DEMO_QUICK = DemoPlan(
+    models=("pi_play(n_operators=5)", "bouc_wen"),
+    settings=ReportSettings(max_steps=300, first_chunk=300, lofo=False, max_refits=0,
+                            max_rounds=1, max_candidates=1, design_draws=8),
+    description="quick: 2 models, 300 steps per ensemble, no LOFO, one diagnosis round")
+
+#: ``bayeshyst demo``: the classic families and the GP peer, leave-one-frequency-out,
+#: up to two diagnosis rounds (a few minutes on 2 cores).
+DEMO_DEFAULT = DemoPlan(
+    models=("pi_play(n_operators=8)", "bouc_wen", "gp_memory"),
+    settings=ReportSettings(max_steps=1500, first_chunk=750, lofo=True, max_refits=2,
+                            max_rounds=2, max_candidates=1, design_draws=16),
+    description="3 models, up to 1500 steps per ensemble, LOFO, two diagnosis rounds")
+
+
+def bundled_data(name: str = "virtual_multifreq.csv", *,
+                 fallback_dir: str | Path | None = None) -> Path:
+    """Path of a bundled virtual-actuator dataset.
+
+    The datasets ship in the repository's ``data/`` folder; an installation without it
+    (a wheel) regenerates them, bit for bit, with :func:`bayeshyst.data.virtual.bundle`
+    into ``fallback_dir``.
+
+    Raises
+    ------
+    DataError
+        If the dataset is neither shipped nor can be regenerated (no ``fallback_dir``).
+    """
+    shipped = Path(__file__).resolve().parents[1] / "data" / name
+    if shipped.is_file():
+        return shipped
+    if fallback_dir is None:
+        raise DataError(f"bundled dataset {name} not found at {shipped} and no folder to "
+                        "regenerate it into")
+    from bayeshyst.data.virtual import bundle
+
+    made = {p.name: p for p in bundle(fallback_dir)}
+    if name not in made:
+        raise DataError(f"no bundled dataset named {name}; have {sorted(made)}")
+    return made[name]

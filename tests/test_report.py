@@ -1,0 +1,209 @@
+"""The study report: ``bayeshyst demo --quick`` end to end, the HTML parsed, escaping.
+
+Oracles: the bundled CSV read independently (frequencies, records), the PNG files the
+run wrote (each must be embedded byte for byte), the numbers of ``summary.json`` (each
+table cell must show them), and the HTML parser itself (a ``<script>`` in the data
+must not become a tag).
+"""
+
+from __future__ import annotations
+
+import base64
+import csv
+import json
+import math
+import re
+from html.parser import HTMLParser
+from pathlib import Path
+
+import pytest
+
+from bayeshyst.cli import main
+from bayeshyst.data import load
+from bayeshyst.data.io import write_csv
+from bayeshyst.data.record import Dataset
+from bayeshyst.report import html as H
+from bayeshyst.report.report_outputs import SECTIONS
+from bayeshyst.workflow import DEMO_QUICK, bundled_data
+
+EVIL = '<script>alert("x")</script>'
+
+
+class _Page(HTMLParser):
+    """Collects what a browser would see: tags, image sources, table cells, text."""
+
+    def __init__(self) -> None:
+        super().__init__(convert_charrefs=True)
+        self.tags: dict[str, int] = {}
+        self.images: list[str] = []
+        self.links: list[str] = []
+        self.section_ids: list[str] = []
+        self.cells: list[str] = []
+        self.text: list[str] = []
+        self._cell: list[str] | None = None
+
+    def handle_starttag(self, tag: str, attrs: list[tuple[str, str | None]]) -> None:
+        self.tags[tag] = self.tags.get(tag, 0) + 1
+        a = dict(attrs)
+        if tag == "img":
+            self.images.append(a.get("src") or "")
+        if tag in ("a", "link", "script", "iframe") and (a.get("href") or a.get("src")):
+            self.links.append(a.get("href") or a.get("src") or "")
+        if tag == "section":
+            self.section_ids.append(a.get("id") or "")
+        if tag in ("td", "th"):
+            self._cell = []
+
+    def handle_endtag(self, tag: str) -> None:
+        if tag in ("td", "th") and self._cell is not None:
+            self.cells.append("".join(self._cell).strip())
+            self._cell = None
+
+    def handle_data(self, data: str) -> None:
+        self.text.append(data)
+        if self._cell is not None:
+            self._cell.append(data)
+
+
+def _parse(path: Path) -> _Page:
+    page = _Page()
+    page.feed(path.read_text(encoding="utf-8"))
+    page.close()
+    return page
+
+
+@pytest.fixture(scope="module")
+def demo(tmp_path_factory: pytest.TempPathFactory) -> tuple[int, Path]:
+    out = tmp_path_factory.mktemp("demo")
+    code = main(["demo", "--quick", "--out", str(out), "--quiet"])
+    return code, out
+
+
+def _bundled_frequencies() -> list[float]:
+    """Frequencies of the bundled data, read from the CSV and sidecar without bayeshyst."""
+    path = bundled_data()
+    side = json.loads(path.with_suffix(".json").read_text())
+    with path.open() as fh:
+        n_records = len({row["record"] for row in csv.DictReader(fh)})
+    freqs = [float(r["metadata"]["frequency_hz"]) for r in side["records"]]
+    assert len(freqs) == n_records
+    return sorted(freqs)
+
+
+def test_demo_summary_has_every_section(demo: tuple[int, Path]) -> None:
+    code, out = demo
+    assert code == 0
+    summary = json.loads((out / "summary.json").read_text())
+    freqs = _bundled_frequencies()
+    for name in SECTIONS:
+        assert summary.get(name), f"section {name} missing or empty"
+    assert summary["command"] == "report"
+    assert summary["data"]["frequencies_hz"] == freqs
+    assert summary["data"]["n_records"] == len(freqs)
+    sel = summary["model_selection"]
+    assert sel["models"] == list(DEMO_QUICK.models)
+    assert [fc["frequency_hz"] for fc in sel["per_frequency"]] == freqs
+    # the best at each frequency is the model with the highest elpd there
+    for fc in sel["per_frequency"]:
+        ok = [s for s in fc["ranking"] if s["error"] is None]
+        assert fc["best"] == max(ok, key=lambda s: s["elpd_loo"])["model"]
+    # the diagnosed model is the best parametric model jointly
+    assert summary["chosen_model"] == sel["overall"]["best"]
+    dg = summary["diagnosis"]
+    assert dg["base_model"].startswith(summary["chosen_model"])
+    assert [p["frequency_hz"] for p in dg["per_frequency"]] == freqs
+    comp = summary["compensation"]
+    assert [r["frequency_hz"] for r in comp["per_frequency"]] == freqs
+    assert comp["plant_kind"] == "virtual actuator"
+    # every fit's posterior is on disk as netCDF
+    for f in sel["fits"]:
+        assert (out / "compare" / "posteriors" / Path(f["posterior"]).name).is_file()
+    assert (out / "diagnose" / "posterior_base.nc").is_file()
+    assert (out / "compensate" / "posterior.nc").is_file()
+    # nothing converges at the quick budget, and the summary says so
+    assert any("did not converge" in w.lower() for w in summary["warnings"])
+
+
+def test_report_html_embeds_every_figure_and_needs_no_network(demo: tuple[int, Path]) -> None:
+    _, out = demo
+    page = _parse(out / "report.html")
+    embedded = set()
+    for src in page.images:
+        assert src.startswith("data:image/png;base64,"), src[:60]
+        data = base64.b64decode(src.split(",", 1)[1])
+        assert data.startswith(b"\x89PNG\r\n\x1a\n")
+        embedded.add(data)
+    must = [*sorted((out / "figures").glob("*.png")), out / "compare" / "compare.png",
+            out / "diagnose" / "residuals.png", out / "compensate" / "compensate.png"]
+    for png in must:
+        assert png.read_bytes() in embedded, f"{png.relative_to(out)} not embedded"
+    # and nothing else: every embedded image is a file the run wrote
+    written = {p.read_bytes() for p in out.rglob("*.png")}
+    assert embedded <= written
+    assert all(link.startswith("#") for link in page.links), page.links
+    assert page.tags.get("script", 0) == 0
+    assert page.section_ids == ["glance", "data", "posteriors", "model-selection",
+                                "diagnosis", "compensation", "reproduce"]
+
+
+def test_report_tables_have_no_nan_and_show_the_summary_numbers(
+        demo: tuple[int, Path]) -> None:
+    _, out = demo
+    page = _parse(out / "report.html")
+    assert page.cells
+    bad = [c for c in page.cells if re.search(r"\b(nan|inf)\b", c, re.IGNORECASE)]
+    assert not bad, bad[:5]
+    summary = json.loads((out / "summary.json").read_text())
+    # each model's elpd at each frequency appears, formatted as the table formats it
+    for fc in summary["model_selection"]["per_frequency"]:
+        for s in fc["ranking"]:
+            if s["elpd_loo"] is not None:
+                assert f"{s['elpd_loo']:.1f}" in page.cells
+    for r in summary["compensation"]["per_frequency"]:
+        assert format(r["robust_nrmse_percent"], ".4g") in page.cells
+
+
+def test_metadata_with_script_comes_out_escaped(tmp_path: Path) -> None:
+    one = load(bundled_data()).by_frequency()[50.0][0]
+    rec = one.with_(name=f"run {EVIL}",
+                    metadata={**one.metadata, "operator": EVIL, "note": "a & b"})
+    data_file = tmp_path / "evil<b>.csv"
+    write_csv(Dataset((rec,), name=f"bench {EVIL}"), data_file)
+    out = tmp_path / "out"
+    code = main(["report", str(data_file), "--models", "bouc_wen", "--steps", "100",
+                 "--no-lofo", "--max-refits", "0", "--max-rounds", "1", "--no-figures",
+                 "--quiet", "--out", str(out)])
+    assert code == 0
+    raw = (out / "report.html").read_text(encoding="utf-8")
+    page = _parse(out / "report.html")
+    assert page.tags.get("script", 0) == 0 and page.tags.get("b", 0) == 0
+    assert "&lt;script&gt;" in raw
+    text = "".join(page.text)
+    assert f"run {EVIL}" in text and f"bench {EVIL}" in text and "evil<b>.csv" in text
+    assert "a & b" in text
+
+
+def test_report_bad_input_exits_2_and_writes_nothing(tmp_path: Path,
+                                                    capsys: pytest.CaptureFixture) -> None:
+    out = tmp_path / "out"
+    assert main(["report", str(tmp_path / "missing.csv"), "--out", str(out)]) == 2
+    assert "missing.csv" in capsys.readouterr().err
+    assert main(["report", str(bundled_data()), "--models", "bouc_wen,no_such_model",
+                 "--out", str(out)]) == 2
+    assert "no_such_model" in capsys.readouterr().err
+    assert not out.exists()
+
+
+# ------------------------------------------------------------------ the HTML builder
+def test_html_builder_escapes_text_and_hides_missing_numbers() -> None:
+    t = H.table(["a", "b"], [[EVIL, math.nan], ["x", None], ["y", 1.5]])
+    page = _Page()
+    page.feed(t)
+    assert page.tags.get("script", 0) == 0
+    assert page.cells == ["a", "b", EVIL, H.MISSING, "x", H.MISSING, "y", "1.5"]
+    assert H.number(math.inf) == H.MISSING and H.number(float("nan")) == H.MISSING
+    assert H.text(H.Markup("<b>ok</b>")) == "<b>ok</b>"  # built markup passes through
+    with pytest.raises(ValueError, match="row 0 has 1 cells"):
+        H.table(["a", "b"], [["only one"]])
+    with pytest.raises(ValueError, match="not a PNG"):
+        H.figure(b"GIF89a", "x")
