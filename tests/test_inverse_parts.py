@@ -130,3 +130,13 @@ def test_single_problem_path_equals_the_batched_path():
         assert one.x[0] == both.x[0] and one.residual[0] == both.residual[0]
         assert one.saturated[0] == both.saturated[0]
         assert one.nonmonotone[0] == both.nonmonotone[0]
+
+
+def test_small_array_quantile_equals_numpy() -> None:
+    from bayeshyst.inverse.numerical import _quantile
+
+    rng = np.random.default_rng(3)
+    for n in (1, 2, 3, 8, 24, 101):
+        a = rng.normal(size=n)
+        for q in (0.0, 0.1, 0.5, 0.9, 0.999, 1.0):
+            assert _quantile(a, q) == pytest.approx(float(np.quantile(a, q)), abs=1e-12)
