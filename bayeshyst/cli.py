@@ -365,6 +365,8 @@ def _cmd_demo(args: argparse.Namespace) -> int:
     plan = DEMO_QUICK if args.quick else DEMO_DEFAULT
     path = bundled_data("virtual_multifreq.csv", fallback_dir=Path(args.out) / "data")
     data = load(path)
+    if plan.frequencies_hz is not None:
+        data = data.select(plan.frequencies_hz)
     if not args.quiet:
         print(f"bayeshyst demo ({plan.description}) on the bundled virtual actuator data "
               f"{path.name}", file=sys.stderr)

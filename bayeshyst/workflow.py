@@ -289,16 +289,20 @@ class DemoPlan:
     models: tuple[str, ...]
     settings: ReportSettings
     description: str
+    frequencies_hz: tuple[float, ...] | None = None  # None: every frequency of the data
 
 
-#: ``bayeshyst demo --quick``: two cheap models, short chains, no leave-one-frequency-out,
-#: one diagnosis round. Shows every section in about a minute; nothing converges at
-#: this budget and the report says so.
+#: ``bayeshyst demo --quick``: two cheap models, three of the five frequencies (lowest,
+#: middle, highest), short chains, no leave-one-frequency-out, one diagnosis round.
+#: Shows every section in under a minute; nothing converges at this budget and the
+#: report says so.
 DEMO_QUICK = DemoPlan(
     models=("pi_play(n_operators=5)", "bouc_wen"),
     settings=ReportSettings(max_steps=300, first_chunk=300, lofo=False, max_refits=0,
                             max_rounds=1, max_candidates=1, design_draws=8),
-    description="quick: 2 models, 300 steps per ensemble, no LOFO, one diagnosis round")
+    description="quick: 2 models, 1/10/200 Hz, 300 steps per ensemble, no LOFO, one "
+                "diagnosis round",
+    frequencies_hz=(1.0, 10.0, 200.0))
 
 #: ``bayeshyst demo``: the classic families and the GP peer, leave-one-frequency-out,
 #: up to two diagnosis rounds (a few minutes on 2 cores).

@@ -122,7 +122,8 @@ def _curves(result: CompensationResult) -> dict[str, np.ndarray]:
 
 def write_compensation_outputs(result: CompensationResult, out_dir: str | Path, *,
                                figures: bool = True, fit: FitResult | None = None,
-                               data_path: str | None = None) -> list[Path]:
+                               data_path: str | None = None,
+                               posterior: str | None = None) -> list[Path]:
     """Write the compensation's files into ``out_dir`` (each atomically).
 
     Parameters
@@ -137,6 +138,10 @@ def write_compensation_outputs(result: CompensationResult, out_dir: str | Path, 
         (as ``bayeshyst fit`` writes it) and summarised under ``fit`` in the summary.
     data_path : str, optional
         Recorded in the summary.
+    posterior : str, optional
+        Where ``fit``'s posterior is already saved (a path relative to ``out_dir``'s
+        parent, e.g. ``"../diagnose/posterior_final.nc"``): recorded instead of writing
+        ``posterior.nc`` a second time.
 
     Returns
     -------
@@ -158,7 +163,9 @@ def write_compensation_outputs(result: CompensationResult, out_dir: str | Path, 
     with atomic_path(out / "curves.npz") as tmp, open(tmp, "wb") as fh:
         np.savez_compressed(fh, **_curves(result))
     written.append(out / "curves.npz")
-    if fit is not None:
+    if fit is not None and posterior is not None:
+        files["posterior"] = posterior
+    elif fit is not None:
         from bayeshyst import diagnostics
 
         idata = diagnostics.to_inference_data(fit.posterior, fit.sampling,

@@ -8,7 +8,8 @@ Layout of ``out``::
     figures/             the report's own figures as PNG (data overview, corners, trace)
     compare/             what ``bayeshyst compare`` writes (table, figure, posteriors/*.nc)
     diagnose/            what ``bayeshyst diagnose`` writes (posterior_base/final.nc, ...)
-    compensate/          what ``bayeshyst compensate`` writes (posterior.nc, curves, ...)
+    compensate/          what ``bayeshyst compensate`` writes (curves, table, figure; its
+                         posterior is the diagnosis' final one, not written twice)
 
 Every user-provided string (data and record names, file paths, metadata) reaches the
 HTML through :mod:`bayeshyst.report.html`, which escapes it.
@@ -483,8 +484,12 @@ def write_report_outputs(result: ReportResult, out_dir: str | Path, *,
             evidence = [n for n, t in evidence_figures(result.diagnosis)
                         if t.effect in kept or t.significant]
     if result.compensation is not None:
+        # the design's posterior is the diagnosis' final fit, already saved there
+        saved = "posterior_final.nc" if (result.diagnosis.final is not result.diagnosis.base
+                                         ) else "posterior_base.nc"
         write_compensation_outputs(result.compensation, out / "compensate", figures=figures,
-                                   fit=result.final_fit, data_path=data_path)
+                                   fit=result.final_fit, data_path=data_path,
+                                   posterior=f"../diagnose/{saved}")
         comp = json.loads((out / "compensate" / "summary.json").read_text())
     post_sec, _ = _posteriors(result, out, figures)
     summary: dict[str, Any] = {
