@@ -1,0 +1,299 @@
+"""The analysis scripts (``analyses/``) in their ``--quick`` mode, each checked against an
+oracle computed here: coverage recomputed from the saved posterior predictive, the
+ranking recomputed from the table's elpd, the feedforward commands re-run on the true
+(virtual) actuator, the diagnosis numbers traced to the per-data-set outputs."""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+import re
+
+import numpy as np
+import pytest
+
+from analyses import (
+    model_selection_study,
+    robust_feedforward,
+    uncertainty_report,
+    undeclared_effect,
+)
+from analyses._common import DEFAULT_DATA, Cut, Progress, cut_record
+from bayeshyst.data import Record, load
+from bayeshyst.data.measured import ENV_VAR
+
+
+def _rows(path):
+    with open(path, newline="") as fh:
+        return list(csv.DictReader(fh))
+
+
+def _no_nan_or_tmp(out):
+    """No temporary file left behind; no "nan"/"inf" cell in a table, no "nan" in a text
+    (where "-inf" may name a log-probability in words)."""
+    for p in out.rglob("*"):
+        assert ".tmp" not in p.name, p
+        if p.suffix == ".csv":
+            cells = {c.strip().lower() for row in csv.reader(p.open()) for c in row}
+            assert not cells & {"nan", "inf", "-inf", "none"}, p
+        elif p.suffix == ".txt":
+            assert not re.search(r"\bnan\b", p.read_text(), re.IGNORECASE), p
+
+
+# ------------------------------------------------------------------ uncertainty report
+@pytest.fixture(scope="module")
+def uncertainty(tmp_path_factory):
+    out = tmp_path_factory.mktemp("ur") / "out"
+    code = uncertainty_report.main(["--quick", "--quiet", "--seed", "3", "--out", str(out)])
+    return code, out
+
+
+def test_uncertainty_coverage_recomputed_from_posterior_nc(uncertainty):
+    import arviz as az
+
+    code, out = uncertainty
+    assert code == 0
+    summary = json.loads((out / "summary.json").read_text())
+    rows = _rows(out / "coverage.csv")
+    # quick mode: the lowest and the highest frequency of the bundled data, plus "all"
+    assert [r["frequency_hz"] for r in rows] == ["1.0", "200.0", "all"]
+    idata = az.from_netcdf(out / "fit" / "posterior.nc")
+    pp = idata.posterior_predictive["y"].values
+    draws = pp.reshape(-1, pp.shape[-1])
+    draws = draws[np.all(np.isfinite(draws), axis=1)]
+    lo, hi = np.quantile(draws, [0.05, 0.95], axis=0)
+    y = idata.observed_data["y"].values
+    record = idata.constant_data["record"].values
+    scored = idata.constant_data["scored"].values.astype(bool)
+    freqs = json.loads(idata.constant_data.attrs["record_frequency_hz"])
+    data = load(DEFAULT_DATA)
+    for row in rows:
+        if row["frequency_hz"] == "all":
+            idx = list(range(len(freqs)))
+        else:
+            idx = [i for i, f in enumerate(freqs) if f == float(row["frequency_hz"])]
+            # the stroke is the measured peak-to-peak of the scored samples of the file
+            rec = data.select(float(row["frequency_hz"]))[0]
+            assert float(row["stroke"]) == pytest.approx(np.ptp(rec.y[rec.warmup:]))
+        mask = scored & np.isin(record, idx)
+        inside = (y[mask] >= lo[mask]) & (y[mask] <= hi[mask])
+        assert int(row["n_scored"]) == mask.sum()
+        assert float(row["coverage"]) == pytest.approx(inside.mean(), abs=1e-12)
+        width = 100 * np.mean(hi[mask] - lo[mask]) / np.ptp(y[mask])
+        assert float(row["band_width_percent"]) == pytest.approx(width, rel=1e-9)
+        # noise adds to the parameter-only band: the predictive band is the wider one
+        assert 0 < float(row["credible_width_percent"]) < float(row["band_width_percent"])
+    assert summary["overall"]["coverage"] == pytest.approx(float(rows[-1]["coverage"]))
+    _no_nan_or_tmp(out)
+
+
+def test_uncertainty_intervals_and_convergence_statement(uncertainty):
+    _, out = uncertainty
+    summary = json.loads((out / "summary.json").read_text())
+    fit_summary = json.loads((out / "fit" / "summary.json").read_text())
+    params = _rows(out / "parameters.csv")
+    assert {p["parameter"] for p in params} == set(fit_summary["params"])
+    for p in params:
+        lo, mean, hi = float(p["hdi_low"]), float(p["mean"]), float(p["hdi_high"])
+        assert lo <= mean <= hi, p
+        assert lo == pytest.approx(fit_summary["params"][p["parameter"]]["hdi_5"])
+        assert hi == pytest.approx(fit_summary["params"][p["parameter"]]["hdi_95"])
+    text = (out / "uncertainty.txt").read_text()
+    assert summary["converged"] == fit_summary["converged"]
+    # 200 steps cannot converge: the report must say so at its top
+    assert not summary["converged"] and summary["status"] == "NOT converged"
+    assert "NOT converged" in text.split("Per frequency")[0]
+    assert (out / "bands.png").stat().st_size > 5_000
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["--data", "nonexistent.csv"], "no such file"),
+    (["--frequencies", "7"], "no record at 7 Hz"),
+    (["--model", "no_such_model"], "no_such_model"),
+])
+def test_uncertainty_bad_input_exits_2_and_writes_nothing(tmp_path, capsys, argv, message):
+    out = tmp_path / "out"
+    assert uncertainty_report.main([*argv, "--quick", "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("uncertainty_report: error:")
+    assert message in err[0] and "Traceback" not in err[0]
+    assert not out.exists()
+
+
+# ------------------------------------------------------------------- model selection
+@pytest.fixture(scope="module")
+def selection(tmp_path_factory):
+    out = tmp_path_factory.mktemp("ms") / "out"
+    code = model_selection_study.main(["--quick", "--quiet", "--datasets", "virtual",
+                                       "--jobs", "2", "--out", str(out)])
+    return code, out
+
+
+def _check_ranking(rows, models, frequencies):
+    assert len(rows) == len(models) * len(frequencies)
+    for f in frequencies:
+        group = [r for r in rows if float(r["frequency_hz"]) == f]
+        assert sorted(r["model"] for r in group) == sorted(models)
+        elpd = {r["model"]: float(r["elpd_loo"]) for r in group}
+        top = max(elpd, key=elpd.get)
+        assert [r["model"] for r in group if r["best"] == "True"] == [top]
+        assert sorted(group, key=lambda r: int(r["rank"])) == sorted(
+            group, key=lambda r: -float(r["elpd_loo"]))
+        for r in group:  # paired differences sum to the difference of the sums
+            assert float(r["delta_elpd"]) == pytest.approx(elpd[r["model"]] - elpd[top],
+                                                           abs=1e-6)
+        assert sum(float(r["weight"]) for r in group) == pytest.approx(1.0, abs=1e-6)
+
+
+def test_model_selection_table_ranks_by_elpd(selection):
+    code, out = selection
+    assert code == 0
+    rows = _rows(out / "table.csv")
+    models = list(model_selection_study.QUICK_MODELS)
+    assert {r["dataset"] for r in rows} == {"virtual"}
+    _check_ranking(rows, models, [1.0, 200.0])
+    assert json.loads((out / "table.json").read_text())[0]["model"] == rows[0]["model"]
+    summary = json.loads((out / "summary.json").read_text())
+    # the per-data-set comparison (what `bayeshyst compare` writes) names the same winners
+    per = json.loads((out / "virtual" / "summary.json").read_text())
+    for entry in per["per_frequency"]:
+        best = [r for r in rows if float(r["frequency_hz"]) == entry["frequency_hz"]
+                and r["best"] == "True"]
+        assert best[0]["model"] == entry["best"]
+    assert [w["winner"] for w in summary["winners"]] == [e["best"] for e in per["per_frequency"]]
+    assert not summary["converged"] and all(r["converged"] == "False" for r in rows)
+    assert "NOT converged" in (out / "study.txt").read_text()
+    assert (out / "winners.png").stat().st_size > 5_000
+    _no_nan_or_tmp(out)
+
+
+def test_model_selection_skips_measured_sets_when_shared_data_absent(tmp_path, monkeypatch,
+                                                                      capsys):
+    monkeypatch.setenv(ENV_VAR, str(tmp_path / "absent"))
+    args = model_selection_study.build_parser().parse_args(
+        ["--quick", "--datasets", "virtual,piezo_150v,mr_damper"])
+    log = Progress("t")
+    chosen, skipped = model_selection_study.load_datasets(args, model_selection_study.QUICK["cut"],
+                                                          log)
+    assert [k for k, _ in chosen] == ["virtual"]
+    assert [s["dataset"] for s in skipped] == ["piezo_150v", "mr_damper"]
+    assert all("measured data not available" in s["reason"] for s in skipped)
+    assert "skipping piezo_150v" in capsys.readouterr().err
+    # with nothing left to compare: exit 2, one line, nothing written
+    out = tmp_path / "out"
+    assert model_selection_study.main(["--quick", "--datasets", "piezo_150v",
+                                       "--out", str(out)]) == 2
+    assert "no data set left to compare" in capsys.readouterr().err
+    assert not out.exists()
+
+
+@pytest.mark.shared_data
+def test_model_selection_on_measured_piezo(shared_data_dir, tmp_path):
+    out = tmp_path / "out"
+    assert model_selection_study.main(["--quick", "--quiet", "--datasets", "piezo_150v",
+                                       "--jobs", "2", "--out", str(out)]) == 0
+    _check_ranking(_rows(out / "table.csv"), list(model_selection_study.QUICK_MODELS), [1.0])
+    (record,) = json.loads((out / "summary.json").read_text())["datasets"][0]["records"]
+    # the cut is documented: 50 samples per 1 Hz cycle (every 100th of 5 kHz), 3 cycles
+    assert record["fs_hz"] == pytest.approx(50.0, rel=1e-3)
+    assert "every 100th sample" in record["cut"] and "3 cycle(s)" in record["cut"]
+
+
+# ------------------------------------------------------------------ robust feedforward
+@pytest.fixture(scope="module")
+def feedforward(tmp_path_factory):
+    out = tmp_path_factory.mktemp("rf") / "out"
+    code = robust_feedforward.main(["--quick", "--quiet", "--out", str(out)])
+    return code, out
+
+
+def test_feedforward_beats_uncompensated_on_the_true_plant(feedforward):
+    from bayeshyst.data.virtual import VirtualActuator
+
+    code, out = feedforward
+    assert code == 0
+    rows = _rows(out / "feedforward.csv")
+    (model,) = robust_feedforward.QUICK_MODELS
+    assert [(r["model"], float(r["frequency_hz"])) for r in rows] == [(model, 1.0),
+                                                                      (model, 200.0)]
+    for r in rows:
+        assert r["plant_kind"] == "virtual actuator"
+        none = float(r["uncompensated_nrmse_percent"])
+        for c in ("nominal", "posterior", "robust"):
+            assert float(r[f"{c}_nrmse_percent"]) < none, (r["frequency_hz"], c)
+    # oracle: the commands re-run here on the virtual actuator named in the data's sidecar
+    data = load(DEFAULT_DATA)
+    plant = VirtualActuator.from_truth(data[0].metadata["truth"]).without("noise")
+    summary = json.loads((out / "summary.json").read_text())
+    folder = out / summary["models"][0]["folder"]
+    curves = np.load(folder / "curves.npz")
+    for prefix, r in zip(curves["prefixes"], rows, strict=True):
+        t, y_d = curves[f"{prefix}_t"], curves[f"{prefix}_y_d"]
+        mask = curves[f"{prefix}_scored"].astype(bool)
+        for c in ("uncompensated", "posterior", "robust"):
+            y = plant.simulate(t, curves[f"{prefix}_u_{c}"])
+            np.testing.assert_allclose(y, curves[f"{prefix}_y_{c}"], rtol=0, atol=1e-9)
+            nrmse = 100 * np.sqrt(np.mean((y - y_d)[mask] ** 2)) / np.ptp(y_d)
+            assert float(r[f"{c}_nrmse_percent"]) == pytest.approx(nrmse, rel=1e-9)
+        lo, hi = float(r["band_lo_percent"]), float(r["band_hi_percent"])
+        assert (r["realised_inside_band"] == "True") == (
+            lo <= float(r["posterior_nrmse_percent"]) <= hi)
+    assert not summary["converged"]
+    assert "NOT converged" in (out / "feedforward.txt").read_text()
+    assert (out / "feedforward.png").stat().st_size > 5_000
+    _no_nan_or_tmp(out)
+
+
+# ------------------------------------------------------------------- undeclared effect
+@pytest.mark.shared_data
+def test_undeclared_effect_numbers_match_the_diagnosis(shared_data_dir, tmp_path):
+    out = tmp_path / "out"
+    assert undeclared_effect.main(["--quick", "--quiet", "--out", str(out)]) == 0
+    summary = json.loads((out / "summary.json").read_text())
+    (entry,) = summary["datasets"]
+    assert entry["dataset"] == "piezo_150v"
+    diag = json.loads((out / entry["folder"] / "summary.json").read_text())
+    assert entry["rmse_before"] == pytest.approx(diag["before"]["rmse"], rel=1e-12)
+    assert entry["rmse_after"] == pytest.approx(diag["after"]["rmse"], rel=1e-12)
+    accepted = [s for s in diag["steps"] if s["accepted"]]
+    assert entry["effects_found"] == diag["effects_found"] == [s["effect"] for s in accepted]
+    if accepted:
+        assert entry["final_model"] == accepted[-1]["model_after"]
+        assert entry["rmse_after"] == pytest.approx(accepted[-1]["rmse_after"])
+        for s in accepted:  # kept only when elpd improved by > threshold (2) se
+            assert s["delta_elpd"] > 2 * s["delta_elpd_se"]
+    else:
+        assert entry["final_model"] == entry["base_model"]
+        assert entry["rmse_after"] == pytest.approx(entry["rmse_before"])
+    assert entry["steps"][0]["rmse_before"] == pytest.approx(entry["rmse_before"])
+    assert len(_rows(out / entry["folder"] / "steps.csv")) == len(diag["steps"])
+    # quick mode: a short, documented cut of the 50 001-sample record
+    (record,) = entry["records"]
+    assert record["n"] < 1000 and "every" in record["cut"]
+    assert not summary["converged"]
+    assert "NOT converged" in (out / "undeclared_effect.txt").read_text()
+    _no_nan_or_tmp(out)
+
+
+def test_undeclared_effect_without_shared_data_exits_2(tmp_path, monkeypatch, capsys):
+    monkeypatch.setenv(ENV_VAR, str(tmp_path / "absent"))
+    out = tmp_path / "out"
+    assert undeclared_effect.main(["--quick", "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "measured data sets are not available" in err[0]
+    assert not out.exists()
+
+
+# --------------------------------------------------------------------------- helpers
+def test_cut_record_decimates_and_keeps_cycles():
+    t = np.arange(5000) / 1000.0  # 1 kHz, 5 cycles of 1 Hz
+    u = 75 - 75 * np.cos(2 * np.pi * t)
+    rec = Record(t=t, u=u, y=0.1 * u, warmup=250, metadata={"frequency_hz": 1.0}, name="r")
+    cut = cut_record(rec, Cut(samples_per_cycle=100, cycles=2))
+    np.testing.assert_array_equal(cut.t, t[::10][:25 + 200])
+    assert cut.warmup == 25 and cut.fs == pytest.approx(100.0)
+    assert cut.metadata["analysis_cut"] == ("every 10th sample kept (1000 Hz -> 100 Hz); "
+                                            "warm-up + 2 cycle(s) kept (225 samples)")
+    assert cut_record(rec, Cut()).metadata["analysis_cut"] == "used whole"
+    assert math.isclose(cut_record(rec, Cut(samples_per_cycle=5000)).fs, rec.fs)
