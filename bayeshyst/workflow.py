@@ -308,9 +308,10 @@ DEMO_QUICK = DemoPlan(
 #: up to two diagnosis rounds (a few minutes on 2 cores).
 DEMO_DEFAULT = DemoPlan(
     models=("pi_play(n_operators=8)", "bouc_wen", "gp_memory"),
-    settings=ReportSettings(max_steps=1500, first_chunk=750, lofo=True, max_refits=2,
+    settings=ReportSettings(max_steps=1000, first_chunk=500, lofo=True, max_refits=1,
                             max_rounds=2, max_candidates=1, design_draws=16),
-    description="3 models, up to 1500 steps per ensemble, LOFO, two diagnosis rounds")
+    description="3 models, 5 frequencies, up to 1000 steps per ensemble, LOFO, two "
+                "diagnosis rounds")
 
 
 def bundled_data(name: str = "virtual_multifreq.csv", *,

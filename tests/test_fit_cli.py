@@ -100,7 +100,7 @@ def test_fit_model_api_matches_truth_on_well_specified_data():
     from bayeshyst.inference.fit import fit_model
 
     model, rec, theta = pi_data(n_ops=2, n=1500)
-    fit = fit_model(rec, model, seed=0, max_steps=3000, first_chunk=1000)
+    fit = fit_model(rec, model, seed=0, max_steps=1000, first_chunk=500)
     summary = {s.label: s for s in fit.sampling.summary(0.99)}
     for label, value in (("p0", theta["p0"]), ("w[0]", theta["w"][0]),
                          ("w[1]", theta["w"][1])):
