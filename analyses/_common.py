@@ -36,10 +36,12 @@ from typing import Any
 
 import numpy as np
 
+from bayeshyst import cli as _cli
 from bayeshyst.data.record import Dataset, Record
 from bayeshyst.errors import DataError, ModelError, ParameterError
 from bayeshyst.files import atomic_path
 from bayeshyst.report.files import csv_cell
+from bayeshyst.selection import split_top_level
 
 __all__ = [
     "BAD_INPUT",
@@ -85,21 +87,9 @@ MR_CURRENTS = (0.0, 0.25, 0.5, 0.75, 1.0)
 
 
 # --------------------------------------------------------------------------- options
-def _int_at_least(minimum: int, what: str) -> Callable[[str], int]:
-    def parse(text: str) -> int:
-        try:
-            value = int(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"expected {what}, got {text!r}") from None
-        if value < minimum:
-            raise argparse.ArgumentTypeError(f"expected {what}, got {value}")
-        return value
-
-    return parse
-
-
-positive_int = _int_at_least(1, "a positive integer")
-non_negative_int = _int_at_least(0, "an integer >= 0")
+# the command line's own argparse types (one definition for every command)
+positive_int = _cli.positive_int
+non_negative_int = _cli.non_negative_int
 
 
 def float_list(text: str) -> tuple[float, ...]:
@@ -124,16 +114,7 @@ def float_list(text: str) -> tuple[float, ...]:
 def name_list(text: str) -> tuple[str, ...]:
     """An argparse type: comma-separated names at the top level (a model spec such as
     ``pi_play(n_operators=6,r_max=100)`` keeps its commas), duplicates dropped."""
-    parts, depth, cur = [], 0, []
-    for ch in text:
-        depth += (ch == "(") - (ch == ")")
-        if ch == "," and depth == 0:
-            parts.append("".join(cur).strip())
-            cur = []
-        else:
-            cur.append(ch)
-    parts.append("".join(cur).strip())
-    names = tuple(dict.fromkeys(p for p in parts if p))
+    names = tuple(dict.fromkeys(p for p in split_top_level(text) if p))
     if not names:
         raise argparse.ArgumentTypeError(f"expected at least one name, got {text!r}")
     return names

@@ -20,7 +20,7 @@ from bayeshyst import __version__
 from bayeshyst.errors import DataError, ModelError, ParameterError
 from bayeshyst.report.files import jsonable
 
-__all__ = ["main"]
+__all__ = ["build_parser", "int_at_least", "main", "non_negative_int", "positive_int"]
 
 EXIT_OK, EXIT_INTERNAL, EXIT_BAD_INPUT = 0, 1, 2
 
@@ -85,7 +85,7 @@ def _cmd_models(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
-def _int_at_least(minimum: int, what: str) -> Callable[[str], int]:
+def int_at_least(minimum: int, what: str) -> Callable[[str], int]:
     """An argparse type: an integer >= ``minimum`` (``what`` names it in the message)."""
     def parse(text: str) -> int:
         try:
@@ -99,8 +99,8 @@ def _int_at_least(minimum: int, what: str) -> Callable[[str], int]:
     return parse
 
 
-_positive_int = _int_at_least(1, "a positive integer")
-_non_negative_int = _int_at_least(0, "an integer >= 0")
+positive_int = int_at_least(1, "a positive integer")
+non_negative_int = int_at_least(0, "an integer >= 0")
 
 
 def _cmd_fit(args: argparse.Namespace) -> int:
@@ -380,8 +380,8 @@ def _add_run_options(p: argparse.ArgumentParser, out_default: str, steps_help: s
     p.add_argument("--likelihood", default="gaussian", help="gaussian (default), student_t or ar1")
     p.add_argument("--out", default=out_default, help=f"output folder (default {out_default})")
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
-    p.add_argument("--steps", type=_positive_int, default=20_000, help=steps_help)
-    p.add_argument("--walkers", type=_positive_int, default=None,
+    p.add_argument("--steps", type=positive_int, default=20_000, help=steps_help)
+    p.add_argument("--walkers", type=positive_int, default=None,
                    help="walkers per ensemble (default max(32, 4 ndim))")
     p.add_argument("--json", action="store_true", help="print summary.json to stdout")
     p.add_argument("--quiet", action="store_true", help="no progress on stderr")
@@ -416,13 +416,13 @@ def build_parser() -> argparse.ArgumentParser:
                             "pi_play,bouc_wen,pi_play+second_order,gp,gp_memory")
     _add_run_options(p_cmp, "bayeshyst-compare",
                      "step budget per ensemble of every fit (default 20000)")
-    p_cmp.add_argument("--jobs", type=_positive_int, default=None,
+    p_cmp.add_argument("--jobs", type=positive_int, default=None,
                        help="worker processes (default: one per core)")
     p_cmp.add_argument("--no-lofo", action="store_true",
                        help="skip the leave-one-frequency-out fits")
-    p_cmp.add_argument("--max-refits", type=_non_negative_int, default=5,
+    p_cmp.add_argument("--max-refits", type=non_negative_int, default=5,
                        help="exact refits per fit for cycles with Pareto k > 0.7 (default 5)")
-    p_cmp.add_argument("--gp-train", type=_positive_int, default=1000,
+    p_cmp.add_argument("--gp-train", type=positive_int, default=1000,
                        help="training-subset size of the GP models (default 1000)")
     p_cmp.set_defaults(func=_cmd_compare)
 
@@ -435,7 +435,7 @@ def build_parser() -> argparse.ArgumentParser:
                         help="reference to track: a sine or triangle at every frequency of "
                              "the data (default sine), or a CSV file with header t,y "
                              "(s, output unit), tracked once")
-    p_comp.add_argument("--design-draws", type=_positive_int, default=24, metavar="N",
+    p_comp.add_argument("--design-draws", type=positive_int, default=24, metavar="N",
                         help="posterior draws the posterior-aware commands are designed on "
                              "(default 24)")
     p_comp.add_argument("--quantile", type=_probability, default=0.9, metavar="Q",
@@ -464,7 +464,7 @@ def build_parser() -> argparse.ArgumentParser:
     p_dg.add_argument("--threshold", type=_non_negative_float, default=2.0, metavar="T",
                       help="an effect is kept when the held-out elpd improves by more than "
                            "T standard errors (default 2)")
-    p_dg.add_argument("--max-rounds", type=_positive_int, default=6, metavar="N",
+    p_dg.add_argument("--max-rounds", type=positive_int, default=6, metavar="N",
                       help="most effects added (default 6)")
     p_dg.add_argument("--no-checkpoint", action="store_true",
                       help="do not checkpoint to OUT/checkpoints/ (and do not resume)")
@@ -477,15 +477,15 @@ def build_parser() -> argparse.ArgumentParser:
                             "pi_play,bouc_wen,pi_play+second_order,gp_memory)")
     _add_run_options(p_rep, "bayeshyst-report",
                      "step budget per ensemble of every fit (default 20000)")
-    p_rep.add_argument("--jobs", type=_positive_int, default=None,
+    p_rep.add_argument("--jobs", type=positive_int, default=None,
                        help="worker processes of the comparison (default: one per core)")
     p_rep.add_argument("--no-lofo", action="store_true",
                        help="skip the leave-one-frequency-out fits")
-    p_rep.add_argument("--max-refits", type=_non_negative_int, default=5,
+    p_rep.add_argument("--max-refits", type=non_negative_int, default=5,
                        help="exact refits per fit for cycles with Pareto k > 0.7 (default 5)")
     p_rep.add_argument("--effects", default=None, metavar="A,B,...",
                        help="candidate effects of the diagnosis (default all)")
-    p_rep.add_argument("--max-rounds", type=_positive_int, default=6, metavar="N",
+    p_rep.add_argument("--max-rounds", type=positive_int, default=6, metavar="N",
                        help="most effects the diagnosis adds (default 6)")
     p_rep.set_defaults(func=_cmd_report)
 

@@ -57,6 +57,7 @@ __all__ = [
     "check_models",
     "compare_models",
     "paired_difference",
+    "split_top_level",
     "stacking_weights",
 ]
 
@@ -349,7 +350,7 @@ class ComparisonResult:
 
 
 # ---------------------------------------------------------------------- orchestration
-def _split_top_level(text: str) -> list[str]:
+def split_top_level(text: str) -> list[str]:
     """Split at commas outside parentheses (specs carry settings: ``pi_play(n_operators=4)``)."""
     parts, depth, cur = [], 0, []
     for ch in text:
@@ -368,7 +369,7 @@ def check_models(models: Sequence[str] | str) -> tuple[str, ...]:
     build (``ModelError`` names the bad one), GP names are ``gp`` and ``gp_memory``,
     and no spec may appear twice."""
     if isinstance(models, str):
-        models = _split_top_level(models)
+        models = split_top_level(models)
     names = tuple(str(m).strip() for m in models)
     if not names or any(not m for m in names):
         raise ModelError(f"models: expected a non-empty list of model specs, got {models!r}")
