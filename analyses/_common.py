@@ -56,14 +56,17 @@ __all__ = [
     "Cut",
     "Progress",
     "base_parser",
+    "budget",
     "cut_record",
     "describe_cut",
     "float_list",
     "load_measured",
     "name_list",
     "new_figure",
+    "non_negative_float",
     "non_negative_int",
     "positive_int",
+    "probability",
     "run",
     "save_figure",
     "select_frequencies",
@@ -90,6 +93,28 @@ MR_CURRENTS = (0.0, 0.25, 0.5, 0.75, 1.0)
 # the command line's own argparse types (one definition for every command)
 positive_int = _cli.positive_int
 non_negative_int = _cli.non_negative_int
+non_negative_float = _cli.non_negative_float
+probability = _cli.probability
+
+
+def budget(args: argparse.Namespace, quick: Mapping[str, Any], full: Mapping[str, Any],
+           overrides: Mapping[str, Any] | None = None) -> dict[str, Any]:
+    """The quick or full settings of an analysis with its command-line overrides applied.
+
+    ``--steps`` sets ``max_steps`` and caps ``first_chunk``; each entry of ``overrides``
+    that is not None replaces the setting of that name (which must exist: a misspelt
+    name raises KeyError instead of being ignored).
+    """
+    cfg = dict(quick if args.quick else full)
+    if args.steps is not None:
+        cfg["max_steps"] = args.steps
+        cfg["first_chunk"] = min(cfg["first_chunk"], args.steps)
+    for key, value in (overrides or {}).items():
+        if key not in cfg:
+            raise KeyError(f"no setting {key!r} to override; have {sorted(cfg)}")
+        if value is not None:
+            cfg[key] = value
+    return cfg
 
 
 def float_list(text: str) -> tuple[float, ...]:

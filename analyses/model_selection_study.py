@@ -66,6 +66,7 @@ from analyses._common import (
     Cut,
     Progress,
     base_parser,
+    budget,
     cut_record,
     describe_cut,
     load_measured,
@@ -316,14 +317,8 @@ def _study(args: argparse.Namespace) -> int:
     from bayeshyst.selection import check_models, compare_models
 
     log = Progress(PROG, args.quiet)
-    cfg = dict(QUICK if args.quick else FULL)
-    if args.steps is not None:
-        cfg["max_steps"] = args.steps
-        cfg["first_chunk"] = min(cfg["first_chunk"], args.steps)
-    if args.max_refits is not None:
-        cfg["max_refits"] = args.max_refits
-    if args.no_lofo:
-        cfg["lofo"] = False
+    cfg = budget(args, QUICK, FULL, {"max_refits": args.max_refits,
+                                     "lofo": False if args.no_lofo else None})
     # validate everything cheap before anything is written
     models = check_models(list(args.models or (QUICK_MODELS if args.quick else FULL_MODELS)))
     get_likelihood(args.likelihood)

@@ -59,10 +59,12 @@ from analyses._common import (
     EXIT_OK,
     Progress,
     base_parser,
+    budget,
     float_list,
     name_list,
     new_figure,
     positive_int,
+    probability,
     run,
     save_figure,
     select_frequencies,
@@ -89,16 +91,6 @@ TABLE_COLUMNS = ("model", "frequency_hz", "reference", "plant_kind", "converged"
                  "model_error_percent")
 
 
-def _probability(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number in (0, 1), got {text!r}") from None
-    if not 0.0 < value < 1.0:
-        raise argparse.ArgumentTypeError(f"expected a number in (0, 1), got {value:g}")
-    return value
-
-
 def build_parser() -> argparse.ArgumentParser:
     """Options of the robust-feedforward analysis."""
     p = base_parser(PROG, __doc__)
@@ -115,7 +107,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "the highest)")
     p.add_argument("--reference", choices=("sine", "triangle"), default="sine",
                    help="reference shape at every frequency (default sine)")
-    p.add_argument("--quantile", type=_probability, default=0.9, metavar="Q",
+    p.add_argument("--quantile", type=probability, default=0.9, metavar="Q",
                    help="quantile of |error| over draws the robust command minimises "
                         "(default 0.9)")
     p.add_argument("--design-draws", type=positive_int, default=None, metavar="N",
@@ -247,12 +239,7 @@ def _analyse(args: argparse.Namespace) -> int:
     from bayeshyst.report.compensate_outputs import write_compensation_outputs
 
     log = Progress(PROG, args.quiet)
-    cfg = dict(QUICK if args.quick else FULL)
-    if args.steps is not None:
-        cfg["max_steps"] = args.steps
-        cfg["first_chunk"] = min(cfg["first_chunk"], args.steps)
-    if args.design_draws is not None:
-        cfg["design_draws"] = args.design_draws
+    cfg = budget(args, QUICK, FULL, {"design_draws": args.design_draws})
     # validate everything cheap before anything is written
     data = load(args.data)
     frequencies = args.frequencies

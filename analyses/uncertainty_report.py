@@ -52,6 +52,7 @@ from analyses._common import (
     EXIT_OK,
     Progress,
     base_parser,
+    budget,
     float_list,
     new_figure,
     positive_int,
@@ -322,10 +323,7 @@ def _analyse(args: argparse.Namespace) -> int:
     from bayeshyst.report import write_fit_outputs
 
     log = Progress(PROG, args.quiet)
-    budget = dict(QUICK if args.quick else FULL)
-    if args.steps is not None:
-        budget["max_steps"] = args.steps
-        budget["first_chunk"] = min(budget["first_chunk"], args.steps)
+    settings = budget(args, QUICK, FULL)
     # validate everything cheap before anything is written
     data = load(args.data)
     frequencies = args.frequencies
@@ -339,9 +337,9 @@ def _analyse(args: argparse.Namespace) -> int:
     log(f"{model.name} / {likelihood.name} on {data.name}: {len(data)} record(s), "
         f"{data.n_samples} samples, frequencies [Hz] "
         f"{', '.join(f'{f:g}' for f in data.frequencies) or 'none'}; budget "
-        f"{budget['max_steps']} steps{' (quick)' if args.quick else ''}")
+        f"{settings['max_steps']} steps{' (quick)' if args.quick else ''}")
     fit = fit_model(data, model, likelihood, seed=args.seed, n_walkers=args.walkers,
-                    max_steps=budget["max_steps"], first_chunk=budget["first_chunk"],
+                    max_steps=settings["max_steps"], first_chunk=settings["first_chunk"],
                     checkpoint=None if args.no_checkpoint else fit_dir / "checkpoint.h5")
     conv = "converged" if fit.converged else "NOT converged"
     log(f"fit done ({conv}, {fit.sampling.runtime_s:.1f} s); writing fit/")
@@ -384,7 +382,7 @@ def _analyse(args: argparse.Namespace) -> int:
         "per_frequency": [r for r in rows if r["frequency_hz"] != "all"],
         "overall": next(r for r in rows if r["frequency_hz"] == "all"),
         "parameters": params,
-        "settings": {**budget, "n_walkers": args.walkers, "seed": args.seed,
+        "settings": {**settings, "n_walkers": args.walkers, "seed": args.seed,
                      "checkpoint": not args.no_checkpoint},
         "files": {"coverage": "coverage.csv", "parameters": "parameters.csv",
                   "report": "uncertainty.txt", "figures": figures,

@@ -64,9 +64,11 @@ from analyses._common import (
     Cut,
     Progress,
     base_parser,
+    budget,
     describe_cut,
     load_measured,
     name_list,
+    non_negative_float,
     non_negative_int,
     positive_int,
     run,
@@ -89,16 +91,6 @@ QUICK = {"datasets": ("piezo_150v",), "max_steps": 200, "first_chunk": 200, "max
                   for key in MEASURED}}
 
 
-def _non_negative_float(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number >= 0, got {text!r}") from None
-    if not (math.isfinite(value) and value >= 0):
-        raise argparse.ArgumentTypeError(f"expected a number >= 0, got {text}")
-    return value
-
-
 def build_parser() -> argparse.ArgumentParser:
     """Options of the undeclared-effect analysis."""
     p = base_parser(PROG, __doc__)
@@ -114,7 +106,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "drift, delay, colored_noise)")
     p.add_argument("--alpha", type=float, default=0.01,
                    help="family-wise level of the residual tests (default 0.01)")
-    p.add_argument("--threshold", type=_non_negative_float, default=2.0, metavar="T",
+    p.add_argument("--threshold", type=non_negative_float, default=2.0, metavar="T",
                    help="keep an effect when the held-out elpd improves by more than T "
                         "standard errors (default 2)")
     p.add_argument("--max-rounds", type=positive_int, default=None, metavar="N",
@@ -210,14 +202,8 @@ def _analyse(args: argparse.Namespace) -> int:
     from bayeshyst.report.diagnose_outputs import write_diagnosis_outputs
 
     log = Progress(PROG, args.quiet)
-    cfg = dict(QUICK if args.quick else FULL)
-    if args.steps is not None:
-        cfg["max_steps"] = args.steps
-        cfg["first_chunk"] = min(cfg["first_chunk"], args.steps)
-    if args.max_rounds is not None:
-        cfg["max_rounds"] = args.max_rounds
-    if args.max_refits is not None:
-        cfg["max_refits"] = args.max_refits
+    cfg = budget(args, QUICK, FULL, {"max_rounds": args.max_rounds,
+                                     "max_refits": args.max_refits})
     keys = tuple(args.datasets or cfg["datasets"])
     # validate everything cheap before anything is written
     unknown = [k for k in keys if k not in MEASURED]

@@ -20,7 +20,8 @@ from bayeshyst import __version__
 from bayeshyst.errors import DataError, ModelError, ParameterError
 from bayeshyst.report.files import jsonable
 
-__all__ = ["build_parser", "int_at_least", "main", "non_negative_int", "positive_int"]
+__all__ = ["build_parser", "int_at_least", "main", "non_negative_float", "non_negative_int",
+           "positive_int", "probability"]
 
 EXIT_OK, EXIT_INTERNAL, EXIT_BAD_INPUT = 0, 1, 2
 
@@ -170,7 +171,7 @@ def _cmd_compare(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
-def _probability(text: str) -> float:
+def probability(text: str) -> float:
     """An argparse type: a number strictly between 0 and 1."""
     try:
         value = float(text)
@@ -243,7 +244,7 @@ def _effect_list(text: str) -> tuple[str, ...]:
     return tuple(dict.fromkeys(names))
 
 
-def _non_negative_float(text: str) -> float:
+def non_negative_float(text: str) -> float:
     """An argparse type: a finite number >= 0."""
     try:
         value = float(text)
@@ -438,7 +439,7 @@ def build_parser() -> argparse.ArgumentParser:
     p_comp.add_argument("--design-draws", type=positive_int, default=24, metavar="N",
                         help="posterior draws the posterior-aware commands are designed on "
                              "(default 24)")
-    p_comp.add_argument("--quantile", type=_probability, default=0.9, metavar="Q",
+    p_comp.add_argument("--quantile", type=probability, default=0.9, metavar="Q",
                         help="quantile of |error| over draws the robust command minimises, "
                              "in (0, 1) (default 0.9)")
     p_comp.add_argument("--plant", choices=("auto", "posterior"), default="auto",
@@ -458,10 +459,10 @@ def build_parser() -> argparse.ArgumentParser:
     p_dg.add_argument("--effects", default=None, metavar="A,B,...",
                       help="candidate effects, comma-separated (default all: creep, "
                            "rate_dependence, asymmetry, drift, delay, colored_noise)")
-    p_dg.add_argument("--alpha", type=_probability, default=0.01,
+    p_dg.add_argument("--alpha", type=probability, default=0.01,
                       help="family-wise level of the residual tests (Holm), in (0, 1) "
                            "(default 0.01)")
-    p_dg.add_argument("--threshold", type=_non_negative_float, default=2.0, metavar="T",
+    p_dg.add_argument("--threshold", type=non_negative_float, default=2.0, metavar="T",
                       help="an effect is kept when the held-out elpd improves by more than "
                            "T standard errors (default 2)")
     p_dg.add_argument("--max-rounds", type=positive_int, default=6, metavar="N",
