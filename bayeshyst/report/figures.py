@@ -15,14 +15,11 @@ from matplotlib.figure import Figure
 
 from bayeshyst.data.record import Dataset
 from bayeshyst.files import atomic_path
+from bayeshyst.report.html import unit_text
 
 __all__ = ["plot_data_overview"]
 
 DPI = 110
-
-
-def _unit(u: str) -> str:
-    return "µm" if u == "um" else u
 
 
 def _group_label(freq: float | None) -> str:
@@ -61,8 +58,8 @@ def plot_data_overview(data: Dataset, path: str | Path, *, max_panels: int = 12)
         first = groups[key][0]
         ax.set_title(f"{_group_label(key)} ({len(groups[key])} record"
                      f"{'s' if len(groups[key]) > 1 else ''})", fontsize=9)
-        ax.set_xlabel(f"input [{_unit(first.units.get('u', ''))}]", fontsize=8)
-        ax.set_ylabel(f"output [{_unit(first.units.get('y', ''))}]", fontsize=8)
+        ax.set_xlabel(f"input [{unit_text(first.units.get('u', ''))}]", fontsize=8)
+        ax.set_ylabel(f"output [{unit_text(first.units.get('y', ''))}]", fontsize=8)
         ax.tick_params(labelsize=7)
         if len(groups[key]) > 1 and len(groups[key]) <= 6:
             ax.legend(fontsize=6)

@@ -15,6 +15,7 @@ from __future__ import annotations
 import base64
 import html
 import math
+import re
 from collections.abc import Iterable, Sequence
 from pathlib import Path
 from typing import Any
@@ -22,7 +23,7 @@ from typing import Any
 import numpy as np
 
 __all__ = ["Markup", "badge", "details", "figure", "join", "number", "page", "paragraph",
-           "section", "table", "text"]
+           "section", "table", "text", "unit_text"]
 
 MISSING = "—"
 
@@ -38,6 +39,11 @@ def text(value: Any) -> Markup:
     if isinstance(value, Markup):
         return value
     return Markup(html.escape(str(value), quote=True))
+
+
+def unit_text(unit: str) -> str:
+    """A unit as a reader writes it: ``um`` -> ``µm`` (also inside ``um/V``)."""
+    return re.sub(r"\bum\b", "µm", unit or "")
 
 
 def join(parts: Iterable[Any], sep: str = "\n") -> Markup:

@@ -48,10 +48,6 @@ CORNER_MAX = 6  # parameters in the final model's corner plot (k (k + 1) / 2 pan
 
 
 # ----------------------------------------------------------------------------- data
-def _unit(u: str) -> str:
-    return "µm" if u == "um" else u
-
-
 def _short(value: Any, limit: int = 120) -> str:
     s = value if isinstance(value, str) else json.dumps(jsonable(value), default=str)
     return s if len(s) <= limit else s[: limit - 1] + "…"
@@ -89,7 +85,7 @@ def _data_html(section: dict[str, Any], figure: Path | None) -> H.Markup:
         if nested or hidden:
             items.append(f"in summary.json: {', '.join(nested)}"
                          + (f" and {hidden} more" if hidden else ""))
-        u, y = _unit(r["units"].get("u", "")), _unit(r["units"].get("y", ""))
+        u, y = H.unit_text(r["units"].get("u", "")), H.unit_text(r["units"].get("y", ""))
         rows.append([r["name"], r["frequency_hz"], r["fs_hz"], r["n"], r["n_scored"],
                      f"{r['u_range'][0]:.4g} … {r['u_range'][1]:.4g} {u}",
                      f"{r['y_range'][0]:.4g} … {r['y_range'][1]:.4g} {y}",
@@ -272,7 +268,7 @@ def _diagnosis_html(summary: dict[str, Any] | None, out: Path,
         return H.paragraph("No parametric model fitted, so nothing was diagnosed.", cls="warn")
     found = summary["effects_found"]
     b, a = summary["before"], summary["after"]
-    unit = _unit(summary.get("output_unit") or "")
+    unit = H.unit_text(summary.get("output_unit") or "")
     parts = [H.paragraph(
         f"The residual of {summary['base_model']} was tested for the structure each missing "
         "effect would leave (score tests on the fit's own sensitivities, AR-whitened, Holm "
@@ -383,7 +379,7 @@ def _glance_html(summary: dict[str, Any]) -> H.Markup:
         parts.append(H.paragraph(
             f"Residual diagnosis: {', '.join(dg['effects_found']) or 'no effect'} added; "
             f"RMSE {H.number(dg['before']['rmse'])} → {H.number(dg['after']['rmse'])} "
-            f"{_unit(dg.get('output_unit') or '')}."))
+            f"{H.unit_text(dg.get('output_unit') or '')}."))
     comp = summary["compensation"]
     if comp is not None and comp["per_frequency"]:
         pieces = [f"{r['frequency_hz']:g} Hz: "
