@@ -374,6 +374,34 @@ def _cmd_demo(args: argparse.Namespace) -> int:
     return _report_run(data, path.name, plan.models, plan.settings, args, "demo")
 
 
+def _cmd_study(args: argparse.Namespace) -> int:
+    from bayeshyst.study import read_study, run_study
+    from bayeshyst.study.tasks import slug
+
+    # the whole study file is checked before anything starts (exit 2 on a bad one)
+    study = read_study(args.study)
+    out = Path(args.out) if args.out else Path(f"study-{slug(study.name)}")
+    if not args.quiet:
+        print(f"bayeshyst study: {study}; outputs in {out}/", file=sys.stderr)
+    try:
+        result = run_study(study, out, scheduler=args.scheduler, n_workers=args.workers,
+                           serial=args.serial, retry_failed=args.retry_failed,
+                           progress=not args.quiet,
+                           figures=not args.no_figures or args.report, html=args.report)
+    except KeyboardInterrupt:
+        n_done = len(list((out / "fits").glob("*.json")))
+        print(f"bayeshyst study: interrupted; {n_done} finished fit(s) are stored in "
+              f"{out / 'fits'}; run the same command again to resume", file=sys.stderr)
+        return 130
+    if args.json:
+        sys.stdout.write((out / "summary.json").read_text())
+    else:
+        print(result)
+        print(f"table: {out / 'table.csv'}; per frequency: {out / 'by_frequency.csv'}"
+              + (f"; report: {out / 'study.html'}" if args.report else ""))
+    return EXIT_OK
+
+
 def _add_run_options(p: argparse.ArgumentParser, out_default: str, steps_help: str) -> None:
     """The options every command that samples shares: data, likelihood, output folder,
     seed, sampler budget, walkers, and what is printed and drawn."""
@@ -501,6 +529,28 @@ def build_parser() -> argparse.ArgumentParser:
     p_demo.add_argument("--quiet", action="store_true", help="no progress on stderr")
     p_demo.add_argument("--no-figures", action="store_true", help="skip the figures")
     p_demo.set_defaults(func=_cmd_demo)
+
+    p_st = sub.add_parser("study", help="fit every model to every excitation frequency of "
+                          "every dataset of a study file, on Dask; resumable")
+    p_st.add_argument("study", help="study file (TOML): datasets, models, likelihoods, "
+                                    "sampler settings, seeds")
+    p_st.add_argument("--out", default=None,
+                      help="output folder (default study-<name of the study>)")
+    where = p_st.add_mutually_exclusive_group()
+    where.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                       help="submit to the running Dask scheduler at ADDRESS "
+                            "(tcp://host:port) instead of starting a local cluster")
+    where.add_argument("--workers", type=positive_int, default=None, metavar="N",
+                       help="worker processes of the local cluster (default: one per core)")
+    where.add_argument("--serial", action="store_true",
+                       help="no Dask: run the fits one after the other in this process")
+    p_st.add_argument("--retry-failed", action="store_true",
+                      help="run again the fits whose stored result is a failure")
+    p_st.add_argument("--report", action="store_true", help="also write study.html")
+    p_st.add_argument("--json", action="store_true", help="print summary.json to stdout")
+    p_st.add_argument("--quiet", action="store_true", help="no progress on stderr")
+    p_st.add_argument("--no-figures", action="store_true", help="skip the figures")
+    p_st.set_defaults(func=_cmd_study)
     return parser
 
 

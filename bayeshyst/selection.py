@@ -59,6 +59,7 @@ __all__ = [
     "paired_difference",
     "split_top_level",
     "stacking_weights",
+    "total_and_se",
 ]
 
 
@@ -110,7 +111,7 @@ def stacking_weights(pointwise: np.ndarray) -> np.ndarray:
     return w / w.sum()
 
 
-def _total_se(pw: np.ndarray) -> tuple[float, float]:
+def total_and_se(pw: np.ndarray) -> tuple[float, float]:
     """``sum(pw)`` and its standard error ``sqrt(n var(pw))`` (NaN se for one unit)."""
     if pw.size == 0:
         return math.nan, math.nan
@@ -119,7 +120,7 @@ def _total_se(pw: np.ndarray) -> tuple[float, float]:
 
 def paired_difference(a: np.ndarray, b: np.ndarray) -> tuple[float, float]:
     """``sum(a - b)`` and its standard error ``sqrt(n var(a - b))`` over paired units."""
-    return _total_se(np.asarray(a, dtype=float) - np.asarray(b, dtype=float))
+    return total_and_se(np.asarray(a, dtype=float) - np.asarray(b, dtype=float))
 
 
 # --------------------------------------------------------------------------- results
@@ -470,7 +471,7 @@ def _assemble(models: tuple[str, ...], freq: float | None, joint: bool,
         lofo_failed = [x.error for x in lofo.get(m, []) if not x.ok]
         if lt and not lofo_failed:
             lpw = np.concatenate([x.pointwise for x in lt])
-            row["lofo"] = _total_se(lpw)
+            row["lofo"] = total_and_se(lpw)
             if len(lt) == 1:
                 row["lofo_nrmse"] = _nrmse(lt[0], freq, True)[0]
         jt = jointfit.get(m)
@@ -510,9 +511,9 @@ def _assemble(models: tuple[str, ...], freq: float | None, joint: bool,
                 error=r.get("error") or "failed"))
             continue
         sel = r["sel"]
-        elpd, se = _total_se(r["pw"])
+        elpd, se = total_and_se(r["pw"])
         d, dse = (0.0, 0.0) if r is top else paired_difference(r["pw"], top["pw"])
-        wa = (_total_se(t.waic_pointwise[sel]) if t.waic_pointwise is not None
+        wa = (total_and_se(t.waic_pointwise[sel]) if t.waic_pointwise is not None
               else (math.nan, math.nan))
         k = t.pareto_k[sel] if t.pareto_k is not None else np.zeros(0)
         kmax = float(np.nanmax(k)) if k.size and np.any(np.isfinite(k)) else math.nan
