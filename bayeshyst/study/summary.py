@@ -160,7 +160,10 @@ def summarise(rows: Sequence[Mapping[str, Any]], pointwise: Mapping[str, np.ndar
     """
     cells: dict[tuple[str, str, float | None], dict[str, list[Mapping[str, Any]]]] = {}
     order_ds: list[str] = []
+    order_lik: list[str] = []  # the study's order (rows come in plan order)
     for r in rows:
+        if r["likelihood"] not in order_lik:
+            order_lik.append(r["likelihood"])
         if r["frequency_hz"] is None and r["n_records"] in (None, 0):
             continue  # an unreadable dataset: no frequency to rank at
         key = (r["likelihood"], r["dataset"], frequency_key(r["frequency_hz"]))
@@ -200,8 +203,8 @@ def summarise(rows: Sequence[Mapping[str, Any]], pointwise: Mapping[str, np.ndar
         rankings.append(DatasetRanking(key[0], key[1], key[2], tuple(ranked), tuple(failed)))
         per_cell[key] = {s.model: (ok[s.model][0], s) for s in ranked}
 
-    def sort_key(k: tuple[str, str, float | None]) -> tuple[str, bool, float, int]:
-        return (k[0], k[2] is None, k[2] or 0.0, order_ds.index(k[1]))
+    def sort_key(k: tuple[str, str, float | None]) -> tuple[int, bool, float, int]:
+        return (order_lik.index(k[0]), k[2] is None, k[2] or 0.0, order_ds.index(k[1]))
 
     rankings.sort(key=lambda d: sort_key((d.likelihood, d.dataset, d.frequency_hz)))
     summaries = []
