@@ -201,6 +201,39 @@ def _identity(x: Any) -> Any:
     return x
 
 
+def _worker_stack() -> dict[str, str]:
+    """Versions a worker computes with (run on each worker by :func:`_check_workers`)."""
+    import emcee
+    import numba
+    import numpy
+    import scipy
+
+    from bayeshyst import __version__
+
+    return {"bayeshyst": __version__, "numpy": numpy.__version__, "scipy": scipy.__version__,
+            "numba": numba.__version__, "emcee": emcee.__version__}
+
+
+def _check_workers(client: Any, say: Callable[[str], None]) -> None:
+    """Refuse a cluster whose workers cannot import bayeshyst; warn when their versions
+    differ from the client's (the same seeds give the same numbers only on one stack)."""
+    if not client.scheduler_info().get("workers"):
+        say("no workers connected yet: the fits wait until workers join")
+        return
+    try:
+        stacks = client.run(_worker_stack)
+    except ImportError as exc:
+        raise ParameterError(f"the cluster's workers cannot run bayeshyst ({exc}); install "
+                             f"bayeshyst and its dependencies in the workers' environment"
+                             ) from None
+    mine = _worker_stack()
+    for worker, stack in stacks.items():
+        diff = {k: v for k, v in stack.items() if mine.get(k) != v}
+        if diff:
+            say(f"warning: worker {worker} runs {diff} (this client: "
+                f"{ {k: mine[k] for k in diff} }); results may differ from a run elsewhere")
+
+
 def run_study(
     study: Study,
     out_dir: str | os.PathLike[str],
@@ -322,6 +355,7 @@ def run_study(
         with _dask_client(scheduler, n_workers, client) as (c, cluster):
             say(f"running on {cluster}"
                 + (f"; dashboard {c.dashboard_link}" if _has_bokeh() else ""))
+            _check_workers(c, say)
             _run_on_dask(c, todo, groups, work_root, store)
     if work_root.is_dir() and not any(work_root.iterdir()):
         work_root.rmdir()  # every fit finished: no checkpoint left to resume from
