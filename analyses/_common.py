@@ -24,12 +24,10 @@ either way).
 from __future__ import annotations
 
 import argparse
-import csv
-import io
 import math
 import sys
 import time
-from collections.abc import Callable, Iterable, Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -40,7 +38,7 @@ from bayeshyst import cli as _cli
 from bayeshyst.data.record import Dataset, Record
 from bayeshyst.errors import DataError, ModelError, ParameterError
 from bayeshyst.files import atomic_path
-from bayeshyst.report.files import csv_cell
+from bayeshyst.report.files import write_rows_csv as write_csv  # one CSV writer
 from bayeshyst.selection import split_top_level
 
 __all__ = [
@@ -203,19 +201,6 @@ def write_text(path: Path, text: str) -> Path:
     """Write ``text`` (newline-terminated) atomically; return the path."""
     with atomic_path(path) as tmp:
         tmp.write_text(text if text.endswith("\n") else text + "\n")
-    return Path(path)
-
-
-def write_csv(path: Path, columns: Sequence[str], rows: Iterable[Mapping[str, Any]]) -> Path:
-    """Write ``rows`` (dicts) under ``columns`` atomically; None and non-finite numbers
-    become empty cells (never "nan")."""
-    buf = io.StringIO()
-    writer = csv.writer(buf, lineterminator="\n")
-    writer.writerow(columns)
-    for row in rows:
-        writer.writerow([csv_cell(row.get(c)) for c in columns])
-    with atomic_path(path) as tmp:
-        tmp.write_text(buf.getvalue())
     return Path(path)
 
 

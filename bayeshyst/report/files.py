@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+import csv
+import io
 import json
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -12,7 +14,7 @@ import numpy as np
 
 from bayeshyst.files import atomic_path
 
-__all__ = ["atomic_path", "csv_cell", "jsonable", "write_json"]
+__all__ = ["atomic_path", "csv_cell", "jsonable", "write_json", "write_rows_csv"]
 
 
 def csv_cell(value: Any) -> Any:
@@ -54,4 +56,18 @@ def write_json(path: str | Path, obj: Any, *, default: Callable[[Any], Any] = st
     with atomic_path(path) as tmp:
         tmp.write_text(json.dumps(jsonable(obj), indent=2, default=default, allow_nan=False)
                        + "\n")
+    return Path(path)
+
+
+def write_rows_csv(path: str | Path, columns: Sequence[str],
+                   rows: Iterable[Mapping[str, Any]]) -> Path:
+    """Write ``rows`` (dicts) under ``columns`` as CSV, atomically; missing keys, None
+    and non-finite numbers become empty cells (never "nan"). Returns the path."""
+    buf = io.StringIO()
+    writer = csv.writer(buf, lineterminator="\n")
+    writer.writerow(columns)
+    for row in rows:
+        writer.writerow([csv_cell(row.get(c)) for c in columns])
+    with atomic_path(path) as tmp:
+        tmp.write_text(buf.getvalue(), encoding="utf-8")
     return Path(path)

@@ -14,15 +14,13 @@ Each file is written to a temporary name and renamed, so none is ever half-writt
 
 from __future__ import annotations
 
-import csv
-import io
 import math
 from pathlib import Path
 from typing import Any
 
 from bayeshyst import __version__
 from bayeshyst.files import atomic_path
-from bayeshyst.report.files import csv_cell, write_json
+from bayeshyst.report.files import write_json, write_rows_csv
 
 __all__ = ["BY_FREQUENCY_COLUMNS", "RANKING_COLUMNS", "write_study_outputs"]
 
@@ -32,16 +30,6 @@ BY_FREQUENCY_COLUMNS = ("likelihood", "frequency_hz", "rank", "model", "wins", "
 RANKING_COLUMNS = ("likelihood", "dataset", "frequency_hz", "rank", "model", "elpd_loo", "se",
                    "delta_elpd", "delta_se", "nrmse_percent", "seed_sd", "n_seeds",
                    "converged")
-
-
-def _write_csv(path: Path, columns: tuple[str, ...], rows: list[dict[str, Any]]) -> None:
-    buf = io.StringIO()
-    writer = csv.writer(buf, lineterminator="\n")
-    writer.writerow(columns)
-    for r in rows:
-        writer.writerow([csv_cell(r.get(c)) for c in columns])
-    with atomic_path(path) as tmp:
-        tmp.write_text(buf.getvalue(), encoding="utf-8")
 
 
 def _by_frequency_rows(result: Any) -> list[dict[str, Any]]:
@@ -89,11 +77,11 @@ def write_study_outputs(result: Any, out: str | Path, *, figures: bool = True,
 
     out = Path(out)
     rows = [dict(r) for r in result.rows]
-    _write_csv(out / "table.csv", TABLE_COLUMNS, rows)
+    write_rows_csv(out / "table.csv", TABLE_COLUMNS, rows)
     write_json(out / "table.json", {"columns": list(TABLE_COLUMNS), "rows": rows})
-    _write_csv(out / "by_frequency.csv", BY_FREQUENCY_COLUMNS, _by_frequency_rows(result))
+    write_rows_csv(out / "by_frequency.csv", BY_FREQUENCY_COLUMNS, _by_frequency_rows(result))
     write_json(out / "by_frequency.json", [s.to_dict() for s in result.by_frequency])
-    _write_csv(out / "best_by_dataset.csv", RANKING_COLUMNS, _ranking_rows(result))
+    write_rows_csv(out / "best_by_dataset.csv", RANKING_COLUMNS, _ranking_rows(result))
     write_json(out / "best_by_dataset.json", [d.to_dict() for d in result.rankings])
     files: dict[str, Any] = {"table": ["table.csv", "table.json"],
                              "by_frequency": ["by_frequency.csv", "by_frequency.json"],
