@@ -346,7 +346,8 @@ def _run_parametric(data: Dataset, spec: TaskSpec, settings: CompareSettings, se
 
 
 def _run_gp(data: Dataset, spec: TaskSpec, settings: CompareSettings, seed: int) -> TaskResult:
-    from bayeshyst.gp import GPHysteresis  # scikit-learn is imported only when a GP runs
+    # scikit-learn is imported only when a GP runs
+    from bayeshyst.gp import FREE_RUN_TOLERANCE, GPHysteresis
 
     t0 = time.perf_counter()
     train, test = split_data(data, spec)
@@ -357,7 +358,11 @@ def _run_gp(data: Dataset, spec: TaskSpec, settings: CompareSettings, seed: int)
     freqs, labels = _units_meta(test)
     preds = [p.mean for p in gp.predict_records(test)]
     overall, per = errors_by_frequency(test, preds)
-    notes = [] if gp.converged_ else ["the GP hyperparameter optimisation did not converge"]
+    notes = [] if gp.converged_ else [
+        f"the GP's free run does not reproduce its training records (RMSE "
+        f"{gp.free_run_ratio_:.3g} times the one-step RMSE); the fit did not converge"
+        if gp.free_run_ratio_ > FREE_RUN_TOLERANCE
+        else "the GP hyperparameter optimisation did not converge"]
     return TaskResult(spec, np.asarray(scores.values, dtype=float), freqs, labels,
                       n_params=int(gp.n_hyperparameters_), converged=bool(gp.converged_),
                       overall=overall, per_frequency=tuple(per), warnings=tuple(notes),

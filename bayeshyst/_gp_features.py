@@ -9,7 +9,8 @@ Private helpers, kept apart from the estimator so that each can be tested alone:
 * :func:`stratified_subset` / :func:`farthest_subset` -- the two training-subset
   schemes;
 * :func:`log_marginal_likelihood` -- value and analytic gradient in ``O(m^2 d)``;
-  :func:`maximise_marginal_likelihood` (L-BFGS-B from several starts) and
+  :func:`maximise_marginal_likelihood` (L-BFGS-B from several starts, every optimum
+  returned) and
   :func:`sample_marginal_likelihood` (emcee);
 * :func:`split_columns` -- validation of the estimator's array convention;
   :func:`make_kernel`, :data:`BOUNDS`;
@@ -573,15 +574,18 @@ def make_kernel(kind: str, d: int, length_scale: float | np.ndarray, signal_vari
 
 
 def maximise_marginal_likelihood(starts: list[np.ndarray], bounds: np.ndarray, kind: str,
-                                 z: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, bool]:
+                                 z: np.ndarray, y: np.ndarray,
+                                 ) -> list[tuple[np.ndarray, float, bool]]:
     """L-BFGS-B from each start (log hyperparameters within ``bounds`` (p, 2)).
 
     Returns
     -------
-    theta : ndarray, shape (p,)
-        The best optimum.
-    converged : bool
-        Whether the run that found it reported success.
+    list of (theta, lml, converged)
+        One entry per start whose optimum has a finite log marginal likelihood, best
+        (highest ``lml``) first, ties in the order of the starts; ``converged`` is
+        whether that run reported success. The caller chooses among them
+        (:class:`bayeshyst.gp.GPHysteresis` takes the best one whose free run
+        reproduces the training records).
 
     Raises
     ------
@@ -594,11 +598,12 @@ def maximise_marginal_likelihood(starts: list[np.ndarray], bounds: np.ndarray, k
 
     runs = [optimize.minimize(objective, th, jac=True, method="L-BFGS-B", bounds=bounds)
             for th in starts]
-    best = min(runs, key=lambda r: r.fun if np.isfinite(r.fun) else np.inf)
-    if not np.isfinite(best.fun):
+    optima = sorted(((r.x, float(-r.fun), bool(r.success)) for r in runs if np.isfinite(r.fun)),
+                    key=lambda o: -o[1])
+    if not optima:
         raise DataError("GP fit: the kernel matrix is not positive definite anywhere the "
                         "optimiser went (duplicate training inputs with conflicting outputs?)")
-    return best.x, bool(best.success)
+    return optima
 
 
 def sample_marginal_likelihood(theta0: np.ndarray, bounds: np.ndarray, kind: str, z: np.ndarray,
