@@ -180,13 +180,28 @@ def _dask_client(scheduler: str | None, n_workers: int | None,
         with c:
             yield c, f"the cluster at {scheduler}"
         return
+    import dask
+
     n = n_workers or os.cpu_count() or 1
     # one single-threaded process per core: the fits are CPU-bound Python + numba, so
-    # threads would share one GIL; no dashboard unless bokeh is there to serve it
-    with LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
-                      dashboard_address=":0" if _has_bokeh() else None) as cluster, \
+    # threads would share one GIL; no dashboard unless bokeh is there to serve it.
+    # A worker's own periodic work (statistical profiler every 10 ms, event-loop tick
+    # every 20 ms, memory monitor every 100 ms) takes the GIL from the fit: measured
+    # (benchmarks/RESULTS.md) it made the fits 39 % slower than without Dask, 15 % with
+    # these settings. Fits last seconds to hours, so 1 s ticks lose nothing.
+    with dask.config.set(WORKER_CONFIG), \
+            LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
+                         dashboard_address=":0" if _has_bokeh() else None) as cluster, \
             Client(cluster) as c:
         yield c, f"LocalCluster({n} worker{'s' if n != 1 else ''})"
+
+
+WORKER_CONFIG = {"distributed.worker.profile.enabled": False,
+                 "distributed.admin.tick.interval": "1s",
+                 "distributed.worker.memory.monitor-interval": "1s"}
+"""Dask settings of the LocalCluster a study starts (see ``_dask_client``); workers of
+a cluster of your own take them as ``DASK_DISTRIBUTED__WORKER__PROFILE__ENABLED=False``
+etc. in their environment."""
 
 
 def _has_bokeh() -> bool:
