@@ -224,3 +224,33 @@ def test_unmatched_glob_is_a_failed_dataset_not_a_bad_file(tmp_path: Path) -> No
     plan = plan_study(read_study(path))[1]
     assert len(plan) == len(MODELS) and all(isinstance(p, dict) for p in plan)
     assert all("matches no file" in p["error"] for p in plan)
+
+
+class _FakeClient:
+    """The two calls ``_check_workers`` makes, answered as a cluster would."""
+
+    def __init__(self, workers: dict, stacks: dict | Exception) -> None:
+        self._workers, self._stacks = workers, stacks
+
+    def scheduler_info(self) -> dict:
+        return {"workers": self._workers}
+
+    def run(self, fn: object) -> dict:
+        if isinstance(self._stacks, Exception):
+            raise self._stacks
+        return self._stacks
+
+
+def test_workers_without_bayeshyst_are_refused_and_other_versions_named() -> None:
+    from bayeshyst.study.run import _check_workers, _worker_stack
+
+    said: list[str] = []
+    with pytest.raises(ParameterError, match="cannot run bayeshyst"):
+        _check_workers(_FakeClient({"w": {}}, ModuleNotFoundError("No module named "
+                                                                  "'bayeshyst'")), said.append)
+    mine = _worker_stack()
+    _check_workers(_FakeClient({"a": {}, "b": {}}, {"a": mine, "b": {**mine, "numpy": "0.1"}}),
+                   said.append)
+    assert len(said) == 1 and "worker b" in said[0] and "'numpy': '0.1'" in said[0]
+    _check_workers(_FakeClient({}, {}), said.append)
+    assert "no workers connected yet" in said[-1]

@@ -89,6 +89,9 @@ def write_study_outputs(result: Any, out: str | Path, *, figures: bool = True,
                                                  "best_by_dataset.json"],
                              "fits": "fits/", "figures": []}
     figs: dict[str, Path] = {}
+    # figures of an earlier run of this folder would not match the new table
+    for name in ("best_model", "scores_vs_frequency"):
+        (out / "figures" / f"{name}.png").unlink(missing_ok=True)
     if figures:
         from bayeshyst.report.study_figures import plot_best_model, plot_scores_vs_frequency
 
