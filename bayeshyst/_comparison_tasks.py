@@ -45,7 +45,7 @@ from bayeshyst.inference.sampling import sample_posterior
 
 __all__ = [
     "GP_MODELS", "CompareSettings", "LooScores", "TaskResult", "TaskSpec", "derived_seed",
-    "heldout_log_density", "loo_scores", "run_task", "task_seed",
+    "heldout_log_density", "loo_scores", "run_task", "slug", "task_seed",
 ]
 
 GP_MODELS = {"gp": "rate", "gp_memory": "memory"}
@@ -53,6 +53,11 @@ GP_MODELS = {"gp": "rate", "gp_memory": "memory"}
 form of ref. [64]; ``gp_memory`` adds reversal-memory features."""
 
 SCOPES = ("joint", "frequency", "lofo")
+
+
+def slug(text: str) -> str:
+    """``text`` made safe for a file name (``"mr damper/0.5A"`` -> ``"mr-damper-0.5A"``)."""
+    return re.sub(r"[^A-Za-z0-9._]+", "-", text).strip("-") or "x"
 
 
 @dataclass(frozen=True)
@@ -88,10 +93,10 @@ class TaskSpec:
         """A readable, file-name-safe identifier (``bouc_wen__lofo_10Hz``)."""
         where = "all" if not self.group else (
             "unknown" if self.frequency_hz is None else f"{self.frequency_hz:g}Hz")
-        slug = re.sub(r"[^A-Za-z0-9._]+", "-", self.model).strip("-")
-        if slug != self.model:  # two specs that differ only in punctuation stay apart
-            slug += f"-{zlib.crc32(self.model.encode()):08x}"
-        return f"{slug}__{self.scope}_{where}"
+        name = slug(self.model)
+        if name != self.model:  # two specs that differ only in punctuation stay apart
+            name += f"-{zlib.crc32(self.model.encode()):08x}"
+        return f"{name}__{self.scope}_{where}"
 
 
 def derived_seed(seed: int, key: str) -> int:

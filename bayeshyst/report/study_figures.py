@@ -28,7 +28,7 @@ from matplotlib.patches import Patch, Rectangle
 from matplotlib.ticker import NullFormatter
 
 from bayeshyst.plotting import _RED, _figure, _png_path, _save
-from bayeshyst.study.summary import frequency_key
+from bayeshyst.study.summary import frequency_key, frequency_label
 
 __all__ = ["model_colors", "plot_best_model", "plot_scores_vs_frequency"]
 
@@ -68,10 +68,6 @@ def _num(x: float) -> str:
     if not math.isfinite(x):
         return "n/a"
     return f"{x:.1f}" if abs(x) < 1000 else f"{x:.0f}"
-
-
-def _freq_label(f: float | None) -> str:
-    return "unknown" if f is None else f"{f:g} Hz"
 
 
 def _likelihoods(result: Any) -> list[str]:
@@ -162,7 +158,7 @@ def _build_best_model(result: Any) -> Figure | None:
         ax.set_xlim(0, ncol)
         ax.set_ylim(nrow, 0)
         ax.set_facecolor("0.97")
-        ax.set_xticks(np.arange(ncol) + 0.5, [_freq_label(f) for f in freqs],
+        ax.set_xticks(np.arange(ncol) + 0.5, [frequency_label(f) for f in freqs],
                       fontsize=tick_font, rotation=30 if ncol > 8 else 0)
         ax.set_yticks(np.arange(nrow) + 0.5, [_plain(s) for s in datasets], fontsize=tick_font)
         ax.tick_params(length=0)

@@ -34,7 +34,12 @@ from bayeshyst.errors import DataError, ParameterError
 from bayeshyst.files import atomic_path
 from bayeshyst.study.rows import failed_row, fit_record, read_record, write_record
 from bayeshyst.study.spec import DatasetSpec, Study, load_dataset
-from bayeshyst.study.summary import DatasetRanking, FrequencySummary, summarise
+from bayeshyst.study.summary import (
+    DatasetRanking,
+    FrequencySummary,
+    frequency_label,
+    summarise,
+)
 from bayeshyst.study.tasks import FitOutcome, StudyTask, data_digest, execute
 
 __all__ = ["StudyResult", "plan_study", "run_study"]
@@ -118,16 +123,12 @@ def _read(spec: DatasetSpec, freqs: tuple[float, ...] | None) -> PlannedData:
         keep = {f: d for f, d in groups.items()
                 if f is not None and any(math.isclose(f, g, rel_tol=1e-9) for g in freqs)}
         if not keep:
-            have = [_freq_text(f) for f in groups]
+            have = [frequency_label(f) for f in groups]
             return PlannedData(spec, error=(
                 f"{spec.source}: no records at the study's frequencies_hz "
                 f"{[float(f) for f in freqs]}; the dataset has {have}"))
         groups = keep
     return PlannedData(spec, groups)
-
-
-def _freq_text(f: float | None) -> str:
-    return "unknown" if f is None else f"{f:g} Hz"
 
 
 def plan_study(study: Study) -> tuple[list[PlannedData], list[StudyTask | dict[str, Any]]]:

@@ -27,7 +27,7 @@ import numpy as np
 from bayeshyst.selection import paired_difference, total_and_se
 
 __all__ = ["DatasetRanking", "FrequencySummary", "ModelAcrossDatasets", "ModelAtDataset",
-           "frequency_key", "summarise"]
+           "frequency_key", "frequency_label", "summarise"]
 
 
 def frequency_key(f: float | None) -> float | None:
@@ -35,7 +35,8 @@ def frequency_key(f: float | None) -> float | None:
     return None if f is None else float(f"{float(f):.6g}")
 
 
-def _label(f: float | None) -> str:
+def frequency_label(f: float | None) -> str:
+    """``"10 Hz"``, or ``"unknown"`` for records without a frequency."""
     return "unknown" if f is None else f"{f:g} Hz"
 
 
@@ -121,7 +122,8 @@ class FrequencySummary:
         def f(x: float, fmt: str = ".1f") -> str:
             return "—" if not math.isfinite(x) else format(x, fmt)
 
-        head = (f"── {_label(self.frequency_hz)} ({self.likelihood}): best {self.best} over "
+        head = (f"── {frequency_label(self.frequency_hz)} ({self.likelihood}): best {self.best} "
+                f"over "
                 f"{len(self.datasets)} dataset(s)"
                 + (f"; left out (a model failed): {', '.join(self.incomplete)}"
                    if self.incomplete else ""))

@@ -18,7 +18,6 @@ from __future__ import annotations
 import hashlib
 import json
 import os
-import re
 import shutil
 import socket
 import sys
@@ -34,6 +33,7 @@ from bayeshyst._comparison_tasks import (
     TaskSpec,
     derived_seed,
     run_task,
+    slug,
 )
 from bayeshyst.data.record import Dataset
 
@@ -41,11 +41,6 @@ __all__ = ["TASK_FORMAT", "FitOutcome", "StudyTask", "data_digest", "execute", "
 
 TASK_FORMAT = 1
 """Version of what a task's name covers; bump it when a result's meaning changes."""
-
-
-def slug(text: str) -> str:
-    """``text`` made safe for a file name (``"mr damper/0.5A"`` -> ``"mr-damper-0.5A"``)."""
-    return re.sub(r"[^A-Za-z0-9._]+", "-", text).strip("-") or "x"
 
 
 def data_digest(data: Dataset) -> str:
