@@ -26,6 +26,7 @@ from bayeshyst.inference.convergence import (
 from bayeshyst.inference.optimize import find_map
 from bayeshyst.inference.posterior import Posterior
 from bayeshyst.inference.sampling import chunk_boundaries, sample_posterior
+from bayeshyst.inference.settings import SamplerSettings
 from tests.synthetic import pi_data
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -71,7 +72,8 @@ def test_prior_only_sampling_reproduces_the_prior():
     post = Posterior(model, rec, beta=0.0)
     start = find_map(post, seed=0, global_search=False, n_screen=64, n_starts=1)
     # start from the prior itself: the Laplace ball of a flat-ish prior is the prior
-    res = sample_posterior(post, seed=1, max_steps=3000, first_chunk=500, start=start)
+    res = sample_posterior(post, SamplerSettings(seed=1, max_steps=3000, first_chunk=500),
+                           start=start)
     theta = res.theta()
     thin = max(1, int(res.convergence.tau_max))
     for p in post.space.params:
@@ -83,7 +85,7 @@ def test_emcee_agrees_with_the_conjugate_posterior_of_pi_weights():
     model, rec, theta = pi_data(n_ops=3, sigma=0.05)
     fixed = Posterior(model, rec).fix("noise.sigma", 0.05)  # known sigma, as the closed form
     exact = conjugate_posterior(fixed)
-    res = sample_posterior(fixed, seed=2, max_steps=8000, first_chunk=1000)
+    res = sample_posterior(fixed, SamplerSettings(seed=2, max_steps=8000, first_chunk=1000))
     assert res.converged, res.convergence
     draws = res.flat_z  # Normal priors -> identity transforms: z is the value
     ess = res.convergence.ess_bulk_min
@@ -101,12 +103,13 @@ def test_emcee_agrees_with_the_conjugate_posterior_of_pi_weights():
     assert d @ np.linalg.solve(exact.cov, d) < stats.chi2.ppf(0.999, truth.size)
 
 
-def _small_run(checkpoint=None, seed=5):
-    model, rec, _ = pi_data(n_ops=2, n=600, warmup=100)
-    post = Posterior(model, rec)
+def _small_run(checkpoint=None, seed=5, moves="structured", model=None):
+    model_, rec, _ = pi_data(n_ops=2, n=600, warmup=100)
+    post = Posterior(model or model_, rec)
     start = find_map(post, seed=0, global_search=False, n_screen=64, n_starts=1)
-    return sample_posterior(post, seed=seed, max_steps=400, first_chunk=100, start=start,
-                            checkpoint=checkpoint, min_ess=1e9)
+    return sample_posterior(post, SamplerSettings(seed=seed, max_steps=400, first_chunk=100,
+                                                  checkpoint=checkpoint, min_ess=1e9,
+                                                  moves=moves), start=start)
 
 
 def test_same_seed_same_chains_other_seed_other_chains():
@@ -116,27 +119,24 @@ def test_same_seed_same_chains_other_seed_other_chains():
     assert not a.converged and "ESS" in str(a.convergence)  # min_ess=1e9 cannot be met
 
 
-def test_resume_after_sigkill_gives_the_uninterrupted_draws(tmp_path):
+@pytest.mark.parametrize("moves", ["structured", "de"])
+def test_resume_after_sigkill_gives_the_uninterrupted_draws(tmp_path, moves):
     ck = tmp_path / "run.h5"
     child = textwrap.dedent(f"""
         import os, signal, sys
         sys.path.insert(0, {str(ROOT)!r})
         import tests.test_sampling as T
-        from bayeshyst.inference.posterior import Posterior
+        from bayeshyst.inference.checkpoint import CheckpointBackend
         calls = {{"n": 0}}
-        orig = Posterior.log_prob_batch
-        def killing(self, z):
+        orig = CheckpointBackend.save_step
+        def killing(self, state, accepted):
             calls["n"] += 1
-            if calls["n"] == 500:  # mid-run, with unflushed steps in memory
+            if calls["n"] == 530:  # mid-run (second ensemble, second chunk), with
+                # unflushed steps in memory
                 os.kill(os.getpid(), signal.SIGKILL)
-            return orig(self, z)
-        sample = T.sample_posterior
-        def armed(*args, **kwargs):
-            # arm the kill only once sampling starts: the MAP search is not the point
-            Posterior.log_prob_batch = killing
-            return sample(*args, **kwargs)
-        T.sample_posterior = armed
-        T._small_run(checkpoint={str(ck)!r})
+            return orig(self, state, accepted)
+        CheckpointBackend.save_step = killing
+        T._small_run(checkpoint={str(ck)!r}, moves={moves!r})
     """)
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
     proc = subprocess.run([sys.executable, "-c", child], env=env, capture_output=True, text=True)
@@ -146,11 +146,12 @@ def test_resume_after_sigkill_gives_the_uninterrupted_draws(tmp_path):
     with h5py.File(ck, "r") as f:
         done = [int(f[f"ensemble_{e}"].attrs["iteration"]) for e in range(2)]
     assert 0 < min(done) and max(done) < 400  # it really stopped part-way
-    resumed = _small_run(checkpoint=ck)
-    whole = _small_run()
+    resumed = _small_run(checkpoint=ck, moves=moves)
+    whole = _small_run(moves=moves)
     assert resumed.convergence.n_steps == whole.convergence.n_steps
     np.testing.assert_array_equal(resumed.chains, whole.chains)
     np.testing.assert_array_equal(resumed.log_prob, whole.log_prob)
+    assert resumed.move_acceptance == whole.move_acceptance
 
 
 def test_checkpoint_of_another_run_is_refused(tmp_path):

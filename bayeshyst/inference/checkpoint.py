@@ -22,6 +22,7 @@ from __future__ import annotations
 import json
 import pickle
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -56,6 +57,9 @@ class CheckpointBackend(HDFBackend):
         self._random_state: Any = None
         self._last_flush = time.monotonic()
         self._shape: tuple[int, int] | None = None
+        #: called at every flush; its JSON-ready dict is stored with the step count it
+        #: belongs to (the moves' acceptance counts), see :meth:`stored_extra`
+        self.extra_provider: Callable[[], dict[str, Any]] | None = None
         if self.initialized:
             self._repair()
 
@@ -94,6 +98,14 @@ class CheckpointBackend(HDFBackend):
         with self.open() as f:
             ck = self._read_checkpoint(f[self.name])
         return None if ck is None else ck["random_state"]
+
+    def stored_extra(self) -> dict[str, Any] | None:
+        """The extra state stored with the last flushed step (None if none)."""
+        if not self.initialized:
+            return None
+        with self.open() as f:
+            ck = self._read_checkpoint(f[self.name])
+        return None if ck is None else ck.get("extra")
 
     @property
     def iteration(self) -> int:
@@ -138,9 +150,10 @@ class CheckpointBackend(HDFBackend):
             g["chain"][it:it + n] = np.stack(self._coords)
             g["log_prob"][it:it + n] = np.stack(self._log_prob)
             g["accepted"][:] = self._accepted
+            extra = None if self.extra_provider is None else self.extra_provider()
             g.attrs["checkpoint"] = np.void(pickle.dumps(
                 {"iteration": it + n, "random_state": self._random_state,
-                 "accepted": np.array(self._accepted)}))
+                 "accepted": np.array(self._accepted), "extra": extra}))
             g.attrs["iteration"] = it + n
         self._coords, self._log_prob = [], []
 

@@ -159,6 +159,11 @@ def integrated_time(chain: np.ndarray, c: float = 5.0) -> np.ndarray:
     Returns
     -------
     ndarray, shape (ndim,)
+        NaN for a parameter no walker moves in; the number of steps when some walkers
+        move and others never do (a walker stuck for the whole window has an
+        autocorrelation time of at least the window: an independence proposal can
+        leave one stuck at a point of high posterior-to-proposal ratio, and averaging
+        it away would hide exactly that).
     """
     chain = np.asarray(chain, dtype=float)
     ndim = chain.shape[2]
@@ -166,8 +171,11 @@ def integrated_time(chain: np.ndarray, c: float = 5.0) -> np.ndarray:
     for d in range(ndim):
         acov = _autocov(chain[:, :, d].T)  # (walkers, steps)
         var = acov[:, :1]
-        if np.any(var <= 0):
+        if np.all(var <= 0):
             out[d] = math.nan
+            continue
+        if np.any(var <= 0):
+            out[d] = float(chain.shape[0])
             continue
         acf = (acov / var).mean(axis=0)  # each walker normalised, then averaged
         taus = 2.0 * np.cumsum(acf) - 1.0
@@ -236,6 +244,7 @@ def assess(
     min_ess: float = 400.0,
     tau_factor: float = 50.0,
     burn_factor: float = 5.0,
+    min_burn: int = 0,
 ) -> ConvergenceReport:
     """Convergence of equally long ensemble chains.
 
@@ -247,11 +256,14 @@ def assess(
         The criteria (R-hat < 1.01, ESS >= 400 bulk and tail, 50 tau).
     burn_factor : float
         Burn-in is ``burn_factor * tau`` of the whole chain, at most half of it.
+    min_burn : int
+        Steps always discarded (an adaptive proposal's warm-up: only the steps after
+        it form a Markov chain with a fixed kernel).
     """
     steps = min(c.shape[0] for c in chains)
     chains = [c[:steps] for c in chains]
     tau_all = max(float(np.nanmax(integrated_time(c))) for c in chains)
-    burn = int(min(math.ceil(burn_factor * tau_all), steps // 2))
+    burn = int(max(min(math.ceil(burn_factor * tau_all), steps // 2), min(min_burn, steps - 4)))
     kept = [c[burn:] for c in chains]
     tau = max(float(np.nanmax(integrated_time(c))) for c in kept)
     walkers = np.concatenate([c.transpose(1, 0, 2) for c in kept], axis=0)  # (chains, n, d)

@@ -1,12 +1,13 @@
 """Maximum a posteriori point and its Laplace covariance, the start of every sampler run.
 
 The search runs in the unconstrained space ``z`` (so bounds never bind) and uses the
-batched posterior throughout: a screen of prior draws, an optional differential
-evolution (hysteresis posteriors such as Bouc–Wen's are multimodal and ridge-shaped),
-then quasi-Newton polishing from the best distinct candidates with central-difference
-gradients evaluated as one batch. The Hessian at the optimum (finite differences, one
-batch) gives the Laplace covariance that spreads the initial walkers along the
-posterior's own ridges.
+batched posterior throughout: a screen of prior draws, least squares from the best
+distinct ones (:mod:`bayeshyst.inference.least_squares`), a quasi-Newton polish of the
+exact log posterior with central-difference gradients evaluated as one batch, and a
+differential evolution over the prior when the starts disagree (hysteresis posteriors
+such as Bouc–Wen's can be multimodal and ridge-shaped). The Gauss–Newton curvature at
+the optimum (or, without a residual form, the finite-difference Hessian) gives the
+Laplace covariance that spreads the initial walkers along the posterior's own ridges.
 """
 
 from __future__ import annotations
@@ -50,6 +51,9 @@ class MAPResult:
     candidates : tuple of float
         Log densities of the distinct local optima found (best first): several nearly
         equal values mean a multimodal or flat posterior.
+    notes : tuple of str
+        What the search had to do that a user should know (starts that disagreed, a
+        global search, a regularised Laplace covariance), in plain words.
     """
 
     z: np.ndarray
@@ -59,6 +63,7 @@ class MAPResult:
     laplace_ok: bool
     n_evals: int
     candidates: tuple[float, ...] = field(default_factory=tuple)
+    notes: tuple[str, ...] = field(default_factory=tuple)
 
     def __str__(self) -> str:
         lines = [f"MAP: log p = {self.log_prob:.6g} ({self.n_evals} evaluations, "
@@ -149,75 +154,121 @@ def laplace_covariance(post: Posterior, z: np.ndarray) -> tuple[np.ndarray, bool
     return 0.5 * (cov + cov.T), ok
 
 
+def _polish(post: Posterior, z: np.ndarray, target: Any) -> tuple[float, np.ndarray]:
+    """L-BFGS-B on the exact ``-log p`` from ``z`` (batched central-difference gradients,
+    evaluated from the linear block's Grams where there is one)."""
+    def value_and_grad(zz: np.ndarray) -> tuple[float, np.ndarray]:
+        h = _steps(zz)
+        eye = np.diag(h)
+        pts = np.vstack([zz[None, :], zz + eye, zz - eye])
+        lp = target.log_prob(pts) if target is not None else post.log_prob_batch(pts)
+        f = np.where(np.isfinite(lp), -lp, _BIG)
+        grad = (f[1:1 + zz.size] - f[1 + zz.size:]) / (2 * h)
+        grad = np.where(np.isfinite(grad) & (np.abs(grad) < 1e150), grad, 0.0)
+        return float(f[0]), grad
+
+    f0, _ = value_and_grad(z)
+    res = optimize.minimize(value_and_grad, z, jac=True, method="L-BFGS-B",
+                            options={"maxiter": 500, "gtol": 1e-8})
+    if res.fun <= f0 and np.all(np.isfinite(res.x)):
+        return float(res.fun), np.asarray(res.x, dtype=float)
+    return float(f0), np.asarray(z, dtype=float)
+
+
+def _global_search(post: Posterior, rng: np.random.Generator, cand: np.ndarray,
+                   f: np.ndarray, maxiter: int) -> tuple[np.ndarray, float]:
+    """Differential evolution over the central 99 % of the prior in ``z``, its population
+    seeded with the best screened draws and filled with a Latin hypercube."""
+    space = post.space
+    lo, hi = np.quantile(space.sample_prior(rng, 2000), [0.005, 0.995], axis=0)
+    hi = np.where(hi > lo, hi, lo + 1.0)
+    size = max(20, 10 * space.ndim)
+    inside = np.all((cand >= lo) & (cand <= hi), axis=1)
+    seeded = cand[np.argsort(np.where(inside, f, np.inf))][: size // 2]
+    seeded = seeded[np.all((seeded >= lo) & (seeded <= hi), axis=1)]
+    lhs = lo + (hi - lo) * _latin_hypercube(size - seeded.shape[0], space.ndim, rng)
+    res = optimize.differential_evolution(
+        lambda zz: _neg(post, np.asarray(zz).T), list(zip(lo, hi, strict=True)),
+        maxiter=maxiter, tol=0.0, atol=0.0, init=np.vstack([seeded, lhs]),
+        seed=int(rng.integers(2**31 - 1)), polish=False, vectorized=True,
+        updating="deferred")
+    return np.asarray(res.x, dtype=float), float(res.fun)
+
+
 def find_map(
     post: Posterior,
     *,
     seed: int | np.random.Generator = 0,
     n_screen: int = 256,
-    n_starts: int = 2,
-    global_search: bool = True,
+    n_starts: int = 3,
+    global_search: bool | str = "auto",
     de_maxiter: int = 100,
-    powell_maxfev: int = 1000,
     x0: np.ndarray | None = None,
 ) -> MAPResult:
     """Maximum a posteriori point in ``z`` with its Laplace covariance.
+
+    A screen of prior draws (one batch; with a linear block each draw's block is set to
+    its conditional mean first, so the screen ranks the nonlinear coordinates), least
+    squares from the best distinct draws (:func:`~bayeshyst.inference.least_squares.
+    least_squares_point`: variable projection, batched Jacobians), an L-BFGS polish of
+    the exact log posterior, and the Gauss–Newton Laplace covariance. When the starts
+    end at optima more than half a nat apart — a multimodal or rugged posterior — a
+    differential evolution searches the prior globally as well, and the result says so.
 
     Parameters
     ----------
     post : Posterior
     seed : int or Generator
-        Randomness of the screen and the differential evolution.
+        Randomness of the screen and of the differential evolution.
     n_screen : int
         Prior draws evaluated (one batch) to pick starting points.
     n_starts : int
-        Distinct starting points polished (Powell, then L-BFGS-B).
-    global_search : bool
-        Run a short differential evolution over the central 99 % of the prior (in
-        ``z``) first; its best point joins the starts.
+        Distinct starting points of the least squares.
+    global_search : bool or "auto"
+        Run the differential evolution always (True), never (False), or when the
+        starts disagree ("auto").
     de_maxiter : int
         Generations of the differential evolution.
-    powell_maxfev : int
-        Evaluations per dimension allowed to each Powell search.
     x0 : ndarray, shape (ndim,), optional
-        An extra starting point (e.g. a least-squares fit).
+        An extra starting point (e.g. an earlier fit's optimum), tried first.
 
     Raises
     ------
     ParameterError
         If no point with finite posterior density is found.
     """
+    from bayeshyst.inference.least_squares import gauss_newton_covariance, least_squares_point
+    from bayeshyst.inference.linear import LinearStructure
+    from bayeshyst.inference.moves import StructuredTarget
+
+    if global_search not in (True, False, "auto"):
+        raise ParameterError(f"global_search must be True, False or 'auto', got {global_search!r}")
     rng = seed if isinstance(seed, np.random.Generator) else np.random.default_rng(seed)
     n0 = post.counts.evaluations
     space = post.space
+    structure = LinearStructure.of(post) if post.beta == 1.0 else None
+    target = None if structure is None else StructuredTarget(post, structure)
     cand = space.sample_prior(rng, n_screen)
     if x0 is not None:
         cand = np.vstack([np.asarray(x0, dtype=float)[None, :], cand])
+    if structure is not None:
+        cond = structure.conditional(structure.stats(cand), cand)
+        zb, _ = structure.z_of(cond.mean)
+        good = cond.ok & np.all(np.isfinite(zb), axis=1)
+        if x0 is not None:
+            good[0] = False  # an explicit start is kept as it is
+        cand[np.ix_(good, structure.lin_idx)] = zb[good]
     f = _neg(post, cand)
-    if global_search:
-        lo, hi = np.quantile(space.sample_prior(rng, 2000), [0.005, 0.995], axis=0)
-        hi = np.where(hi > lo, hi, lo + 1.0)
-        # population: the best screened prior draws (inside the DE box) filled up with
-        # a Latin hypercube, 10 members per dimension
-        size = max(20, 10 * space.ndim)
-        inside = np.all((cand >= lo) & (cand <= hi), axis=1)
-        seeded = cand[np.argsort(np.where(inside, f, np.inf))][: size // 2]
-        seeded = seeded[np.all((seeded >= lo) & (seeded <= hi), axis=1)]
-        lhs = lo + (hi - lo) * _latin_hypercube(size - seeded.shape[0], space.ndim, rng)
-        res = optimize.differential_evolution(
-            lambda zz: _neg(post, np.asarray(zz).T), list(zip(lo, hi, strict=True)),
-            maxiter=de_maxiter, tol=0.0, atol=0.0, init=np.vstack([seeded, lhs]),
-            seed=int(rng.integers(2**31 - 1)), polish=False, vectorized=True,
-            updating="deferred")
-        cand = np.vstack([res.x[None, :], cand])
-        f = np.concatenate([[res.fun], f])
-    order = np.argsort(f)
+    order = np.argsort(f, kind="stable")
     starts: list[np.ndarray] = []
+    if x0 is not None and f[0] < _BIG:
+        starts.append(cand[0])
     for i in order:
         if f[i] >= _BIG or len(starts) >= n_starts:
             break
-        # distinct starts: not within a prior-scale ball of an earlier one
+        # distinct starts: not within a tenth of a prior scale of an earlier one
         scale = space.prior_scale_z(cand[i])
-        if all(np.max(np.abs(cand[i] - s) / scale) > 0.1 for s in starts):
+        if all(np.max(np.abs(cand[i] - st) / scale) > 0.1 for st in starts):
             starts.append(cand[i])
     if not starts:
         raise ParameterError(
@@ -225,31 +276,46 @@ def find_map(
             f"prior draws of {post!r}: the data and the priors do not overlap, or every "
             "simulation failed"
         )
+    lsq = post.likelihood.name in ("gaussian", "ar1", "student_t") and post.beta == 1.0
     optima = []
-    for s in starts:
-        # Powell first: derivative-free line searches follow the thin curved ridges of
-        # hysteresis posteriors (Laplace eigenvalues spanning >10 decades for
-        # Bouc-Wen), where quasi-Newton steps from finite differences stall at once;
-        # L-BFGS-B then polishes where the gradient is informative
-        res = optimize.minimize(lambda zz: float(_neg(post, zz[None, :])[0]), s,
-                                method="Powell",
-                                options={"maxfev": powell_maxfev * space.ndim,
-                                         "xtol": 1e-6, "ftol": 1e-12})
-        res2 = optimize.minimize(lambda zz: _value_and_grad(post, zz), res.x, jac=True,
-                                 method="L-BFGS-B", options={"maxiter": 500, "gtol": 1e-8})
-        best = res2 if res2.fun <= res.fun else res
-        optima.append((float(best.fun), np.asarray(best.x, dtype=float)))
+    for st in starts:
+        z = st
+        if lsq:
+            z, _ = least_squares_point(post, structure, st)
+            if not np.isfinite(post.log_prob(z)):
+                z = st
+        optima.append(_polish(post, z, target))
     optima.sort(key=lambda p: p[0])
+    notes = []
+    disagree = len(optima) > 1 and optima[1][0] < _BIG and optima[1][0] - optima[0][0] > 0.5
+    if global_search is True or (global_search == "auto" and disagree):
+        zg, _ = _global_search(post, rng, cand, f, de_maxiter)
+        optima.append(_polish(post, zg, target))
+        optima.sort(key=lambda p: p[0])
+        if disagree:
+            notes.append(
+                f"the least-squares starts ended at optima {optima[-1][0] - optima[0][0]:.3g} "
+                f"nats apart (a multimodal or rugged posterior); a differential evolution "
+                f"searched the prior globally")
     best_f, best_z = optima[0]
     if best_f >= _BIG:
         raise ParameterError(f"MAP search for {post!r} found no finite posterior density")
-    cov, ok = laplace_covariance(post, best_z)
+    if structure is not None and post.likelihood.name in ("gaussian", "ar1"):
+        structure.set_reference(best_z)
+        cov, ok, _ = gauss_newton_covariance(post, structure, best_z)
+    elif post.likelihood.name in ("gaussian", "ar1") and post.beta == 1.0:
+        cov, ok, _ = gauss_newton_covariance(post, None, best_z)
+    else:
+        cov, ok = laplace_covariance(post, best_z)
+    if not ok:
+        notes.append("the Laplace covariance had directions without positive curvature; "
+                     "they were given the broadest variance the others identify")
     distinct: list[float] = []
     for v, _ in optima:  # sorted best first; optima within 0.05 nats count as one
         if v < _BIG and all(abs(-v - d) > 0.05 for d in distinct):
             distinct.append(-v)
     return MAPResult(best_z, space.unpack(best_z), -best_f, cov, ok,
-                     post.counts.evaluations - n0, tuple(distinct))
+                     post.counts.evaluations - n0, tuple(distinct), tuple(notes))
 
 
 def initial_ensemble(

@@ -236,6 +236,13 @@ class Posterior:
         new.reset_counts()
         return new
 
+    def record_counts(self, evaluations: int, prior_rejected: int, failed: int) -> None:
+        """Count evaluations made outside :meth:`log_prob_batch` (the sampler's moves
+        evaluate proposals from their linear-block statistics)."""
+        self._n_evals += int(evaluations)
+        self._n_prior += int(prior_rejected)
+        self._n_failed += int(failed)
+
     def reset_counts(self) -> None:
         """Zero the evaluation counters."""
         self._n_evals = self._n_prior = self._n_failed = 0

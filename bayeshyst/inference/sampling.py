@@ -1,16 +1,21 @@
 """Posterior sampling with emcee: independent ensembles, automatic extension, checkpoints.
 
 :func:`sample_posterior` starts from the MAP (walkers drawn from its Laplace
-approximation), runs ``n_ensembles`` independent emcee ensembles with
-differential-evolution moves (hysteresis posteriors are thin curved ridges; DE moves
-propose along the ensemble's own spread and mix far better there than the default
-stretch move), and extends the run chunk by chunk until every convergence criterion
+approximation, or from an earlier fit's ensembles), runs ``n_ensembles`` independent
+emcee ensembles and extends the run chunk by chunk until every convergence criterion
 holds — rank-normalised R-hat < 1.01 across walkers *and* across ensembles, bulk and
 tail ESS >= 400, at least 50 integrated autocorrelation times kept after burn-in — or
 the step budget is spent, in which case the result says so.
 
-Chunk boundaries are a fixed function of the step count, so a run resumed from a
-checkpoint makes exactly the decisions (and draws exactly the samples) of the
+The default moves use the posterior's structure (:mod:`bayeshyst.inference.moves`):
+the linear block (PI weights, Preisach grid, offsets, gains) is drawn exactly from its
+conditional Gaussian, the few remaining coordinates by an independence proposal fitted
+to the posterior during a warm-up and by differential evolution. ``moves="de"`` (emcee's
+differential-evolution moves on every coordinate) and ``"stretch"`` remain selectable.
+
+Chunk boundaries and the warm-up's adaptation points are fixed functions of the step
+count, and every adaptation is recomputed from the stored chain, so a run resumed from
+a checkpoint makes exactly the decisions (and draws exactly the samples) of the
 uninterrupted run.
 """
 
@@ -20,7 +25,6 @@ import hashlib
 import sys
 import time
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any
 
 import emcee
@@ -34,11 +38,16 @@ from bayeshyst.inference.checkpoint import (
     write_meta,
 )
 from bayeshyst.inference.convergence import ConvergenceReport, assess, hdi
+from bayeshyst.inference.linear import LinearStructure
+from bayeshyst.inference.moves import MoveStats, StructuredTarget, structured_moves
 from bayeshyst.inference.optimize import MAPResult, find_map, initial_ensemble
 from bayeshyst.inference.posterior import EvalCounts, Posterior
+from bayeshyst.inference.settings import SamplerSettings
 from bayeshyst.params import ParamSpace
 
-__all__ = ["ParamSummary", "SamplingResult", "chunk_boundaries", "sample_posterior"]
+__all__ = [
+    "ParamSummary", "SamplingResult", "adaptation_points", "chunk_boundaries", "sample_posterior",
+]
 
 
 @dataclass(frozen=True)
@@ -84,7 +93,13 @@ class SamplingResult:
     model, likelihood : str
     seed : int
     settings : dict
-        Sampler settings (walkers, ensembles, budget, moves).
+        Sampler settings (:meth:`SamplerSettings.to_dict`, with the walkers used).
+    move_acceptance : dict of str to float
+        Acceptance rate of each move over the whole run, all ensembles (for the
+        structured moves: ``gibbs_linear``, ``gibbs_sigma``, ``gibbs_phi``,
+        ``independence``, ``differential``).
+    linear_block : tuple of str
+        Parameters drawn exactly from their conditional Gaussian (empty when none).
     """
 
     space: ParamSpace
@@ -99,6 +114,8 @@ class SamplingResult:
     likelihood: str
     seed: int
     settings: dict[str, Any] = field(default_factory=dict)
+    move_acceptance: dict[str, float] = field(default_factory=dict)
+    linear_block: tuple[str, ...] = ()
 
     @property
     def converged(self) -> bool:
@@ -139,10 +156,11 @@ class SamplingResult:
         return out
 
     def __str__(self) -> str:
+        moves = ", ".join(f"{k} {v:.2f}" for k, v in sorted(self.move_acceptance.items()))
         head = (f"{self.model} / {self.likelihood}: {self.chains.shape[0]} ensembles x "
                 f"{self.chains.shape[2]} walkers, {self.convergence}\n"
-                f"{self.counts}; acceptance {np.mean(self.acceptance):.2f}; "
-                f"{self.runtime_s:.1f} s")
+                f"{self.counts}; acceptance {np.mean(self.acceptance):.2f}"
+                f"{f' ({moves})' if moves else ''}; {self.runtime_s:.1f} s")
         rows = [f"{'parameter':<22} {'mean':>12} {'sd':>11}  90% HDI"]
         rows += [str(s) for s in self.summary()]
         return head + "\n" + "\n".join(rows)
@@ -159,23 +177,27 @@ def chunk_boundaries(first: int, max_steps: int) -> list[int]:
     return out
 
 
-def _moves(moves: str | list) -> Any:
+def adaptation_points(warmup: int) -> list[int]:
+    """Step counts at which the independence proposal is re-fitted: a quarter, half,
+    three quarters and all of the warm-up (none without one)."""
+    return sorted({warmup * k // 4 for k in (1, 2, 3, 4)} - {0})
+
+
+def _emcee_moves(moves: str) -> Any:
     if moves == "de":
         return [(emcee.moves.DEMove(), 0.8), (emcee.moves.DESnookerMove(), 0.2)]
-    if moves == "stretch":
-        return emcee.moves.StretchMove()
-    if isinstance(moves, list):
-        return moves
-    raise ParameterError(f"moves must be 'de', 'stretch' or a list of emcee moves, got "
-                         f"{moves!r}")
+    return emcee.moves.StretchMove()
 
 
-def _fingerprint(post: Posterior, settings: dict[str, Any]) -> dict[str, Any]:
+def _fingerprint(post: Posterior, settings: SamplerSettings, n_walkers: int,
+                 initial: np.ndarray | None) -> dict[str, Any]:
     h = hashlib.sha256()
     for rec in post.data:
         for arr in (rec.t, rec.u, rec.y):
             h.update(np.ascontiguousarray(arr).tobytes())
         h.update(str(rec.warmup).encode())
+    start = "" if initial is None else hashlib.sha256(
+        np.ascontiguousarray(initial).tobytes()).hexdigest()
     return {
         "model": repr(post.model),
         "likelihood": post.likelihood.name,
@@ -183,115 +205,156 @@ def _fingerprint(post: Posterior, settings: dict[str, Any]) -> dict[str, Any]:
         "held_out": str(post.held_out),
         "space": str(post.space),
         "data_sha256": h.hexdigest(),
-        **{k: str(v) for k, v in settings.items()},
+        "n_walkers_used": str(n_walkers),
+        "initial_sha256": start,
+        **settings.fingerprint(),
     }
+
+
+def _initial_positions(post: Posterior, start: MAPResult, initial: np.ndarray | None,
+                       n_ens: int, n_walkers: int, rngs: list[np.random.Generator]
+                       ) -> list[np.ndarray]:
+    """Each ensemble's starting walkers: the given ones (walkers without finite density
+    replaced by Laplace draws; resampled to the ensemble size), else Laplace draws."""
+    out = []
+    for e in range(n_ens):
+        rng = rngs[e]
+        if initial is None:
+            out.append(initial_ensemble(post, start, n_walkers, rng))
+            continue
+        pool = np.asarray(initial, dtype=float).reshape(-1, post.ndim)
+        pool = pool[np.isfinite(post.log_prob_batch(pool))]
+        if pool.shape[0] < n_walkers:
+            fill = initial_ensemble(post, start, n_walkers - pool.shape[0], rng)
+            pool = np.vstack([pool, fill])
+        pick = rng.choice(pool.shape[0], size=n_walkers, replace=False)
+        out.append(pool[np.sort(pick)])
+    return out
 
 
 def sample_posterior(
     post: Posterior,
+    settings: SamplerSettings | None = None,
     *,
-    n_walkers: int | None = None,
-    n_ensembles: int = 2,
-    max_steps: int = 20_000,
-    first_chunk: int = 1_000,
-    seed: int = 0,
     start: MAPResult | None = None,
-    moves: str | list = "de",
-    checkpoint: str | Path | None = None,
-    progress: bool = False,
-    rhat_threshold: float = 1.01,
-    min_ess: float = 400.0,
-    tau_factor: float = 50.0,
-    flush_seconds: float = 2.0,
+    initial: np.ndarray | None = None,
 ) -> SamplingResult:
     """Sample the posterior with independent emcee ensembles until converged.
 
     Parameters
     ----------
     post : Posterior
-    n_walkers : int, optional
-        Walkers per ensemble (even); default ``max(32, 4 * ndim)``.
-    n_ensembles : int
-        Independent ensembles (>= 2 so that R-hat can compare them).
-    max_steps : int
-        Step budget per ensemble; a run that has not converged by then stops and
-        says so.
-    first_chunk : int
-        Steps before the first convergence check (see :func:`chunk_boundaries`).
-    seed : int
-        Seeds the MAP search and every ensemble: same seed, same draws.
+    settings : SamplerSettings, optional
+        Moves, walkers, ensembles, budget, convergence criteria, seed, checkpoint,
+        progress (defaults: :class:`SamplerSettings`). With a checkpoint the run is
+        written as it goes and resumed when the file exists: a run killed at any point
+        continues where its last flush left it and ends with the draws of an
+        uninterrupted run.
     start : MAPResult, optional
         Skip the MAP search and start from this one.
-    moves : {"de", "stretch"} or list of emcee moves
-    checkpoint : path, optional
-        HDF5 file; written during the run, and resumed from when it exists (a run
-        killed at any point continues where its last flush left it, and ends with the
-        same draws as an uninterrupted run).
-    progress : bool
-        Show a progress bar (tqdm) on stderr.
-    rhat_threshold, min_ess, tau_factor : float
-        Convergence criteria.
-    flush_seconds : float
-        Longest interval between checkpoint writes.
+    initial : ndarray, shape (..., ndim), optional
+        Starting walkers (e.g. an earlier fit's draws of the same coordinates: a
+        leave-one-cycle-out refit starts from the full-data ensembles); each ensemble
+        takes its walkers from them, and Laplace draws replace any without finite
+        density.
+
+    Returns
+    -------
+    SamplingResult
+
+    Raises
+    ------
+    ParameterError
+        For too few walkers for the move set, or a checkpoint of another run.
     """
     t0 = time.perf_counter()
-    if n_ensembles < 2:
-        raise ParameterError(f"n_ensembles must be >= 2 to compare ensembles, got {n_ensembles}")
+    settings = SamplerSettings() if settings is None else settings
+    if not isinstance(settings, SamplerSettings):
+        raise ParameterError(f"settings must be a SamplerSettings, got {type(settings).__name__}")
     ndim = post.ndim
-    if n_walkers is None:
-        n_walkers = max(32, 4 * ndim)
-    n_walkers = int(n_walkers) + int(n_walkers) % 2
-    if n_walkers < 2 * ndim:
-        raise ParameterError(f"n_walkers={n_walkers} is too few for {ndim} dimensions "
-                             f"(need >= {2 * ndim})")
-    if max_steps < 10 or first_chunk < 10:
-        raise ParameterError("max_steps and first_chunk must be >= 10")
-    settings = {"n_walkers": n_walkers, "n_ensembles": n_ensembles, "max_steps": max_steps,
-                "first_chunk": first_chunk, "seed": seed, "moves": moves}
-    seeds = np.random.SeedSequence(seed).spawn(n_ensembles + 1)
+    n_ens = settings.n_ensembles
+    seeds = np.random.SeedSequence(settings.seed).spawn(n_ens + 1)
+    checkpoint = settings.checkpoint
     counts0 = post.counts
     meta = None
     if checkpoint is not None:
-        checkpoint = Path(checkpoint)
-        fp = _fingerprint(post, settings)
         meta = read_meta(checkpoint)
         if meta is not None:
-            check_fingerprint(checkpoint, meta["fingerprint"], fp)
             start = start or MAPResult(**meta["start"])
     if start is None:
         start = find_map(post, seed=np.random.default_rng(seeds[-1]))
-    if checkpoint is not None and meta is None:
-        checkpoint.parent.mkdir(parents=True, exist_ok=True)
-        write_meta(checkpoint, {"fingerprint": fp, "start": {
-            "z": start.z, "theta": start.theta, "log_prob": start.log_prob,
-            "covariance": start.covariance, "laplace_ok": start.laplace_ok,
-            "n_evals": start.n_evals, "candidates": start.candidates}})
-
-    samplers = []
-    for e in range(n_ensembles):
-        backend = (CheckpointBackend(checkpoint, f"ensemble_{e}", flush_seconds=flush_seconds)
-                   if checkpoint is not None else emcee.backends.Backend())
-        sampler = emcee.EnsembleSampler(n_walkers, ndim, post.log_prob_batch, vectorize=True,
-                                        moves=_moves(moves), backend=backend)
-        if backend.iteration == 0:
-            rng = np.random.default_rng(seeds[e])
-            p0 = initial_ensemble(post, start, n_walkers, rng)
-            sampler.random_state = np.random.RandomState(int(rng.integers(2**31 - 1))).get_state()
+    structure = (LinearStructure.of(post, reference=start.z)
+                 if settings.moves == "structured" else None)
+    target = StructuredTarget(post, structure)
+    n_walkers = settings.walkers(target.n_other if settings.moves == "structured" else ndim,
+                                 ndim)
+    if settings.moves != "structured" and n_walkers < 2 * ndim:
+        raise ParameterError(f"n_walkers={n_walkers} is too few for {ndim} dimensions with "
+                             f"{settings.moves!r} moves (need >= {2 * ndim})")
+    if checkpoint is not None:
+        fp = _fingerprint(post, settings, n_walkers, initial)
+        if meta is not None:
+            check_fingerprint(checkpoint, meta["fingerprint"], fp)
         else:
-            p0 = None
-        samplers.append([sampler, p0])
+            checkpoint.parent.mkdir(parents=True, exist_ok=True)
+            write_meta(checkpoint, {"fingerprint": fp, "start": {
+                "z": start.z, "theta": start.theta, "log_prob": start.log_prob,
+                "covariance": start.covariance, "laplace_ok": start.laplace_ok,
+                "n_evals": start.n_evals, "candidates": start.candidates,
+                "notes": start.notes}})
 
+    other = target.other_idx
+    samplers, stats, indeps = [], [], []
+    rngs = [np.random.default_rng(seeds[e]) for e in range(n_ens)]
+    starts = None
+    for e in range(n_ens):
+        backend = (CheckpointBackend(checkpoint, f"ensemble_{e}",
+                                     flush_seconds=settings.flush_seconds)
+                   if checkpoint is not None else emcee.backends.Backend())
+        st = MoveStats()
+        indep = None
+        if settings.moves == "structured":
+            moves, indep = structured_moves(target, st, start.z[other],
+                                            start.covariance[np.ix_(other, other)])
+        else:
+            moves = _emcee_moves(settings.moves)
+        # (a new checkpoint's groups are created here, by emcee)
+        sampler = emcee.EnsembleSampler(n_walkers, ndim, post.log_prob_batch, vectorize=True,
+                                        moves=moves, backend=backend)
+        if isinstance(backend, CheckpointBackend):
+            if backend.iteration > 0:
+                # the moves' counts as of the last flushed step, which the run resumes from
+                restored = MoveStats.from_dict(backend.stored_extra())
+                st.proposed.update(restored.proposed)
+                st.accepted.update(restored.accepted)
+            backend.extra_provider = st.to_dict
+        p0 = None
+        if backend.iteration == 0:
+            if starts is None:
+                starts = _initial_positions(post, start, initial, n_ens, n_walkers, rngs)
+            p0 = starts[e]
+            sampler.random_state = np.random.RandomState(
+                int(rngs[e].integers(2**31 - 1))).get_state()
+        samplers.append([sampler, p0])
+        stats.append(st)
+        indeps.append(indep)
+
+    warmup = settings.warmup_steps if any(i is not None for i in indeps) else 0
+    adapt_at = set(adaptation_points(warmup))
+    boundaries = sorted(set(chunk_boundaries(settings.first_chunk, settings.max_steps))
+                        | adapt_at)
+    checks = set(chunk_boundaries(settings.first_chunk, settings.max_steps))
     bar = None
-    if progress:
+    if settings.progress:
         from tqdm.auto import tqdm
 
         # a terminal gets a live bar; a log file an update every 10 s, not thousands
-        bar = tqdm(total=max_steps * n_ensembles, desc=f"sampling {post.model.name}",
+        bar = tqdm(total=settings.max_steps * n_ens, desc=f"sampling {post.model.name}",
                    unit="step", initial=sum(s.iteration for s, _ in samplers),
                    mininterval=0.2 if sys.stderr.isatty() else 10.0)
     report = None
     try:
-        for boundary in chunk_boundaries(first_chunk, max_steps):
+        for boundary in boundaries:
             for pair in samplers:
                 sampler, p0 = pair
                 todo = boundary - sampler.iteration
@@ -300,14 +363,24 @@ def sample_posterior(
                 # continue from the stored last state (positions, log p, random state):
                 # after a resume that is the checkpoint, so the run goes on identically
                 state = p0 if sampler.iteration == 0 else sampler.get_last_sample()
-                for _ in sampler.sample(state, iterations=todo, store=True):
+                for _ in sampler.sample(state, iterations=todo, store=True,
+                                        skip_initial_state_check=settings.moves == "structured"):
                     if bar is not None:
                         bar.update(1)
                 if isinstance(sampler.backend, CheckpointBackend):
                     sampler.backend.flush()
-            chains = [s.get_chain() for s, _ in samplers]
-            report = assess(chains, rhat_threshold=rhat_threshold, min_ess=min_ess,
-                            tau_factor=tau_factor)
+            if boundary in adapt_at:
+                # a fixed function of the stored chain: a resumed run re-fits the same
+                for (sampler, _), indep in zip(samplers, indeps, strict=True):
+                    if indep is not None:
+                        window = sampler.get_chain()[boundary // 2:boundary]
+                        indep.adapt(window.reshape(-1, ndim))
+            if boundary not in checks:
+                continue
+            chains = [s.get_chain()[:boundary] for s, _ in samplers]
+            report = assess(chains, rhat_threshold=settings.rhat_threshold,
+                            min_ess=settings.min_ess, tau_factor=settings.tau_factor,
+                            min_burn=warmup)
             if bar is not None:
                 bar.set_postfix_str(f"R-hat {report.rhat_max:.3f}, ESS "
                                     f"{report.ess_bulk_min:.0f}, tau {report.tau_max:.0f}")
@@ -316,7 +389,8 @@ def sample_posterior(
     finally:
         if bar is not None:
             bar.close()
-    assert report is not None  # chunk_boundaries is never empty (internal invariant)
+    if report is None:  # internal invariant: chunk_boundaries always ends at max_steps
+        raise ParameterError("no convergence check was made")
     burn = report.burn
     chains = np.stack([s.get_chain()[burn:report.n_steps] for s, _ in samplers])
     logp = np.stack([s.get_log_prob()[burn:report.n_steps] for s, _ in samplers])
@@ -324,6 +398,8 @@ def sample_posterior(
     c1 = post.counts
     counts = EvalCounts(c1.evaluations - counts0.evaluations,
                         c1.prior_rejected - counts0.prior_rejected, c1.failed - counts0.failed)
+    info = {**settings.to_dict(), "n_walkers": n_walkers}
     return SamplingResult(post.space, chains, logp, report, start, counts, acc,
                           time.perf_counter() - t0, post.model.name, post.likelihood.name,
-                          int(seed), settings)
+                          int(settings.seed), info, MoveStats.merge(stats).rates(),
+                          () if structure is None else structure.names)

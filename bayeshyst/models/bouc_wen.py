@@ -25,7 +25,13 @@ import numpy as np
 
 from bayeshyst.errors import ModelError, ParameterError
 from bayeshyst.models._kernels.bouc_wen import C_L, bw_batch, bw_oscillator_batch, mbw_batch
-from bayeshyst.models.base import DataScales, HysteresisModel, LinearInParams, data_scales
+from bayeshyst.models.base import (
+    DataScales,
+    HysteresisModel,
+    LinearDesign,
+    LinearInParams,
+    data_scales,
+)
 from bayeshyst.models.registry import register
 from bayeshyst.params import LogNormal, Normal, Param, ParamSpace, TruncatedNormal, Uniform
 
@@ -101,7 +107,7 @@ def _first(theta: Mapping[str, Any], name: str) -> float:
 
 @register
 @dataclass(frozen=True)
-class BoucWen(HysteresisModel):
+class BoucWen(LinearInParams, HysteresisModel):
     """Classical Bouc–Wen model (review Eq. 47–48).
 
     .. math::  y = k u - h, \\quad
@@ -154,6 +160,9 @@ class BoucWen(HysteresisModel):
 
     name: ClassVar[str] = "bouc_wen"
     equation: ClassVar[str] = "review Eq. 47-48"
+    # y = k u -/+ h with h independent of k: affine in k (the constant term is -/+ h)
+    linear_params: ClassVar[tuple[str, ...]] = ("k",)
+    linear_affine: ClassVar[bool] = True
     step_scale: float = C_L
     sign: int = -1
 
@@ -199,6 +208,25 @@ class BoucWen(HysteresisModel):
         s = np.zeros((theta["k"].shape[0], 2))
         s[:, 1] = u0
         return s
+
+    def linear_design(self, u: Any, t: Any, thetas: Mapping[str, Any],
+                      names: tuple[str, ...] | None = None) -> LinearDesign:
+        """``y = k u + c`` with ``c = -/+ h``: one simulation per walker (at ``k = 0``).
+
+        See :meth:`LinearInParams.linear_design`; ``h`` does not depend on ``k``, so
+        the column is the input itself.
+        """
+        names = ("k",) if names is None else tuple(names)
+        if names not in ((), ("k",)):
+            raise ParameterError(f"{self.name}: only 'k' is linear, got {list(names)}")
+        batch = {n: np.asarray(v, dtype=float) for n, v in thetas.items()}
+        width = int(np.shape(batch["alpha"])[0])
+        if names:
+            batch["k"] = np.zeros(width)
+        traj = self.run_batch(u, t, batch)
+        phi = np.asarray(u, dtype=float)[None, :, None] if names else np.zeros(
+            (1, traj.y.shape[1], 0))
+        return LinearDesign(names, phi, traj.y, traj.failed)
 
     def _delta(self, theta: Mapping[str, np.ndarray]) -> np.ndarray:
         return np.zeros(theta["k"].shape[0])

@@ -25,7 +25,7 @@ import numpy as np
 
 from bayeshyst.errors import ModelError, ParameterError
 from bayeshyst.models import registry
-from bayeshyst.models.base import HysteresisModel
+from bayeshyst.models.base import HysteresisModel, LinearDesign, LinearInParams
 from bayeshyst.models.blocks import Creep, EffectBlock, block_class, block_names
 from bayeshyst.params import ParamSpace
 
@@ -45,7 +45,7 @@ def _namespaces(blocks: Sequence[EffectBlock]) -> tuple[str, ...]:
 
 
 @dataclass(frozen=True)
-class Composite(HysteresisModel):
+class Composite(LinearInParams, HysteresisModel):
     """A base hysteresis model followed by effect blocks, itself a :class:`HysteresisModel`.
 
     Parameters
@@ -63,6 +63,12 @@ class Composite(HysteresisModel):
     (block sizes are structural; the base's is the remainder). The relaxed initial
     state is the base's relaxed state at ``u0`` and each block at its steady state for
     the output of the part before it at ``u0``, so a record starts at rest.
+
+    Linearity: when the base is linear in some parameters (:class:`LinearInParams`) and
+    every block is affine in its input (``EffectBlock.affine``: linear dynamics, creep,
+    delay, drift), the composite is linear in the base's linear parameters
+    (``static.<name>``), with ``Phi`` the base's columns passed through the blocks
+    (:meth:`linear_design`). An output map (``asym_output``) breaks that.
     """
 
     base: HysteresisModel
@@ -96,6 +102,83 @@ class Composite(HysteresisModel):
     def equation(self) -> str:  # type: ignore[override]
         parts = [self.base.equation, *(b.equation for b in self.blocks)]
         return " -> ".join(p for p in parts if p)
+
+    @property
+    def linear_params(self) -> tuple[str, ...]:  # type: ignore[override]
+        """The base's linear parameters (``static.`` names) when every block is affine."""
+        base_lin = tuple(getattr(self.base, "linear_params", ()))
+        if not base_lin or not hasattr(self.base, "linear_design") \
+                or not all(b.affine for b in self.blocks):
+            return ()
+        return tuple(f"{STATIC}.{n}" for n in base_lin)
+
+    @property
+    def linear_affine(self) -> bool:  # type: ignore[override]
+        """Blocks such as drift add a term that does not scale with the input."""
+        return True
+
+    def linear_design(self, u: Any, t: Any, thetas: Mapping[str, Any],
+                      names: tuple[str, ...] | None = None) -> LinearDesign:
+        """``Phi`` and ``c`` of ``W`` parameter vectors: the base's, through the blocks.
+
+        See :meth:`LinearInParams.linear_design` (same parameters, ``static.`` names)
+        and :meth:`apply_blocks_to_design`.
+        """
+        names = self.linear_params if names is None else tuple(names)
+        bad = [n for n in names if n not in self.linear_params]
+        if bad:
+            raise ParameterError(f"{self.name}: {bad} are not linear parameters; linear: "
+                                 f"{list(self.linear_params)}")
+        base_theta, _ = self._split(thetas)
+        base = self.base.linear_design(u, t, base_theta,
+                                       tuple(n[len(STATIC) + 1:] for n in names))
+        return self.apply_blocks_to_design(base, t, thetas, names)
+
+    def apply_blocks_to_design(self, base: LinearDesign, t: Any, thetas: Mapping[str, Any],
+                               names: tuple[str, ...]) -> LinearDesign:
+        """Pass a base design through the blocks: ``B[const]``, ``B[phi_j] - B[0]``.
+
+        Exact for affine blocks: ``B[sum_j b_j phi_j + c] = sum_j b_j (B[phi_j] - B[0])
+        + B[c]``, each signal starting from its own steady state (the steady state is
+        linear in the held input, so the superposition holds from the first sample).
+
+        Parameters
+        ----------
+        base : LinearDesign
+            The base model's design (``phi`` (1 or W, N, P), ``const``).
+        t : array_like, shape (N,)
+            Sample times (s).
+        thetas : mapping
+            Every parameter of the composite, batched (the blocks' are used).
+        names : tuple of str
+            ``static.`` names of the columns.
+        """
+        if not all(b.affine for b in self.blocks):
+            raise ModelError(f"{self.name}: a block is not affine in its input")
+        t = np.ascontiguousarray(t, dtype=np.float64)
+        _, block_thetas = self._split(thetas)
+        widths = [int(np.shape(v)[0]) for v in thetas.values()]
+        width = max([*widths, base.phi.shape[0], base.const.shape[0]])
+        p = base.phi.shape[2]
+        n = base.phi.shape[1]
+        n_sig = p + 2  # const, the columns, zero (B[0] for blocks with an offset term)
+        sig = np.zeros((width, n_sig, n))
+        sig[:, 0] = base.const
+        sig[:, 1:p + 1] = base.phi.transpose(0, 2, 1)
+        w = np.ascontiguousarray(sig.reshape(width * n_sig, n))
+        failed = np.broadcast_to(base.failed, (width,)).copy()
+        for block, th in zip(self.blocks, block_thetas, strict=True):
+            rep = {k: np.ascontiguousarray(np.repeat(
+                np.broadcast_to(np.asarray(v, dtype=np.float64), (width, *np.shape(v)[1:])),
+                n_sig, axis=0)) for k, v in th.items()}
+            s0 = block._initial_state(rep, np.ascontiguousarray(w[:, 0]), math.nan)
+            w, _, f = block._apply(w, t, rep, s0)
+            w = np.ascontiguousarray(w)
+            failed |= np.asarray(f, dtype=bool).reshape(width, n_sig).any(axis=1)
+        out = w.reshape(width, n_sig, n)
+        phi = out[:, 1:p + 1] - out[:, n_sig - 1:n_sig]
+        return LinearDesign(tuple(names), np.ascontiguousarray(phi.transpose(0, 2, 1)),
+                            np.ascontiguousarray(out[:, 0]), failed)
 
     @property
     def namespaces(self) -> tuple[str, ...]:

@@ -88,6 +88,12 @@ class EffectBlock(ABC):
         Whether the output depends on the time axis (or on the sample count).
     equation : str
         What the block implements, for docs.
+    affine : bool
+        Whether the output is affine in the input signal from the steady initial
+        state: ``B[a w1 + b w2] = a B[w1] + b B[w2] + (1 - a - b) B[0]`` (linear
+        dynamics, creep, delay, drift). A model that is linear in some parameters stays
+        so after affine blocks (:meth:`Composite.linear_design`), which lets the
+        sampler draw those parameters exactly.
     needs_preview : bool
         Whether the block is linear time-invariant dynamics whose output responds to its
         present input weakly or not at all (a delay, sampled second-order dynamics): its
@@ -98,6 +104,7 @@ class EffectBlock(ABC):
     name: ClassVar[str] = ""
     rate_dependent: ClassVar[bool] = True
     equation: ClassVar[str] = ""
+    affine: ClassVar[bool] = False
     needs_preview: ClassVar[bool] = False
 
     @property

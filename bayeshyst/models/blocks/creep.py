@@ -70,6 +70,7 @@ class Creep(EffectBlock):
     """
 
     name: ClassVar[str] = "creep"
+    affine: ClassVar[bool] = True
     equation: ClassVar[str] = "y = w + sum c_j (x_j - w), tau_j x_j' = w - x_j"
     n_terms: int = 3
     tau_min: float | None = None
@@ -160,6 +161,7 @@ class FractionalCreep(EffectBlock):
     """
 
     name: ClassVar[str] = "creep_fractional"
+    affine: ClassVar[bool] = True
     equation: ClassVar[str] = "y = w + gain (w/(tau s^lam + 1) - w), diffusive modes"
     n_modes: int = 41
     per_decade: float = 4.0

@@ -64,6 +64,7 @@ class ARX(EffectBlock):
     """
 
     name: ClassVar[str] = "arx"
+    affine: ClassVar[bool] = True
     needs_preview: ClassVar[bool] = True
     equation: ClassVar[str] = "review Eq. 56-57"
     na: int = 2
@@ -146,6 +147,7 @@ class SecondOrder(EffectBlock):
     """
 
     name: ClassVar[str] = "second_order"
+    affine: ClassVar[bool] = True
     needs_preview: ClassVar[bool] = True
     equation: ClassVar[str] = "wn^2/(s^2 + 2 zeta wn s + wn^2), exact FOH or ZOH"
 

@@ -46,6 +46,7 @@ class Drift(EffectBlock):
     """
 
     name: ClassVar[str] = "drift"
+    affine: ClassVar[bool] = True
     equation: ClassVar[str] = "y = (1 + g(s)) w + d(s), s = (t - t0)/T"
     order: int = 1
 
@@ -101,6 +102,7 @@ class Delay(EffectBlock):
     """
 
     name: ClassVar[str] = "delay"
+    affine: ClassVar[bool] = True
     needs_preview: ClassVar[bool] = True
     equation: ClassVar[str] = "y(t) = w(t - d)"
     max_delay_samples: int = 10

@@ -1,0 +1,578 @@
+"""The posterior's linear block: exact conditionals, marginals and fast likelihoods.
+
+Most hysteresis models are linear in a block of their parameters once the others are
+fixed: the weights of every PI-type model, the Preisach grid, Maxwell-slip, Duhem's
+``f, g`` given ``alpha``, Bouc–Wen's ``k``, and the observation offset of any model —
+and they stay so behind linear dynamics, creep, delay or drift (the Hammerstein
+structure, :meth:`~bayeshyst.models.compose.Composite.linear_design`). Write the
+scored output as ``y = Phi(z_n) beta + c(z_n)``, with ``z_n`` the other coordinates
+(nonlinear model parameters and noise). With Gaussian or AR(1) noise and Normal priors
+on ``beta``, the conditional posterior of ``beta`` given ``z_n`` is Gaussian and the
+marginal ``p(z_n | y)`` is available in closed form (MODELS.md §2)::
+
+    Lambda = S0^-1 + M_pp / sigma^2,   h = S0^-1 (m0 - b) + M_pr / sigma^2
+    delta | z_n ~ N(Lambda^-1 h, Lambda^-1),          beta = b + delta
+
+where ``M = [[M_pp, M_pr], [M_rp, M_rr]]`` is the (AR(1)-whitened) Gram matrix of
+``[Phi, y - c - Phi b]`` over the scored samples and ``b`` a reference point (the MAP)
+that keeps the quadratic forms free of cancellation. For AR(1) noise the whitened Gram
+is a rational function of ``phi`` assembled from three lagged Grams, so ``phi`` and
+``sigma`` move without touching the data again.
+
+:class:`LinearStructure` holds that algebra for one :class:`Posterior`; the sampler's
+moves (:mod:`bayeshyst.inference.moves`) use it to draw ``beta`` exactly (Gibbs), to
+propose ``z_n`` with ``beta`` integrated out, and to evaluate the log posterior of a
+proposal from the Grams instead of a new simulation. A linear parameter whose prior is
+not Normal gets a moment-matched Gaussian stand-in, and the moves then correct with the
+exact Metropolis–Hastings ratio (:attr:`LinearStructure.exact` is False).
+"""
+
+from __future__ import annotations
+
+import math
+from collections import OrderedDict
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from scipy import special
+
+from bayeshyst.inference._gram import gram_stats
+from bayeshyst.inference.posterior import NOISE, OBS, Posterior
+from bayeshyst.models.base import LinearDesign
+from bayeshyst.params import Identity, Normal
+
+__all__ = ["Conditional", "LinearStats", "LinearStructure"]
+
+_LOG_2PI = math.log(2.0 * math.pi)
+#: walkers whose Grams are kept (keyed by their design-determining coordinates)
+_CACHE_SIZE = 512
+
+
+@dataclass(frozen=True)
+class LinearStats:
+    """Gram matrices of ``[Phi, r_ref]`` for ``W`` walkers, summed over the records.
+
+    ``first`` holds the first scored sample of each record, ``lag0`` the others;
+    ``cross``/``prev`` the lag-one products (AR(1) only, else None). ``n`` scored
+    samples, ``n_first`` of them first samples. ``failed`` marks walkers whose design
+    could not be computed (outside the model's support, failed simulation).
+    """
+
+    first: np.ndarray
+    lag0: np.ndarray
+    cross: np.ndarray | None
+    prev: np.ndarray | None
+    n: int
+    n_first: int
+    failed: np.ndarray
+
+    def take(self, idx: np.ndarray) -> LinearStats:
+        """The statistics of the walkers ``idx``."""
+        return LinearStats(self.first[idx], self.lag0[idx],
+                           None if self.cross is None else self.cross[idx],
+                           None if self.prev is None else self.prev[idx],
+                           self.n, self.n_first, self.failed[idx])
+
+
+@dataclass(frozen=True)
+class Conditional:
+    """``beta | z_n ~ N(mean, Lambda^-1)`` for ``W`` walkers (``chol`` is Lambda's lower
+    Cholesky factor); ``ok`` False where it is undefined (failed design, bad noise)."""
+
+    mean: np.ndarray
+    chol: np.ndarray
+    ok: np.ndarray
+
+    def log_density(self, beta: np.ndarray) -> np.ndarray:
+        """``log N(beta; mean, Lambda^-1)`` per walker (W,); -inf where not ok."""
+        d = np.where(self.ok[:, None], beta - self.mean, 0.0)
+        u = np.einsum("wji,wj->wi", self.chol, d)  # L^T d
+        p = self.mean.shape[1]
+        logdet = np.sum(np.log(np.abs(np.diagonal(self.chol, axis1=1, axis2=2))), axis=1)
+        out = -0.5 * p * _LOG_2PI + logdet - 0.5 * np.sum(u * u, axis=1)
+        return np.where(self.ok, out, -np.inf)
+
+    def draw(self, random: np.random.RandomState) -> np.ndarray:
+        """One draw per walker, ``mean + L^-T xi`` (W, P), from emcee's random state."""
+        w, p = self.mean.shape
+        xi = random.randn(w, p)
+        step = np.linalg.solve(self.chol.transpose(0, 2, 1), xi[:, :, None])[:, :, 0]
+        return self.mean + np.where(self.ok[:, None], step, 0.0)
+
+
+class LinearStructure:
+    """The linear block of a posterior (see the module docstring).
+
+    Parameters
+    ----------
+    post : Posterior
+        With a Gaussian or AR(1) likelihood at full power (``beta == 1``).
+    reference : ndarray, shape (ndim,), optional
+        A point whose linear coordinates centre the Grams (the MAP); default the prior
+        means.
+
+    Raises
+    ------
+    ValueError
+        If the posterior has no linear block (use :meth:`of`, which returns None).
+    """
+
+    def __init__(self, post: Posterior, reference: np.ndarray | None = None) -> None:
+        kind = post.likelihood.name
+        if kind not in ("gaussian", "ar1") or post.beta != 1.0:
+            raise ValueError(f"no linear block for likelihood {kind!r} at power {post.beta}")
+        space = post.space
+        model = post.model
+        model_lin = tuple(getattr(model, "linear_params", ()))
+        free = set(space.names)
+        self.model_names = tuple(n for n in model_lin if n in free)
+        offset = f"{OBS}.offset"
+        self.has_offset = post.offset and offset in free
+        names = self.model_names + ((offset,) if self.has_offset else ())
+        if not names:
+            raise ValueError(f"{post!r} has no free linear parameter")
+        if self.model_names and not hasattr(model, "linear_design"):
+            raise ValueError(f"{model.name} declares no linear design")
+        self.post = post
+        self.kind = kind
+        self.names = names
+        self.lin_idx = np.concatenate([np.arange(space.ndim)[space.slice_of(n)] for n in names])
+        mask = np.ones(space.ndim, dtype=bool)
+        mask[self.lin_idx] = False
+        #: coordinates the moves propose (everything but the linear block)
+        self.other_idx = np.flatnonzero(mask)
+        noise_free = {n for n in space.names if n.startswith(NOISE + ".")}
+        #: coordinates the design depends on (the model's free nonlinear parameters)
+        self.design_idx = np.array([i for i in self.other_idx
+                                    if not _owner(space, i).startswith((NOISE + ".",))
+                                    and _owner(space, i) != offset], dtype=int)
+        self.sigma_name = f"{NOISE}.sigma"
+        self.phi_name = f"{NOISE}.phi"
+        self.sigma_free = self.sigma_name in noise_free
+        self.phi_free = kind == "ar1" and self.phi_name in noise_free
+        # priors of the linear block: exact Normals, or moment-matched stand-ins
+        m0, s0, exact = [], [], True
+        self._lin_params = []
+        for n in names:
+            p = space[n]
+            if isinstance(p.prior, Normal) and isinstance(p.transform, Identity):
+                m0.append(np.full(p.size, p.prior.mu))
+                s0.append(np.full(p.size, p.prior.sigma))
+            else:
+                exact = False
+                x = p.prior.sample(np.random.default_rng(0), (4000,))
+                m0.append(np.full(p.size, float(np.mean(x))))
+                s0.append(np.full(p.size, float(np.std(x)) or p.prior.scale()))
+            self._lin_params.append(p)
+        self.m0 = np.concatenate(m0)
+        self.s0 = np.concatenate(s0)
+        #: whether the conditional Gaussian is the exact conditional posterior
+        self.exact = exact
+        self.p = self.m0.size
+        self.lagged = kind == "ar1"
+        self._records = post._records
+        self._composite_base = None
+        self._constant: LinearStats | None = None
+        self._cache: OrderedDict[bytes, tuple] = OrderedDict()
+        self.beta_ref = self.m0.copy()
+        if reference is not None:
+            self.set_reference(reference)
+        self._base_designs = self._cached_base_designs()
+
+    # ------------------------------------------------------------------ construction
+    @classmethod
+    def of(cls, post: Posterior, reference: np.ndarray | None = None) -> LinearStructure | None:
+        """The posterior's linear structure, or None when it has none (Student-t noise,
+        a tempered likelihood, no free linear parameter)."""
+        try:
+            return cls(post, reference)
+        except ValueError:
+            return None
+
+    def set_reference(self, z: np.ndarray) -> None:
+        """Centre the Grams at the linear coordinates of ``z`` (ndim,) (clears caches)."""
+        beta = self.beta_of(np.asarray(z, dtype=float)[None, :])[0]
+        if np.all(np.isfinite(beta)):
+            self.beta_ref = beta
+        self._cache.clear()
+        self._constant = None
+
+    def _cached_base_designs(self) -> list[LinearDesign] | None:
+        """Base designs of a composite whose base has no free nonlinear parameter."""
+        from bayeshyst.models.compose import STATIC, Composite
+
+        model = self.post.model
+        if not isinstance(model, Composite) or not self.model_names or self.design_idx.size == 0:
+            return None
+        owners = {_owner(self.post.space, i) for i in self.design_idx}
+        if any(o.startswith(STATIC + ".") for o in owners):
+            return None
+        theta = self._model_theta(self.post.space.sample_prior(np.random.default_rng(0), 1))
+        base_theta, _ = model._split(theta)
+        names = tuple(n[len(STATIC) + 1:] for n in self.model_names)
+        return [model.base.linear_design(rec["u"], rec["t"], base_theta, names)
+                for rec in self._records]
+
+    # ------------------------------------------------------------------ coordinates
+    def beta_of(self, z: np.ndarray) -> np.ndarray:
+        """Linear parameters in physical units (W, P) from ``z`` (W, ndim)."""
+        out = np.empty((z.shape[0], self.p))
+        start = 0
+        for p, name in zip(self._lin_params, self.names, strict=True):
+            sl = self.post.space.slice_of(name)
+            with np.errstate(over="ignore", invalid="ignore"):
+                out[:, start:start + p.size] = p.transform.inverse(z[:, sl])
+            start += p.size
+        return out
+
+    def z_of(self, beta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``z`` coordinates (W, P) of linear values ``beta`` and ``log |dbeta/dz|`` (W,);
+        values outside a parameter's support give NaN coordinates."""
+        zb = np.empty_like(beta)
+        logjac = np.zeros(beta.shape[0])
+        start = 0
+        for p in self._lin_params:
+            sl = slice(start, start + p.size)
+            with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+                zb[:, sl] = p.transform.forward(beta[:, sl])
+                logjac += np.sum(p.transform.log_jacobian(zb[:, sl]), axis=1)
+            start += p.size
+        return zb, np.where(np.isfinite(logjac), logjac, -np.inf)
+
+    def noise(self, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``sigma`` (W,) and ``phi`` (W,; zeros for Gaussian noise) at ``z``."""
+        theta = self.post.space.unpack(z)
+        sigma = np.broadcast_to(np.asarray(theta[self.sigma_name], float), (z.shape[0],))
+        phi = (np.broadcast_to(np.asarray(theta[self.phi_name], float), (z.shape[0],))
+               if self.kind == "ar1" else np.zeros(z.shape[0]))
+        return np.array(sigma), np.array(phi)
+
+    def _model_theta(self, z: np.ndarray) -> dict[str, Any]:
+        theta, _ = self.post.model_draws(z)
+        return theta
+
+    # ------------------------------------------------------------------ statistics
+    def designs(self, z: np.ndarray) -> tuple[list[tuple[np.ndarray, np.ndarray]], np.ndarray]:
+        """Design of every record over its scored samples, for the walkers ``z`` (W, ndim).
+
+        Returns a list (one per record) of ``(phi, const)`` with ``phi`` (1 or W, N, P)
+        (the offset column included) and ``const`` (W, N), and the failed walkers (W,).
+        """
+        w = z.shape[0]
+        failed = np.zeros(w, dtype=bool)
+        theta = self._model_theta(z)
+        model = self.post.model
+        out = []
+        for i, rec in enumerate(self._records):
+            if self.model_names:
+                if self._base_designs is not None:
+                    d = model.apply_blocks_to_design(self._base_designs[i], rec["t"], theta,
+                                                     self.model_names)
+                else:
+                    d = model.linear_design(rec["u"], rec["t"], theta, self.model_names)
+                phi, const = d.phi, d.const
+                failed |= np.broadcast_to(d.failed, (w,))
+            else:
+                traj = model.run_batch(rec["u"], rec["t"], theta)
+                phi = np.zeros((1, traj.y.shape[1], 0))
+                const = traj.y
+                failed |= traj.failed
+            s0 = rec["s0"]
+            phi = phi[:, s0:]
+            const = np.broadcast_to(const, (w, const.shape[1]))[:, s0:]
+            if self.has_offset:
+                phi = np.concatenate([phi, np.ones((phi.shape[0], phi.shape[1], 1))], axis=2)
+            out.append((phi, const))
+        return out, failed
+
+    def _reference_residual(self, rec: dict, phi: np.ndarray, const: np.ndarray) -> np.ndarray:
+        # einsum without BLAS: every walker's residual is summed in the same order
+        # whatever the batch, so cached and recomputed Grams agree to the bit
+        with np.errstate(invalid="ignore", over="ignore"):
+            fit = np.einsum("wnp,p->wn", phi, self.beta_ref, optimize=False)
+            return rec["y"][None, :] - const - fit
+
+    def _compute(self, z: np.ndarray) -> LinearStats:
+        """Grams of the walkers ``z`` (W, ndim) (no cache)."""
+        w = z.shape[0]
+        q = self.p + 1
+        first = np.zeros((w, q, q))
+        lag0 = np.zeros((w, q, q))
+        cross = np.zeros((w, q, q)) if self.lagged else np.zeros((1, 1, 1))
+        prev = np.zeros((w, q, q)) if self.lagged else np.zeros((1, 1, 1))
+        n = n_first = 0
+        rows, failed = self.designs(z)
+        for rec, (phi, const) in zip(self._records, rows, strict=True):
+            r = self._reference_residual(rec, phi, const)
+            bad = ~np.all(np.isfinite(r), axis=1)
+            failed |= bad
+            r = np.where(bad[:, None], 0.0, r)
+            phi = np.where(np.isfinite(phi), phi, 0.0)
+            keep = rec["keep"] if rec["keep"] is not None else np.ones(r.shape[1], dtype=bool)
+            gram_stats(np.ascontiguousarray(phi), np.ascontiguousarray(r), keep, self.lagged,
+                       first, lag0, cross, prev)
+            n += int(np.count_nonzero(keep))
+            n_first += int(keep[0])
+        return LinearStats(first, lag0, cross if self.lagged else None,
+                           prev if self.lagged else None, n, n_first, failed)
+
+    def whitened_rows(self, z: np.ndarray, beta: np.ndarray | None = None
+                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Whitened residuals and design rows over the kept samples of every record.
+
+        Parameters
+        ----------
+        z : ndarray, shape (W, ndim)
+        beta : ndarray, shape (W, P), optional
+            Linear block; default the conditional mean given the rest of ``z`` (the
+            variable-projection residual of least squares).
+
+        Returns
+        -------
+        resid : ndarray, shape (W, n)
+            ``(y - yhat)`` whitened by the noise model and divided by ``sigma`` (NaN
+            rows for failed walkers).
+        design : ndarray, shape (W, n, P)
+            ``d resid / d beta`` (the whitened design divided by ``-sigma``).
+        beta : ndarray, shape (W, P)
+            The linear block used.
+        """
+        sigma, phi_ar = self.noise(z)
+        rows, failed = self.designs(z)
+        if beta is None:
+            # Grams from the same designs (no second simulation): the projected beta
+            q = self.p + 1
+            w = z.shape[0]
+            first = np.zeros((w, q, q))
+            lag0 = np.zeros((w, q, q))
+            cross = np.zeros((w, q, q)) if self.lagged else np.zeros((1, 1, 1))
+            prev = np.zeros((w, q, q)) if self.lagged else np.zeros((1, 1, 1))
+            n = n_first = 0
+            for rec, (phi, const) in zip(self._records, rows, strict=True):
+                r = self._reference_residual(rec, phi, const)
+                keep = (rec["keep"] if rec["keep"] is not None
+                        else np.ones(r.shape[1], dtype=bool))
+                gram_stats(np.ascontiguousarray(np.where(np.isfinite(phi), phi, 0.0)),
+                           np.ascontiguousarray(np.where(np.isfinite(r), r, 0.0)), keep,
+                           self.lagged, first, lag0, cross, prev)
+                n += int(np.count_nonzero(keep))
+                n_first += int(keep[0])
+            st = LinearStats(first, lag0, cross if self.lagged else None,
+                             prev if self.lagged else None, n, n_first, failed)
+            beta = self.conditional(st, z).mean
+        res_parts, des_parts = [], []
+        for rec, (phi, const) in zip(self._records, rows, strict=True):
+            with np.errstate(invalid="ignore", over="ignore"):
+                e = rec["y"][None, :] - const - np.einsum("wnp,wp->wn", np.broadcast_to(
+                    phi, (z.shape[0], *phi.shape[1:])), beta)
+            d = -np.broadcast_to(phi, (z.shape[0], *phi.shape[1:]))
+            keep = rec["keep"] if rec["keep"] is not None else np.ones(e.shape[1], dtype=bool)
+            if self.lagged:
+                c = np.sqrt(1.0 - phi_ar**2)[:, None]
+                e = np.concatenate([e[:, :1], (e[:, 1:] - phi_ar[:, None] * e[:, :-1]) / c],
+                                   axis=1)
+                d = np.concatenate([d[:, :1], (d[:, 1:] - phi_ar[:, None, None] * d[:, :-1])
+                                    / c[:, :, None]], axis=1)
+            res_parts.append(e[:, keep] / sigma[:, None])
+            des_parts.append(d[:, keep] / sigma[:, None, None])
+        resid = np.concatenate(res_parts, axis=1)
+        resid[failed] = np.nan
+        return resid, np.concatenate(des_parts, axis=1), beta
+
+    def stats(self, z: np.ndarray) -> LinearStats:
+        """Grams of the walkers ``z`` (W, ndim), from a cache where their design-
+        determining coordinates were seen before (values identical to a recomputation).
+        """
+        z = np.atleast_2d(np.asarray(z, dtype=float))
+        if self.design_idx.size == 0:
+            if self._constant is None:
+                self._constant = self._compute(z[:1])
+            idx = np.zeros(z.shape[0], dtype=int)
+            return self._constant.take(idx)
+        keys = [z[j, self.design_idx].tobytes() for j in range(z.shape[0])]
+        todo = [j for j, k in enumerate(keys) if k not in self._cache]
+        # one entry per distinct key (DE proposals can repeat a point)
+        uniq: dict[bytes, int] = {}
+        for j in todo:
+            uniq.setdefault(keys[j], j)
+        if uniq:
+            rows = np.array(list(uniq.values()))
+            new = self._compute(z[rows])
+            for i, k in enumerate(uniq):
+                self._cache[k] = (new.first[i], new.lag0[i],
+                                  None if new.cross is None else new.cross[i],
+                                  None if new.prev is None else new.prev[i],
+                                  bool(new.failed[i]), new.n, new.n_first)
+                while len(self._cache) > _CACHE_SIZE:
+                    self._cache.popitem(last=False)
+        entries = [self._cache[k] for k in keys]
+        for k in keys:
+            self._cache.move_to_end(k)
+        return LinearStats(
+            np.stack([e[0] for e in entries]), np.stack([e[1] for e in entries]),
+            None if not self.lagged else np.stack([e[2] for e in entries]),
+            None if not self.lagged else np.stack([e[3] for e in entries]),
+            entries[0][5], entries[0][6], np.array([e[4] for e in entries]))
+
+    def whitened(self, st: LinearStats, phi: np.ndarray) -> np.ndarray:
+        """The whitened Gram ``M`` (W, Q, Q) at AR coefficients ``phi`` (W,)."""
+        if not self.lagged:
+            return st.first + st.lag0
+        ph = phi[:, None, None]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            inner = (st.lag0 - ph * (st.cross + st.cross.transpose(0, 2, 1))
+                     + ph * ph * st.prev) / (1.0 - ph * ph)
+        return st.first + inner
+
+    # ------------------------------------------------------------------ densities
+    def _noise_ok(self, sigma: np.ndarray, phi: np.ndarray) -> np.ndarray:
+        return np.isfinite(sigma) & (sigma > 0) & np.isfinite(phi) & (np.abs(phi) < 1)
+
+    def conditional(self, st: LinearStats, z: np.ndarray) -> Conditional:
+        """``beta | z_n`` for the walkers ``z`` (their noise) with Grams ``st``."""
+        sigma, phi = self.noise(z)
+        ok = ~st.failed & self._noise_ok(sigma, phi)
+        m = self.whitened(st, np.where(ok, phi, 0.0))
+        s2 = np.where(ok, sigma, 1.0) ** 2
+        p = self.p
+        prec = m[:, :p, :p] / s2[:, None, None] + np.diag(1.0 / self.s0**2)[None]
+        h = m[:, :p, p] / s2[:, None] + ((self.m0 - self.beta_ref) / self.s0**2)[None]
+        ok &= np.all(np.isfinite(prec), axis=(1, 2)) & np.all(np.isfinite(h), axis=1)
+        prec = np.where(ok[:, None, None], prec, np.eye(p)[None])
+        h = np.where(ok[:, None], h, 0.0)
+        # stacked LAPACK calls: each walker's factor is computed on its own, so the
+        # values do not depend on the batch (cached and recomputed ones agree)
+        try:
+            chol = np.linalg.cholesky(prec)
+        except np.linalg.LinAlgError:
+            chol = np.empty_like(prec)
+            for j in range(prec.shape[0]):
+                try:
+                    chol[j] = np.linalg.cholesky(prec[j])
+                except np.linalg.LinAlgError:
+                    ok[j] = False
+                    chol[j] = np.eye(p)
+        mean = self.beta_ref + np.linalg.solve(prec, h[:, :, None])[:, :, 0]
+        return Conditional(mean, chol, ok & np.all(np.isfinite(mean), axis=1))
+
+    def log_likelihood(self, st: LinearStats, z: np.ndarray,
+                       beta: np.ndarray | None = None) -> np.ndarray:
+        """Log-likelihood (W,) at ``z`` (its linear block replaced by ``beta`` if given);
+        -inf for failed designs or noise outside its support."""
+        sigma, phi = self.noise(z)
+        beta = self.beta_of(z) if beta is None else beta
+        ok = ~st.failed & self._noise_ok(sigma, phi) & np.all(np.isfinite(beta), axis=1)
+        m = self.whitened(st, np.where(ok, phi, 0.0))
+        v = np.concatenate([-(np.where(ok[:, None], beta, self.beta_ref) - self.beta_ref),
+                            np.ones((z.shape[0], 1))], axis=1)
+        quad = np.einsum("wi,wij,wj->w", v, m, v)
+        s = np.where(ok, sigma, 1.0)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            ll = (-st.n * np.log(s) - 0.5 * (st.n - st.n_first) * np.log1p(-phi * phi)
+                  - 0.5 * st.n * _LOG_2PI - 0.5 * quad / s**2)
+        return np.where(ok & np.isfinite(ll), ll, -np.inf)
+
+    def log_marginal(self, st: LinearStats, z: np.ndarray) -> np.ndarray:
+        """``log p(y | z_n)`` with the linear block integrated over its (Gaussian) prior (W,).
+
+        Exact for Normal priors; with stand-in priors it is the stand-in's marginal.
+        """
+        sigma, phi = self.noise(z)
+        ok = ~st.failed & self._noise_ok(sigma, phi)
+        cond = self.conditional(st, z)
+        ok &= cond.ok
+        m = self.whitened(st, np.where(ok, phi, 0.0))
+        p = self.p
+        s = np.where(ok, sigma, 1.0)
+        mu0 = (self.m0 - self.beta_ref) / self.s0
+        delta = cond.mean - self.beta_ref
+        # 1/2 h^T Lambda^-1 h = 1/2 delta^T Lambda delta with delta the conditional mean
+        lam_delta = np.einsum("wij,wj->wi", cond.chol.transpose(0, 2, 1), delta)
+        half_quad = 0.5 * np.sum(lam_delta**2, axis=1)
+        logdet_lam = 2.0 * np.sum(np.log(np.abs(np.diagonal(cond.chol, axis1=1, axis2=2))),
+                                  axis=1)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            out = (-st.n * np.log(s) - 0.5 * (st.n - st.n_first) * np.log1p(-phi * phi)
+                   - 0.5 * st.n * _LOG_2PI - 0.5 * m[:, p, p] / s**2
+                   - 0.5 * float(mu0 @ mu0) - float(np.sum(np.log(self.s0)))
+                   - 0.5 * logdet_lam + half_quad)
+        return np.where(ok & np.isfinite(out), out, -np.inf)
+
+    # ------------------------------------------------------------------ noise proposals
+    def sigma_proposal(self, st: LinearStats, z: np.ndarray, beta: np.ndarray,
+                       random: np.random.RandomState) -> tuple[np.ndarray, np.ndarray,
+                                                               np.ndarray]:
+        """Draw ``sigma'`` from ``sigma^2 ~ InvGamma(n/2, Q/2)``, the likelihood's own
+        shape in ``sigma`` (so only the prior is left in the MH ratio).
+
+        Returns the proposed ``sigma`` (W,), and the proposal's log density in the
+        parameter's ``z`` coordinate at the proposed and at the current value.
+        """
+        sigma, phi = self.noise(z)
+        m = self.whitened(st, phi)
+        v = np.concatenate([-(beta - self.beta_ref), np.ones((z.shape[0], 1))], axis=1)
+        quad = np.einsum("wi,wij,wj->w", v, m, v)
+        a = 0.5 * st.n
+        b = 0.5 * np.where(np.isfinite(quad) & (quad > 0), quad, np.nan)
+        g = random.standard_gamma(a, size=z.shape[0])
+        with np.errstate(divide="ignore", invalid="ignore"):
+            new = np.sqrt(b / g)
+        param = self.post.space[self.sigma_name]
+        return new, self._sigma_logq(new, a, b, param), self._sigma_logq(sigma, a, b, param)
+
+    @staticmethod
+    def _sigma_logq(sigma: np.ndarray, a: float, b: np.ndarray, param: Any) -> np.ndarray:
+        with np.errstate(divide="ignore", invalid="ignore"):
+            s2 = sigma * sigma
+            # density of sigma when sigma^2 ~ InvGamma(a, b): p(s2) * 2 sigma
+            log_q = (math.log(2.0) + np.log(sigma) + a * np.log(b) - special.gammaln(a)
+                     - (a + 1.0) * np.log(s2) - b / s2)
+            zc = param.transform.forward(sigma)
+            log_q = log_q + param.transform.log_jacobian(zc)
+        return np.where(np.isfinite(log_q), log_q, -np.inf)
+
+    def phi_proposal(self, st: LinearStats, z: np.ndarray, beta: np.ndarray,
+                     random: np.random.RandomState) -> tuple[np.ndarray, np.ndarray,
+                                                             np.ndarray]:
+        """Draw the AR(1) coefficient from its regression on the lagged residual.
+
+        Given the innovation scale ``s = sigma sqrt(1 - phi^2)`` the residuals after
+        the first follow ``e_k = phi e_{k-1} + N(0, s^2)``, whose likelihood in ``phi``
+        is ``N(b/c, s^2/c)`` (``b``, ``c``: lag-one and lagged sums of squares of the
+        residual at ``beta``). Returns the proposed ``phi`` (W,) and the proposal's log
+        density (in ``phi`` itself) at the proposed and at the current value; the move
+        keeps ``s`` fixed and corrects for the first sample and the priors.
+        """
+        sigma, phi = self.noise(z)
+        v = np.concatenate([-(beta - self.beta_ref), np.ones((z.shape[0], 1))], axis=1)
+        bb = np.einsum("wi,wij,wj->w", v, st.cross, v)
+        cc = np.einsum("wi,wij,wj->w", v, st.prev, v)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            s_innov = sigma * np.sqrt(1.0 - phi**2)
+            hat = bb / cc
+            sd = s_innov / np.sqrt(cc)
+        new = hat + sd * random.randn(z.shape[0])
+
+        def log_q(x: np.ndarray) -> np.ndarray:
+            with np.errstate(divide="ignore", invalid="ignore"):
+                out = -0.5 * ((x - hat) / sd) ** 2 - np.log(sd) - 0.5 * _LOG_2PI
+            return np.where(np.isfinite(out), out, -np.inf)
+
+        return new, log_q(new), log_q(phi)
+
+    def __repr__(self) -> str:
+        return (f"LinearStructure({', '.join(self.names)}: {self.p} linear, "
+                f"{self.other_idx.size} other coordinates, design "
+                f"{'constant' if self.design_idx.size == 0 else 'per walker'}, "
+                f"{self.kind}{'' if self.exact else ', stand-in priors'})")
+
+
+def _owner(space: Any, index: int) -> str:
+    """Name of the free parameter that owns ``z[index]``."""
+    for name in space.names:
+        sl = space.slice_of(name)
+        if sl.start <= index < sl.stop:
+            return name
+    raise IndexError(index)
+

@@ -1,0 +1,484 @@
+"""emcee moves that use the posterior's structure: exact Gibbs draws of the linear block,
+an adaptive independence proposal and differential evolution on the rest.
+
+Each move is an :class:`emcee.moves.Move`: emcee stays the sampler (its state, random
+state, backend, checkpoints and resume are unchanged) and picks one move per step from
+the weighted list :func:`structured_moves` returns. Every move leaves the posterior
+invariant on its own:
+
+* :class:`LinearGibbsMove` draws the linear block ``beta`` of every walker from its
+  exact conditional Gaussian given the other coordinates ``z_n``
+  (:class:`~bayeshyst.inference.linear.LinearStructure`), then the noise scale from
+  ``sigma^2 ~ InvGamma(n/2, Q/2)`` (the likelihood's own shape in ``sigma``) and the
+  AR(1) coefficient from its regression on the lagged residual, each accepted with the
+  exact Metropolis–Hastings ratio (for the conjugate parts that ratio is the prior's,
+  near one). Where a linear parameter's prior is not Normal its Gaussian stand-in is an
+  independence proposal corrected the same way.
+* :class:`IndependenceMove` proposes ``z_n`` from a multivariate t distribution fitted
+  to the posterior (started from the MAP and its Laplace covariance, re-fitted to the
+  ensemble during warm-up by :meth:`IndependenceMove.adapt` and frozen afterwards, so
+  the kept chain is a plain MH chain) and completes the proposal with an exact draw of
+  ``beta`` given the proposed ``z_n``: the acceptance ratio is then the ratio of the
+  *marginal* posterior of ``z_n`` (``beta`` integrated out) to the proposal, and a
+  low-dimensional, nearly Gaussian marginal is accepted most of the time.
+* :class:`DifferentialMove` is the red-blue differential-evolution move of ter Braak
+  (2006) and Nelson et al. (2013) on ``z_n``, completed the same way: it follows curved
+  ridges and, with its occasional unit step, jumps between modes.
+
+Without a linear block (Student-t noise, a tempered likelihood) the last two act on the
+whole of ``z`` and evaluate the posterior by simulation.
+
+Acceptance counts per move are kept in :class:`MoveStats` (stored in checkpoints and
+reported in the sampling result).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import emcee
+import numpy as np
+from emcee.state import State
+from scipy import special
+
+from bayeshyst.inference.linear import LinearStructure
+from bayeshyst.inference.posterior import Posterior
+
+__all__ = [
+    "DifferentialMove",
+    "IndependenceMove",
+    "LinearGibbsMove",
+    "MoveStats",
+    "StructuredTarget",
+    "structured_moves",
+]
+
+
+@dataclass
+class MoveStats:
+    """Proposals and acceptances per move (walker-proposals), for one ensemble."""
+
+    proposed: dict[str, int] = field(default_factory=dict)
+    accepted: dict[str, int] = field(default_factory=dict)
+
+    def add(self, name: str, proposed: int, accepted: int) -> None:
+        """Count ``proposed`` walker-proposals of move ``name``, ``accepted`` of them taken."""
+        self.proposed[name] = self.proposed.get(name, 0) + int(proposed)
+        self.accepted[name] = self.accepted.get(name, 0) + int(accepted)
+
+    def rates(self) -> dict[str, float]:
+        """Acceptance rate per move (moves never proposed are left out)."""
+        return {k: self.accepted.get(k, 0) / v for k, v in self.proposed.items() if v}
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready counts (what a checkpoint stores)."""
+        return {"proposed": dict(self.proposed), "accepted": dict(self.accepted)}
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any] | None) -> MoveStats:
+        """Counts stored by :meth:`to_dict` (empty for None)."""
+        d = d or {}
+        return cls({k: int(v) for k, v in d.get("proposed", {}).items()},
+                   {k: int(v) for k, v in d.get("accepted", {}).items()})
+
+    @staticmethod
+    def merge(stats: list[MoveStats]) -> MoveStats:
+        """The counts of several ensembles added up."""
+        out = MoveStats()
+        for s in stats:
+            for k, v in s.proposed.items():
+                out.add(k, v, s.accepted.get(k, 0))
+        return out
+
+    def __str__(self) -> str:
+        return ", ".join(f"{k} {r:.2f}" for k, r in sorted(self.rates().items())) or "none"
+
+
+class StructuredTarget:
+    """The posterior as the moves see it: which coordinates they propose, and how a
+    proposal is completed with the linear block.
+
+    Parameters
+    ----------
+    post : Posterior
+    structure : LinearStructure or None
+        The linear block; None when the posterior has none (then ``other_idx`` is every
+        coordinate and proposals are evaluated by simulation).
+    """
+
+    def __init__(self, post: Posterior, structure: LinearStructure | None) -> None:
+        self.post = post
+        self.structure = structure
+        self.other_idx = (np.arange(post.ndim) if structure is None
+                          else structure.other_idx)
+
+    @property
+    def n_other(self) -> int:
+        """Dimension of the proposed coordinates ``z_n``."""
+        return int(self.other_idx.size)
+
+    def _prior(self, z: np.ndarray) -> np.ndarray:
+        lp = np.atleast_1d(self.post.space.log_prior(z)).astype(float)
+        return np.where(np.isfinite(lp), lp, -np.inf)
+
+    def log_prob(self, z: np.ndarray, st: Any = None) -> np.ndarray:
+        """Log posterior (W,) of complete points, from the Grams when there is a block."""
+        if self.structure is None:
+            return self.post.log_prob_batch(z)
+        st = self.structure.stats(z) if st is None else st
+        lp = self._prior(z)
+        inside = np.isfinite(lp)
+        lp[inside] += self.structure.log_likelihood(st.take(np.flatnonzero(inside)), z[inside])
+        self.post.record_counts(z.shape[0], int(np.count_nonzero(~inside)),
+                                int(np.count_nonzero(inside & ~np.isfinite(lp))))
+        return np.where(np.isfinite(lp), lp, -np.inf)
+
+    def complete(self, z_prop: np.ndarray, random: np.random.RandomState
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Draw the linear block of the proposals ``z_prop`` (W, ndim) given their ``z_n``.
+
+        Returns the completed points, their log posterior and the log density (in
+        ``z``) of the drawn block under its conditional proposal; without a linear
+        block the points are returned as they are, with zeros for the last.
+        """
+        w = z_prop.shape[0]
+        if self.structure is None:
+            return z_prop, self.post.log_prob_batch(z_prop), np.zeros(w)
+        s = self.structure
+        z = z_prop.copy()
+        # walkers outside the prior in z_n are rejected without running the model
+        inside = np.isfinite(self._prior(z))
+        logq = np.full(w, -np.inf)
+        lp = np.full(w, -np.inf)
+        idx = np.flatnonzero(inside)
+        if idx.size:
+            zi = z[idx]
+            st = s.stats(zi)
+            cond = s.conditional(st, zi)
+            beta = cond.draw(random)
+            zb, logjac = s.z_of(beta)
+            good = cond.ok & np.all(np.isfinite(zb), axis=1)
+            zi[:, s.lin_idx] = np.where(good[:, None], zb, zi[:, s.lin_idx])
+            z[idx] = zi
+            lq = cond.log_density(beta) - logjac
+            lpi = self._prior(zi)
+            ok = good & np.isfinite(lpi)
+            lpi[ok] += s.log_likelihood(st.take(np.flatnonzero(ok)), zi[ok])
+            lpi[~ok] = -np.inf
+            lp[idx] = np.where(np.isfinite(lpi), lpi, -np.inf)
+            logq[idx] = np.where(ok, lq, -np.inf)
+        self.post.record_counts(w, int(np.count_nonzero(~inside)),
+                                int(np.count_nonzero(inside & ~np.isfinite(lp))))
+        return z, lp, logq
+
+    def log_q_current(self, z: np.ndarray) -> np.ndarray:
+        """Log density (W,) of the current linear blocks under their conditional
+        proposal: the reverse term of a completed proposal's MH ratio."""
+        if self.structure is None:
+            return np.zeros(z.shape[0])
+        s = self.structure
+        st = s.stats(z)
+        cond = s.conditional(st, z)
+        beta = s.beta_of(z)
+        _, logjac = s.z_of(beta)
+        return cond.log_density(beta) - logjac
+
+
+def _accept(log_ratio: np.ndarray, random: np.random.RandomState) -> np.ndarray:
+    u = random.rand(log_ratio.size)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.log(u) < np.where(np.isnan(log_ratio), -np.inf, log_ratio)
+
+
+class _StructuredMove(emcee.moves.Move):
+    """Shared bookkeeping: a target, a name and acceptance counts."""
+
+    name = "move"
+
+    def __init__(self, target: StructuredTarget, stats: MoveStats) -> None:
+        self.target = target
+        self.stats = stats
+
+
+class LinearGibbsMove(_StructuredMove):
+    """Exact draws of the linear block, then of ``sigma`` and the AR(1) ``phi``.
+
+    Parameters
+    ----------
+    target : StructuredTarget
+        With a linear structure.
+    stats : MoveStats
+        Where acceptances are counted (``gibbs_linear``, ``gibbs_sigma``,
+        ``gibbs_phi``).
+    """
+
+    name = "gibbs"
+
+    def __init__(self, target: StructuredTarget, stats: MoveStats) -> None:
+        if target.structure is None:
+            raise ValueError("the Gibbs move needs a posterior with a linear block")
+        super().__init__(target, stats)
+
+    def propose(self, model: Any, state: State) -> tuple[State, np.ndarray]:
+        s = self.target.structure
+        random = model.random
+        z = np.array(state.coords, dtype=float)
+        lp = np.array(state.log_prob, dtype=float)
+        w = z.shape[0]
+        st = s.stats(z)
+        cond = s.conditional(st, z)
+        beta_old = s.beta_of(z)
+        beta = cond.draw(random)
+        zb, logjac = s.z_of(beta)
+        z_new = z.copy()
+        good = cond.ok & np.all(np.isfinite(zb), axis=1)
+        z_new[:, s.lin_idx] = np.where(good[:, None], zb, z[:, s.lin_idx])
+        lp_new = self.target.log_prob(z_new, st)
+        if s.exact:
+            # the conditional is exact: the MH ratio is one (to rounding), take every draw
+            acc = good & np.isfinite(lp_new)
+        else:
+            _, logjac_old = s.z_of(beta_old)
+            log_r = (lp_new - lp + (cond.log_density(beta_old) - logjac_old)
+                     - (cond.log_density(beta) - logjac))
+            acc = good & _accept(log_r, random)
+        self.stats.add("gibbs_linear", w, int(np.count_nonzero(acc)))
+        z = np.where(acc[:, None], z_new, z)
+        lp = np.where(acc, lp_new, lp)
+        accepted = acc.copy()
+        beta = s.beta_of(z)
+        if s.sigma_free:
+            z, lp, a = self._noise_step(z, lp, st, beta, random, "sigma")
+            accepted |= a
+        if s.phi_free:
+            z, lp, a = self._noise_step(z, lp, st, beta, random, "phi")
+            accepted |= a
+        return State(z, log_prob=lp, blobs=None, random_state=state.random_state), accepted
+
+    def _noise_step(self, z: np.ndarray, lp: np.ndarray, st: Any, beta: np.ndarray,
+                    random: np.random.RandomState, which: str
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """MH update of ``sigma`` (given the rest) or of the AR(1) ``phi`` (along the
+        curve of constant innovation scale, moving ``sigma`` with it when it is free)."""
+        s = self.target.structure
+        space = self.target.post.space
+        sig_p, sig_sl = space[s.sigma_name], space.slice_of(s.sigma_name).start
+        z_new = z.copy()
+        if which == "sigma":
+            new, lq_new, lq_old = s.sigma_proposal(st, z, beta, random)
+            with np.errstate(divide="ignore", invalid="ignore"):
+                z_new[:, sig_sl] = sig_p.transform.forward(new)
+            correction = lq_new - lq_old  # in the z coordinate already
+        else:
+            # sigma is the marginal scale: near phi = 1 it is tied to phi along
+            # s = sigma sqrt(1 - phi^2), the innovation scale the data pin down, so phi
+            # moves with s held (sigma follows), where its regression is the proposal
+            phi_p, phi_sl = space[s.phi_name], space.slice_of(s.phi_name).start
+            sigma, phi = s.noise(z)
+            new, lq_new, lq_old = s.phi_proposal(st, z, beta, random)
+            lo, hi = phi_p.prior.support
+            inside = (new > lo) & (new < hi)
+            new = np.where(inside, new, phi)
+            with np.errstate(divide="ignore", invalid="ignore"):
+                z_new[:, phi_sl] = phi_p.transform.forward(new)
+                # density of (phi, s) from that of the z coordinates: divide by the
+                # transforms' Jacobians and by d sigma / d s = 1 / sqrt(1 - phi^2)
+                lj_old = phi_p.transform.log_jacobian(z[:, phi_sl])
+                lj_new = phi_p.transform.log_jacobian(z_new[:, phi_sl])
+                corr_old = lj_old + 0.5 * np.log1p(-phi**2)
+                corr_new = lj_new + 0.5 * np.log1p(-new**2)
+                if s.sigma_free:
+                    sig_new = sigma * np.sqrt((1.0 - phi**2) / (1.0 - new**2))
+                    z_new[:, sig_sl] = sig_p.transform.forward(sig_new)
+                    corr_old = corr_old + sig_p.transform.log_jacobian(z[:, sig_sl])
+                    corr_new = corr_new + sig_p.transform.log_jacobian(z_new[:, sig_sl])
+                else:
+                    corr_old = lj_old
+                    corr_new = lj_new
+            lq_new = np.where(inside, lq_new, -np.inf)
+            correction = (lq_new + corr_new) - (lq_old + corr_old)
+        good = np.all(np.isfinite(z_new), axis=1) & np.isfinite(correction)
+        z_new = np.where(good[:, None], z_new, z)
+        lp_new = self.target.log_prob(z_new, st)
+        log_r = lp_new - lp - correction
+        acc = good & _accept(log_r, random)
+        self.stats.add(f"gibbs_{which}", z.shape[0], int(np.count_nonzero(acc)))
+        return (np.where(acc[:, None], z_new, z), np.where(acc, lp_new, lp), acc)
+
+
+class IndependenceMove(_StructuredMove):
+    """Adaptive multivariate-t independence proposal on ``z_n``, ``beta`` drawn exactly.
+
+    Parameters
+    ----------
+    target : StructuredTarget
+    stats : MoveStats
+    mean : ndarray, shape (d,)
+        Initial centre (the MAP's ``z_n``).
+    cov : ndarray, shape (d, d)
+        Initial scale matrix (the Laplace covariance of ``z_n``).
+    dof : float
+        Degrees of freedom of the t proposal: heavier tails than the posterior keep
+        the importance ratio bounded (a walker is not left stuck where the posterior
+        outweighs the proposal); 10 accepted 78 % on Bouc–Wen against 70 % at 5 and
+        84 % at 25, with the same autocorrelation time.
+    """
+
+    name = "independence"
+
+    def __init__(self, target: StructuredTarget, stats: MoveStats, mean: np.ndarray,
+                 cov: np.ndarray, dof: float = 10.0) -> None:
+        super().__init__(target, stats)
+        self.dof = float(dof)
+        self._initial = (np.asarray(mean, float).copy(), np.asarray(cov, float).copy())
+        self.set_proposal(*self._initial)
+
+    def set_proposal(self, mean: np.ndarray, cov: np.ndarray) -> None:
+        """Centre and scale matrix of the t proposal (the scale is regularised to be
+        positive definite)."""
+        d = mean.size
+        cov = 0.5 * (cov + cov.T)
+        vals, vecs = np.linalg.eigh(cov)
+        floor = max(float(vals.max()) * 1e-10, 1e-300) if d else 1.0
+        vals = np.maximum(vals, floor)
+        self.mean = mean.copy()
+        self.cov = (vecs * vals) @ vecs.T
+        self.chol = np.linalg.cholesky(self.cov) if d else np.zeros((0, 0))
+        # the inverse factor once here: a triangular solve per step costs more in call
+        # overhead than the d x d product does in arithmetic
+        self._chol_inv = np.linalg.inv(self.chol) if d else np.zeros((0, 0))
+        self._logdet = float(np.sum(np.log(vals)))
+
+    def adapt(self, samples: np.ndarray) -> None:
+        """Re-fit the proposal to posterior draws ``samples`` (M, ndim) of the ensemble.
+
+        The scale is the draws' covariance; with fewer than ``2 d + 2`` distinct draws
+        the proposal stays as it is.
+        """
+        x = np.asarray(samples, float)[:, self.target.other_idx]
+        d = x.shape[1]
+        if x.shape[0] < 2 * d + 2 or not np.all(np.isfinite(x)):
+            return
+        cov = np.cov(x.T).reshape(d, d)
+        if not np.all(np.isfinite(cov)) or np.linalg.matrix_rank(cov) < d:
+            return
+        self.set_proposal(x.mean(axis=0), cov)
+
+    def _log_t(self, x: np.ndarray) -> np.ndarray:
+        d = self.mean.size
+        r = (x - self.mean) @ self._chol_inv.T
+        m = np.sum(r * r, axis=1)
+        nu = self.dof
+        return (special.gammaln(0.5 * (nu + d)) - special.gammaln(0.5 * nu)
+                - 0.5 * d * math.log(nu * math.pi) - 0.5 * self._logdet
+                - 0.5 * (nu + d) * np.log1p(m / nu))
+
+    def propose(self, model: Any, state: State) -> tuple[State, np.ndarray]:
+        random = model.random
+        z = np.array(state.coords, dtype=float)
+        lp = np.array(state.log_prob, dtype=float)
+        w, d = z.shape[0], self.mean.size
+        g = random.standard_normal((w, d))
+        chi = random.chisquare(self.dof, size=w)
+        x = self.mean + (g @ self.chol.T) / np.sqrt(chi / self.dof)[:, None]
+        z_prop = z.copy()
+        z_prop[:, self.target.other_idx] = x
+        z_new, lp_new, lq_new = self.target.complete(z_prop, random)
+        lq_old = self.target.log_q_current(z)
+        log_r = (lp_new - lp + lq_old - lq_new
+                 + self._log_t(z[:, self.target.other_idx]) - self._log_t(x))
+        acc = _accept(log_r, random) & np.isfinite(lp_new)
+        self.stats.add(self.name, w, int(np.count_nonzero(acc)))
+        z = np.where(acc[:, None], z_new, z)
+        lp = np.where(acc, lp_new, lp)
+        return State(z, log_prob=lp, blobs=None, random_state=state.random_state), acc
+
+
+class DifferentialMove(_StructuredMove):
+    """Differential evolution on ``z_n`` (red-blue halves), ``beta`` drawn exactly.
+
+    Parameters
+    ----------
+    target : StructuredTarget
+    stats : MoveStats
+    jump : float
+        Probability of a unit step ``gamma = 1`` (a jump between modes) instead of
+        ``gamma = 2.38 / sqrt(2 d)``.
+    """
+
+    name = "differential"
+
+    def __init__(self, target: StructuredTarget, stats: MoveStats, jump: float = 0.1) -> None:
+        super().__init__(target, stats)
+        self.jump = float(jump)
+
+    def propose(self, model: Any, state: State) -> tuple[State, np.ndarray]:
+        random = model.random
+        z = np.array(state.coords, dtype=float)
+        lp = np.array(state.log_prob, dtype=float)
+        w = z.shape[0]
+        idx = self.target.other_idx
+        d = idx.size
+        g0 = 2.38 / math.sqrt(2.0 * max(d, 1))
+        halves = np.arange(w) % 2
+        random.shuffle(halves)
+        accepted = np.zeros(w, dtype=bool)
+        for half in (0, 1):
+            act = np.flatnonzero(halves == half)
+            comp = np.flatnonzero(halves != half)
+            if act.size == 0 or comp.size < 2:
+                continue
+            a = random.randint(comp.size, size=act.size)
+            b = (a + 1 + random.randint(comp.size - 1, size=act.size)) % comp.size
+            gamma = np.where(random.rand(act.size) < self.jump, 1.0,
+                             g0 * (1.0 + 1e-5 * random.randn(act.size)))
+            diff = z[comp[a]][:, idx] - z[comp[b]][:, idx]
+            z_prop = z[act].copy()
+            z_prop[:, idx] += gamma[:, None] * diff
+            z_new, lp_new, lq_new = self.target.complete(z_prop, random)
+            lq_old = self.target.log_q_current(z[act])
+            log_r = lp_new - lp[act] + lq_old - lq_new
+            acc = _accept(log_r, random) & np.isfinite(lp_new)
+            z[act] = np.where(acc[:, None], z_new, z[act])
+            lp[act] = np.where(acc, lp_new, lp[act])
+            accepted[act] = acc
+        self.stats.add(self.name, w, int(np.count_nonzero(accepted)))
+        return State(z, log_prob=lp, blobs=None, random_state=state.random_state), accepted
+
+
+def structured_moves(target: StructuredTarget, stats: MoveStats, mean: np.ndarray,
+                     cov: np.ndarray) -> tuple[list[tuple[emcee.moves.Move, float]],
+                                               IndependenceMove | None]:
+    """The weighted move list of one ensemble, and its adaptive independence move.
+
+    With a linear block whose design depends on the proposed coordinates (a simulation
+    per proposal): Gibbs 0.1, independence 0.75, differential evolution 0.15 — every
+    accepted independence or differential-evolution proposal draws the block afresh,
+    so the Gibbs move only refreshes it and the noise between them, at no simulation
+    cost. With a constant design (PI weights with fixed thresholds: no move simulates)
+    the Gibbs move's noise updates are as cheap as the others and mix the noise scale
+    and AR(1) coefficient along their ridge: Gibbs 0.5, independence 0.35, differential
+    evolution 0.15. Without a linear block: independence 0.75, differential evolution
+    0.25. The Gibbs move alone when nothing but the linear block is free.
+
+    Parameters
+    ----------
+    target : StructuredTarget
+    stats : MoveStats
+        Shared by the ensemble's moves.
+    mean, cov : ndarray
+        Initial centre (d,) and scale (d, d) of the independence proposal on ``z_n``.
+    """
+    s = target.structure
+    if target.n_other == 0:
+        return [(LinearGibbsMove(target, stats), 1.0)], None
+    indep = IndependenceMove(target, stats, mean, cov)
+    de = DifferentialMove(target, stats)
+    if s is None:
+        return [(indep, 0.75), (de, 0.25)], indep
+    gibbs = LinearGibbsMove(target, stats)
+    if s.design_idx.size == 0:
+        return [(gibbs, 0.5), (indep, 0.35), (de, 0.15)], indep
+    return [(gibbs, 0.1), (indep, 0.75), (de, 0.15)], indep
