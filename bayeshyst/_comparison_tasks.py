@@ -42,10 +42,12 @@ from bayeshyst.errors import DataError, ModelError, ParameterError, SimulationEr
 from bayeshyst.inference.fit import TrackingError, errors_by_frequency, tracking_errors
 from bayeshyst.inference.posterior import Posterior, cycle_units
 from bayeshyst.inference.sampling import sample_posterior
+from bayeshyst.inference.settings import SamplerSettings
 
 __all__ = [
     "GP_MODELS", "CompareSettings", "LooScores", "TaskResult", "TaskSpec", "derived_seed",
-    "heldout_log_density", "loo_scores", "run_task", "slug", "task_seed",
+    "fit_identity", "fit_sampler", "heldout_log_density", "loo_scores", "run_task", "slug",
+    "task_seed",
 ]
 
 GP_MODELS = {"gp": "rate", "gp_memory": "memory"}
@@ -62,12 +64,14 @@ def slug(text: str) -> str:
 
 @dataclass(frozen=True)
 class CompareSettings:
-    """Settings shared by every task of a comparison (see ``compare_models``)."""
+    """Settings shared by every task of a comparison (see ``compare_models``).
+
+    ``sampler`` holds the sampling settings of every fit (its seed and checkpoint are
+    replaced per fit by :func:`fit_sampler`).
+    """
 
     likelihood: str = "gaussian"
-    n_walkers: int | None = None
-    max_steps: int = 20_000
-    first_chunk: int = 1_000
+    sampler: SamplerSettings = field(default_factory=SamplerSettings)
     draws_per_chain: int = 30
     n_lofo_draws: int = 400
     max_refits: int = 5
@@ -201,16 +205,33 @@ def _units_meta(data: Dataset) -> tuple[np.ndarray, tuple[str, ...]]:
     return np.asarray(freqs, dtype=float), tuple(labels)
 
 
-def _run_digest(data: Dataset, settings: CompareSettings, seed: int) -> str:
-    """Short digest of what a fit depends on: a re-run with the same data and settings
-    resumes its checkpoint, a changed one starts a new file instead of failing on the
-    old one's fingerprint."""
-    h = hashlib.sha256(repr((settings, seed)).encode())
-    for rec in data:
+def fit_identity(post: Posterior, sampler: SamplerSettings) -> str:
+    """What a fit is, as 16 hex digits: model, likelihood, priors, offset, data values
+    (not file names), held-out cycles and the sampler settings but their seed.
+
+    Two commands that fit the same posterior with the same settings (the comparison's
+    joint fit and the diagnosis' base fit of a report) get the same identity, hence the
+    same seed and checkpoint (:func:`fit_sampler`): the second finds the first's
+    finished run and samples nothing.
+    """
+    h = hashlib.sha256()
+    fp = {k: v for k, v in sampler.fingerprint().items() if k != "seed"}
+    h.update(repr((repr(post.model), post.likelihood.name, str(post.space), post.offset,
+                   post.beta, post.held_out, sorted(fp.items()))).encode())
+    for rec in post.data:
         for arr in (rec.t, rec.u, rec.y):
             h.update(np.ascontiguousarray(arr).tobytes())
         h.update(str(rec.warmup).encode())
-    return h.hexdigest()[:10]
+    return h.hexdigest()[:16]
+
+
+def fit_sampler(post: Posterior, sampler: SamplerSettings, seed: int,
+                store: Path | None) -> SamplerSettings:
+    """The settings of one fit: its seed derived from ``seed`` and the fit's identity,
+    its checkpoint ``store/<identity>.h5`` (none without a store)."""
+    key = fit_identity(post, sampler)
+    return sampler.replace(seed=derived_seed(seed, key),
+                           checkpoint=None if store is None else Path(store) / f"{key}.h5")
 
 
 def _logmeanexp(ll: np.ndarray) -> np.ndarray:
@@ -263,8 +284,10 @@ def _refit_bad_cycles(post: Posterior, res: Any, pointwise: np.ndarray, k: np.nd
     n_draws = max(400, settings.n_lofo_draws)
     for j, i in enumerate(todo):
         held = post.holding_out([i])
-        r = sample_posterior(held, n_walkers=settings.n_walkers, max_steps=settings.max_steps,
-                             first_chunk=settings.first_chunk, seed=seed + 1 + j, start=res.start)
+        # one cycle changes the posterior little: start from the full-data ensembles
+        r = sample_posterior(held, settings.sampler.replace(seed=seed + 1 + j, checkpoint=None,
+                                                            progress=False),
+                             start=res.start, initial=res.chains[:, -1])
         ll = post.log_likelihood_units(r.draws(n_draws, seed=seed))[:, i]
         new = float(_logmeanexp(ll[:, None])[0])
         dp += pw[i] - new
@@ -316,10 +339,10 @@ def _run_parametric(data: Dataset, spec: TaskSpec, settings: CompareSettings, se
     t0 = time.perf_counter()
     train, test = split_data(data, spec)
     post = Posterior(spec.model, train, settings.likelihood)
-    ckpt = None if out_dir is None else out_dir / "checkpoints" / (
-        f"{spec.key}-{_run_digest(train, settings, seed)}.h5")
-    res = sample_posterior(post, n_walkers=settings.n_walkers, max_steps=settings.max_steps,
-                           first_chunk=settings.first_chunk, seed=seed, checkpoint=ckpt)
+    sampler = fit_sampler(post, settings.sampler, seed,
+                          None if out_dir is None else out_dir / "checkpoints")
+    res = sample_posterior(post, sampler)
+    seed = sampler.seed
     notes = [] if res.converged else ["the sampler did not converge within its budget"]
     freqs, labels = _units_meta(test)
     failed = res.counts.failed
@@ -388,16 +411,18 @@ def run_task(data: Dataset, spec: TaskSpec, settings: CompareSettings, seed: int
         The comparison's seed; the task derives its own with :func:`task_seed`.
     out_dir : path, optional
         Where posteriors (``posteriors/<key>.nc``) and sampler checkpoints
-        (``checkpoints/<key>-<digest>.h5``; the digest covers data, settings and
-        seed, so a re-run with the same ones resumes) go.
+        (``checkpoints/<identity>.h5``, :func:`fit_identity`: a re-run with the same
+        data and settings resumes, and another command fitting the same posterior
+        with the same checkpoint folder reuses it) go.
     """
     out = None if out_dir is None else Path(out_dir)
-    s = task_seed(seed, spec)
     t0 = time.perf_counter()
     try:
         if spec.model in GP_MODELS:
-            return _run_gp(data, spec, settings, s)
-        return _run_parametric(data, spec, settings, s, out)
+            return _run_gp(data, spec, settings, task_seed(seed, spec))
+        # a parametric fit's seed follows from what it fits (fit_sampler), so the
+        # same posterior fitted by another command reuses this one
+        return _run_parametric(data, spec, settings, seed, out)
     except (DataError, ModelError, ParameterError, SimulationError, FloatingPointError,
             np.linalg.LinAlgError, ValueError) as exc:
         freqs = np.zeros(0)

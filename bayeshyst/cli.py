@@ -18,6 +18,7 @@ import numpy as np
 
 from bayeshyst import __version__
 from bayeshyst.errors import DataError, ModelError, ParameterError
+from bayeshyst.inference.settings import SamplerSettings
 from bayeshyst.report.files import jsonable
 
 __all__ = ["build_parser", "int_at_least", "main", "non_negative_float", "non_negative_int",
@@ -120,8 +121,9 @@ def _cmd_fit(args: argparse.Namespace) -> int:
     if not args.quiet:
         print(f"bayeshyst fit: {model.name} / {likelihood.name} on {data.name} "
               f"({len(data)} record(s), {data.n_samples} samples)", file=sys.stderr)
-    fit = fit_model(data, model, likelihood, seed=args.seed, n_walkers=args.walkers,
-                    max_steps=args.steps, checkpoint=checkpoint, progress=not args.quiet)
+    fit = fit_model(data, model, likelihood, sampler=SamplerSettings(
+        seed=args.seed, n_walkers=args.walkers, max_steps=args.steps, checkpoint=checkpoint,
+        progress=not args.quiet))
     summary = write_fit_outputs(fit, out, data_path=str(args.data), figures=not args.no_figures,
                                 seed=args.seed)
     if args.json:
@@ -213,8 +215,9 @@ def _cmd_compensate(args: argparse.Namespace) -> int:
         print(f"bayeshyst compensate: {model.name} / {likelihood.name} on {data.name} "
               f"({len(data)} record(s); frequencies [Hz]: {freqs}); reference: {ref}",
               file=sys.stderr)
-    fit = fit_model(data, model, likelihood, seed=args.seed, n_walkers=args.walkers,
-                    max_steps=args.steps, checkpoint=checkpoint, progress=not args.quiet)
+    fit = fit_model(data, model, likelihood, sampler=SamplerSettings(
+        seed=args.seed, n_walkers=args.walkers, max_steps=args.steps, checkpoint=checkpoint,
+        progress=not args.quiet))
     result = compensate(data, model, fit=fit, reference=reference,
                         plant=None if args.plant == "auto" else args.plant,
                         n_design_draws=args.design_draws, robust_quantile=args.quantile,

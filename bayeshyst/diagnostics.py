@@ -33,6 +33,7 @@ import xarray as xr
 from bayeshyst.errors import ParameterError
 from bayeshyst.files import atomic_path
 from bayeshyst.inference.convergence import hdi
+from bayeshyst.inference.linear import LinearStructure
 from bayeshyst.inference.posterior import NOISE, Posterior
 from bayeshyst.inference.sampling import ParamSummary, SamplingResult
 from bayeshyst.params import ParamSpace
@@ -55,6 +56,8 @@ PARETO_K_BAD = 0.7
 """Pareto shape above which PSIS-LOO of a unit is unreliable (Vehtari et al. 2024)."""
 
 _BATCH = 512  # draws per batched log-likelihood evaluation
+#: log-likelihood variable of the Rao-Blackwellised leave-one-cycle-out terms
+GIVEN_REST = "y_given_rest"
 
 
 # ---------------------------------------------------------------------------- results
@@ -265,7 +268,10 @@ def to_inference_data(
         ``log_likelihood``
             ``y`` [chain, draw, cycle]: log-likelihood of each cycle, coords
             ``cycle_record``, ``cycle_index``, ``cycle_frequency_hz`` (NaN if unknown);
-            ``arviz.loo`` leaves out one cycle at a time.
+            ``arviz.loo`` leaves out one cycle at a time. Where the posterior has a
+            linear block, also ``y_given_rest``: ``log p(y_c | y_-c, z_n)`` with the block
+            integrated out exactly (:meth:`LinearStructure.held_out_log_predictive`),
+            which :func:`loo` uses.
         ``posterior_predictive``
             ``y`` [chain (1), draw, obs]: noise-free prediction plus a noise draw
             from the likelihood, over every sample of every record (warm-up included).
@@ -294,6 +300,11 @@ def to_inference_data(
     loglik = np.concatenate([post.log_likelihood_units(flat[i:i + _BATCH])
                              for i in range(0, flat.shape[0], _BATCH)])
     loglik = loglik.reshape(n_chain, n_draw, post.n_units)
+    structure = LinearStructure.of(post, reference=result.start.z)
+    given_rest = None
+    if structure is not None:
+        given_rest = structure.held_out_log_predictive(flat).reshape(n_chain, n_draw,
+                                                                     post.n_units)
 
     chain_coords = {
         "chain": np.arange(n_chain),
@@ -318,9 +329,13 @@ def to_inference_data(
         "cycle_frequency_hz": ("cycle", np.array(
             [math.nan if u.frequency_hz is None else float(u.frequency_hz) for u in units])),
     }
-    log_likelihood = xr.Dataset({"y": (("chain", "draw", "cycle"), loglik)},
-                                coords={**chain_coords, **cycle_coords},
-                                attrs={"failed_draws": int(np.sum(~np.isfinite(loglik)))})
+    ll_vars = {"y": (("chain", "draw", "cycle"), loglik)}
+    if given_rest is not None:
+        ll_vars[GIVEN_REST] = (("chain", "draw", "cycle"), given_rest)
+    log_likelihood = xr.Dataset(ll_vars, coords={**chain_coords, **cycle_coords},
+                                attrs={"failed_draws": int(np.sum(~np.isfinite(loglik))),
+                                       "linear_block": json.dumps(
+                                           [] if structure is None else list(structure.names))})
 
     layout = _obs_layout(post)
     obs_coords = {"obs": np.arange(layout["record"].size), "obs_record": ("obs", layout["name"])}
@@ -492,6 +507,13 @@ def _caught(caught: list[warnings.WarningMessage], skip: str | None = None) -> l
 def loo(idata: az.InferenceData) -> ElpdResult:
     """PSIS-LOO with one cycle left out at a time.
 
+    Where the posterior has a linear block (``y_given_rest`` in the log-likelihood
+    group), the importance sampling runs over the nonlinear draws only, with the block
+    integrated out exactly in each cycle's term (a Rao-Blackwellised estimate of the same
+    ``elpd``): one cycle moves the few nonlinear parameters far less than it moves a
+    PI weight, so the Pareto k values are small where plain PSIS-LOO needs refits.
+    ``p_loo`` is then ``lppd`` (from ``y``) minus that ``elpd``.
+
     Parameters
     ----------
     idata : arviz.InferenceData
@@ -505,9 +527,10 @@ def loo(idata: az.InferenceData) -> ElpdResult:
         those above the sample-size threshold ``min(1 - 1/log10(S), 0.7)``.
     """
     _check_idata(idata)
+    var = GIVEN_REST if GIVEN_REST in idata.log_likelihood else "y"
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        res = az.loo(idata, pointwise=True, var_name="y", scale="log")
+        res = az.loo(idata, pointwise=True, var_name=var, scale="log")
     k = np.asarray(res.pareto_k, dtype=float).ravel()
     msgs = _sampling_warnings(idata)
     labels = _cycle_labels(idata)
@@ -522,9 +545,21 @@ def loo(idata: az.InferenceData) -> ElpdResult:
         msgs.append(f"{mid.size} cycles have Pareto k > {good_k:.2f}, the threshold for "
                     f"{_n_samples(idata)} draws: more draws per chain would help")
     msgs += _caught(caught, "Estimated shape parameter of Pareto")
-    return ElpdResult("loo", float(res.elpd_loo), float(res.se), float(res.p_loo),
+    p_loo = float(res.p_loo)
+    if var == GIVEN_REST:
+        ll = np.asarray(idata.log_likelihood["y"].values, dtype=float)
+        ll = ll.reshape(-1, ll.shape[-1])
+        lppd = float(np.sum(_logmeanexp(ll)))
+        p_loo = lppd - float(res.elpd_loo)
+    return ElpdResult("loo", float(res.elpd_loo), float(res.se), p_loo,
                       np.asarray(res.loo_i, dtype=float).ravel(), k, int(res.n_data_points),
                       int(res.n_samples), tuple(msgs))
+
+
+def _logmeanexp(ll: np.ndarray) -> np.ndarray:
+    from scipy.special import logsumexp
+
+    return logsumexp(ll, axis=0) - math.log(ll.shape[0])
 
 
 def waic(idata: az.InferenceData) -> ElpdResult:

@@ -18,7 +18,6 @@ no test fires, when every fired effect is rejected, or after ``max_rounds``.
 from __future__ import annotations
 
 import math
-import zlib
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -26,7 +25,7 @@ from typing import Any
 
 import numpy as np
 
-from bayeshyst._comparison_tasks import CompareSettings, derived_seed, loo_scores
+from bayeshyst._comparison_tasks import CompareSettings, fit_sampler, loo_scores
 from bayeshyst.data.record import Dataset, Record
 from bayeshyst.diagnosis.effects import EFFECTS, get_effect
 from bayeshyst.diagnosis.residual import (
@@ -40,6 +39,7 @@ from bayeshyst.inference.fit import TrackingError, errors_by_frequency
 from bayeshyst.inference.optimize import find_map
 from bayeshyst.inference.posterior import Posterior
 from bayeshyst.inference.sampling import ParamSummary, SamplingResult, sample_posterior
+from bayeshyst.inference.settings import SamplerSettings
 from bayeshyst.likelihoods import get_likelihood
 from bayeshyst.models import get as get_model
 from bayeshyst.models.base import HysteresisModel
@@ -58,17 +58,22 @@ class DiagnosisSettings:
     max_rounds: int = 6
     max_candidates: int = 2
     max_ar_order: int = 10
-    n_walkers: int | None = None
-    max_steps: int = 20_000
-    first_chunk: int = 1_000
+    sampler: SamplerSettings = field(default_factory=SamplerSettings)
     n_draws: int = 200
     draws_per_chain: int = 30
     max_refits: int = 5
-    seed: int = 0
+
+    @property
+    def seed(self) -> int:
+        """The diagnosis' seed (the sampler settings')."""
+        return self.sampler.seed
 
     def to_dict(self) -> dict[str, Any]:
-        return {k: (list(v) if isinstance(v, tuple) else v)
-                for k, v in self.__dict__.items()}
+        out = {k: (list(v) if isinstance(v, tuple) else v)
+               for k, v in self.__dict__.items() if k != "sampler"}
+        out["sampler"] = self.sampler.to_dict()
+        out["seed"] = self.seed
+        return out
 
 
 @dataclass(frozen=True)
@@ -271,55 +276,69 @@ class DiagnosisResult:
 
 
 # --------------------------------------------------------------------------- the loop
-def _slug(label: str) -> str:
-    keep = "".join(c if c.isalnum() or c in "._" else "-" for c in label).strip("-")
-    return f"{keep[:60]}-{zlib.crc32(label.encode()):08x}"
+def _carried(post: Posterior, previous: DiagnosisFit, added: dict[str, Any],
+             z_old: np.ndarray, seed: int) -> np.ndarray:
+    """Points of the augmented posterior made from the previous fit's points ``z_old``
+    (M, ndim_old): their names carried into the composite's ``static.`` namespace, the
+    added parameters at the test's estimate, anything else from prior draws. Points
+    that cannot be written in the new space are left out."""
+    old = previous.posterior.space.unpack(np.atleast_2d(z_old))
+    space = post.space
+    fill = space.unpack(space.sample_prior(np.random.default_rng(seed), z_old.shape[0]))
+    out = []
+    for i in range(z_old.shape[0]):
+        theta = {n: np.asarray(fill[n])[i] for n in space.names}
+        for name in space.names:
+            for src in (name, name.removeprefix("static.")):
+                if src in old and np.shape(old[src])[1:] == np.shape(theta[name]):
+                    theta[name] = np.asarray(old[src])[i]
+                    break
+            if name in added and np.shape(added[name]) == np.shape(theta[name]):
+                theta[name] = added[name]
+        try:
+            out.append(space.pack(theta))
+        except (ValueError, FloatingPointError):
+            continue
+    return np.array(out).reshape(-1, space.ndim)
 
 
 def _warm_start(post: Posterior, previous: DiagnosisFit, added: dict[str, Any],
-                seed: int) -> np.ndarray | None:
-    """A point of the augmented posterior: the previous fit's best point (its names
-    carried into the composite's ``static.`` namespace), the added parameters at the
-    test's estimate, anything else from one prior draw. None if it has no finite
-    density (the MAP search then starts from its own screen alone)."""
-    old = previous.posterior.space.unpack(best_point(previous.sampling))
-    space = post.space
-    theta = space.unpack(space.sample_prior(np.random.default_rng(seed), 1)[0])
-    for name in space.names:
-        for src in (name, name.removeprefix("static.")):
-            if src in old and np.shape(old[src]) == np.shape(theta[name]):
-                theta[name] = old[src]
-                break
-        if name in added and np.shape(added[name]) == np.shape(theta[name]):
-            theta[name] = added[name]
-    try:
-        z = space.pack(theta)
-    except (ValueError, FloatingPointError):
-        return None
-    return z if np.isfinite(post.log_prob(z)) else None
+                seed: int) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """A start for the augmented fit: the previous fit's best point carried over (an
+    extra MAP start) and its final ensembles carried over (the sampler's starting
+    walkers, so the augmented posterior is not sampled from scratch). None where
+    nothing has finite density (the MAP search and the sampler then start alone)."""
+    best = _carried(post, previous, added, best_point(previous.sampling)[None, :], seed)
+    x0 = best[0] if best.shape[0] and np.isfinite(post.log_prob(best[0])) else None
+    last = previous.sampling.chains[:, -1].reshape(-1, previous.posterior.ndim)
+    walkers = _carried(post, previous, added, last, seed + 1)
+    if walkers.shape[0]:
+        walkers = walkers[np.isfinite(post.log_prob_batch(walkers))]
+    return x0, (walkers if walkers.shape[0] else None)
 
 
 def _fit(data: Dataset, model: HysteresisModel, likelihood: str, label: str,
-         st: DiagnosisSettings, checkpoint_dir: Path | None, progress: bool,
+         st: DiagnosisSettings, checkpoint_dir: Path | None,
          warm: tuple[DiagnosisFit, dict[str, Any]] | None = None) -> DiagnosisFit:
-    seed = derived_seed(st.seed, label)
     post = Posterior(model, data, likelihood)
-    start = None
+    sampler = st.sampler
+    if sampler.n_walkers is not None and sampler.moves != "structured":
+        # augmented models have more parameters: keep the ensemble at least 2 ndim + 2
+        sampler = sampler.replace(n_walkers=max(sampler.n_walkers, 2 * post.ndim + 2))
+    # the seed and checkpoint follow from what is fitted: the base fit of a report is the
+    # comparison's joint fit (same posterior, same settings, same checkpoint folder)
+    sampler = fit_sampler(post, sampler, st.seed, checkpoint_dir)
+    seed = sampler.seed
+    start = initial = None
     if warm is not None:
-        x0 = _warm_start(post, warm[0], warm[1], seed)
+        x0, initial = _warm_start(post, warm[0], warm[1], seed)
         if x0 is not None:  # an extra start of the MAP search, not a replacement
             start = find_map(post, seed=np.random.default_rng(seed), x0=x0)
-    ckpt = None if checkpoint_dir is None else checkpoint_dir / f"{_slug(label)}.h5"
-    # augmented models have more parameters: keep the ensemble at least 2 ndim + 2
-    walkers = None if st.n_walkers is None else max(st.n_walkers, 2 * post.ndim + 2)
-    res = sample_posterior(post, n_walkers=walkers, max_steps=st.max_steps,
-                           first_chunk=st.first_chunk, seed=seed, checkpoint=ckpt,
-                           progress=progress, start=start)
+    res = sample_posterior(post, sampler, start=start, initial=initial)
     notes = [] if res.converged else [f"{label}: the sampler did not converge within its "
-                                      f"budget ({st.max_steps} steps)"]
+                                      f"budget ({sampler.max_steps} steps)"]
     draws = res.draws(st.n_draws, seed=seed)
-    settings = CompareSettings(likelihood=likelihood, n_walkers=walkers,
-                               max_steps=st.max_steps, first_chunk=st.first_chunk,
+    settings = CompareSettings(likelihood=likelihood, sampler=sampler,
                                draws_per_chain=st.draws_per_chain, max_refits=st.max_refits)
     loo_notes: list[str] = []
     scores = loo_scores(post, res, settings, seed, loo_notes)
@@ -367,14 +386,10 @@ def diagnose(
     threshold: float = 2.0,
     max_rounds: int = 6,
     max_candidates: int = 2,
-    seed: int = 0,
-    n_walkers: int | None = None,
-    max_steps: int = 20_000,
-    first_chunk: int = 1_000,
+    sampler: SamplerSettings | None = None,
     n_draws: int = 200,
     max_refits: int = 5,
     checkpoint_dir: str | Path | None = None,
-    progress: bool = False,
     on_fit: Callable[[DiagnosisFit], None] | None = None,
 ) -> DiagnosisResult:
     """Find what a fitted model misses, add it, refit, and report the error before and after.
@@ -399,19 +414,19 @@ def diagnose(
         Most effects added.
     max_candidates : int
         Fired effects refitted per round before giving up on the round.
-    seed : int
-        Every fit's seed derives from it and the fit's label: same seed, same result.
-    n_walkers, max_steps, first_chunk
-        Sampler budget per fit (:func:`~bayeshyst.inference.sampling.sample_posterior`).
+    sampler : SamplerSettings, optional
+        How every fit is sampled (:func:`~bayeshyst.inference.sampling.sample_posterior`);
+        each fit's seed derives from ``sampler.seed`` and what the fit is
+        (:func:`~bayeshyst._comparison_tasks.fit_sampler`): same seed, same result.
     n_draws : int
         Posterior draws averaged for predictions and residuals.
     max_refits : int
         Cycles per fit whose PSIS-LOO is unreliable (Pareto k > 0.7) that are refitted
         exactly, worst first (each refit costs a fit).
     checkpoint_dir : path, optional
-        Each fit checkpoints here (``<label>-<crc>.h5``); a rerun resumes finished fits.
-    progress : bool
-        Show the sampler's progress.
+        Each fit checkpoints here (``<identity>.h5``); a rerun resumes finished fits,
+        and a fit another command made with the same data and settings into the same
+        folder (the comparison's joint fit) is reused, not sampled again.
     on_fit : callable, optional
         Called with every :class:`DiagnosisFit` as it completes (progress reports).
 
@@ -426,9 +441,9 @@ def diagnose(
     st = DiagnosisSettings(
         effects=tuple(EFFECTS) if effects is None else tuple(effects), alpha=float(alpha),
         threshold=float(threshold), max_rounds=int(max_rounds),
-        max_candidates=int(max_candidates), n_walkers=n_walkers, max_steps=int(max_steps),
-        first_chunk=int(first_chunk), n_draws=int(n_draws), max_refits=int(max_refits),
-        seed=int(seed))
+        max_candidates=int(max_candidates),
+        sampler=SamplerSettings() if sampler is None else sampler, n_draws=int(n_draws),
+        max_refits=int(max_refits))
     _check_settings(st)
     base_label = model if isinstance(model, str) else model.name
     base_model = get_model(model) if isinstance(model, str) else model
@@ -439,7 +454,7 @@ def diagnose(
 
     def fit(m: HysteresisModel, lik: str, label: str,
             warm: tuple[DiagnosisFit, dict[str, Any]] | None = None) -> DiagnosisFit:
-        f = _fit(data, m, lik, label, st, ckdir, progress, warm)
+        f = _fit(data, m, lik, label, st, ckdir, warm)
         if on_fit is not None:
             on_fit(f)
         return f

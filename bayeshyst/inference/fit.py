@@ -9,13 +9,12 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from pathlib import Path
-
 import numpy as np
 
 from bayeshyst.data.record import Dataset, Record
 from bayeshyst.inference.posterior import Posterior
 from bayeshyst.inference.sampling import SamplingResult, sample_posterior
+from bayeshyst.inference.settings import SamplerSettings
 from bayeshyst.likelihoods import Likelihood
 from bayeshyst.models.base import HysteresisModel
 from bayeshyst.params import ParamSpace
@@ -147,12 +146,7 @@ def fit_model(
     model: HysteresisModel | str,
     likelihood: Likelihood | str = "gaussian",
     *,
-    seed: int = 0,
-    n_walkers: int | None = None,
-    max_steps: int = 20_000,
-    first_chunk: int = 1_000,
-    checkpoint: str | Path | None = None,
-    progress: bool = False,
+    sampler: SamplerSettings | None = None,
     n_prediction_draws: int = 200,
     space: ParamSpace | None = None,
     offset: bool | None = None,
@@ -166,18 +160,17 @@ def fit_model(
         Model or spec string (``"bouc_wen+second_order"``).
     likelihood : Likelihood or str
         ``"gaussian"``, ``"student_t"`` or ``"ar1"``.
-    seed : int
-        Same seed, same result.
-    n_walkers, max_steps, first_chunk, checkpoint, progress
-        As :func:`sample_posterior`.
+    sampler : SamplerSettings, optional
+        Moves, walkers, budget, convergence criteria, seed, checkpoint, progress
+        (default :class:`SamplerSettings`). Same seed, same result.
     n_prediction_draws : int
         Posterior draws averaged for the mean prediction and its errors.
     space, offset
         As :class:`Posterior` (edited priors; observation offset on/off).
     """
+    sampler = SamplerSettings() if sampler is None else sampler
     post = Posterior(model, data, likelihood, space=space, offset=offset)
-    res = sample_posterior(post, n_walkers=n_walkers, max_steps=max_steps,
-                           first_chunk=first_chunk, seed=seed, checkpoint=checkpoint,
-                           progress=progress)
-    overall, per, means = tracking_errors(post, res.draws(n_prediction_draws, seed=seed))
+    res = sample_posterior(post, sampler)
+    overall, per, means = tracking_errors(post, res.draws(n_prediction_draws,
+                                                          seed=sampler.seed))
     return FitResult(post, res, overall, per, means)

@@ -302,7 +302,8 @@ class LinearGibbsMove(_StructuredMove):
         good = np.all(np.isfinite(z_new), axis=1) & np.isfinite(correction)
         z_new = np.where(good[:, None], z_new, z)
         lp_new = self.target.log_prob(z_new, st)
-        log_r = lp_new - lp - correction
+        with np.errstate(invalid="ignore"):
+            log_r = lp_new - lp - correction
         acc = good & _accept(log_r, random)
         self.stats.add(f"gibbs_{which}", z.shape[0], int(np.count_nonzero(acc)))
         return (np.where(acc[:, None], z_new, z), np.where(acc, lp_new, lp), acc)
@@ -387,8 +388,9 @@ class IndependenceMove(_StructuredMove):
         z_prop[:, self.target.other_idx] = x
         z_new, lp_new, lq_new = self.target.complete(z_prop, random)
         lq_old = self.target.log_q_current(z)
-        log_r = (lp_new - lp + lq_old - lq_new
-                 + self._log_t(z[:, self.target.other_idx]) - self._log_t(x))
+        with np.errstate(invalid="ignore"):  # -inf - -inf: a rejected proposal (NaN)
+            log_r = (lp_new - lp + lq_old - lq_new
+                     + self._log_t(z[:, self.target.other_idx]) - self._log_t(x))
         acc = _accept(log_r, random) & np.isfinite(lp_new)
         self.stats.add(self.name, w, int(np.count_nonzero(acc)))
         z = np.where(acc[:, None], z_new, z)
@@ -439,7 +441,8 @@ class DifferentialMove(_StructuredMove):
             z_prop[:, idx] += gamma[:, None] * diff
             z_new, lp_new, lq_new = self.target.complete(z_prop, random)
             lq_old = self.target.log_q_current(z[act])
-            log_r = lp_new - lp[act] + lq_old - lq_new
+            with np.errstate(invalid="ignore"):  # -inf - -inf: a rejected proposal (NaN)
+                log_r = lp_new - lp[act] + lq_old - lq_new
             acc = _accept(log_r, random) & np.isfinite(lp_new)
             z[act] = np.where(acc[:, None], z_new, z[act])
             lp[act] = np.where(acc, lp_new, lp[act])

@@ -203,6 +203,31 @@ class Posterior:
         new.reset_counts()
         return new
 
+    def with_priors(self, space: ParamSpace) -> Posterior:
+        """A copy whose whole parameter space (model, offset and noise) is ``space``.
+
+        The default priors of the offset and noise are scaled from the data; a study
+        that needs the same prior for every dataset (simulation-based calibration, a
+        fleet of actuators) passes one space, e.g. another posterior's ``space``.
+
+        Raises
+        ------
+        ParameterError
+            If ``space`` does not declare exactly this posterior's parameters.
+        """
+        if not isinstance(space, ParamSpace) or set(space.all_names) != set(self.space.all_names):
+            got = sorted(space.all_names) if isinstance(space, ParamSpace) else space
+            raise ParameterError(f"with_priors: the space must declare "
+                                 f"{sorted(self.space.all_names)}, got {got}")
+        new = copy.copy(self)
+        new.space = space
+        new.model_space = ParamSpace(
+            tuple(p for p in space.params if p.name in self._model_names),
+            {k: v for k, v in space.fixed.items() if k in self._model_names},
+            tuple(p for p in space.fixed_params if p.name in self._model_names))
+        new.reset_counts()
+        return new
+
     def holding_out(self, units: Sequence[int]) -> Posterior:
         """A copy whose likelihood leaves out the cycles ``units`` (indices into :attr:`units`).
 
