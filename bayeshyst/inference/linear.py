@@ -242,11 +242,19 @@ class LinearStructure:
 
     def noise(self, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``sigma`` (W,) and ``phi`` (W,; zeros for Gaussian noise) at ``z``."""
-        theta = self.post.space.unpack(z)
-        sigma = np.broadcast_to(np.asarray(theta[self.sigma_name], float), (z.shape[0],))
-        phi = (np.broadcast_to(np.asarray(theta[self.phi_name], float), (z.shape[0],))
-               if self.kind == "ar1" else np.zeros(z.shape[0]))
-        return np.array(sigma), np.array(phi)
+        w = z.shape[0]
+        return (self._noise_value(z, self.sigma_name, w),
+                self._noise_value(z, self.phi_name, w) if self.kind == "ar1" else np.zeros(w))
+
+    def _noise_value(self, z: np.ndarray, name: str, w: int) -> np.ndarray:
+        # one column through its transform (this runs several times per move: a full
+        # unpack of every parameter would cost more than the algebra it feeds)
+        space = self.post.space
+        if name in space.fixed:
+            return np.full(w, float(space.fixed[name]))
+        with np.errstate(over="ignore"):
+            return np.asarray(space[name].transform.inverse(z[:, space.slice_of(name).start]),
+                              dtype=float).copy()
 
     def _model_theta(self, z: np.ndarray) -> dict[str, Any]:
         theta, _ = self.post.model_draws(z)
