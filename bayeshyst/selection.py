@@ -47,6 +47,7 @@ from bayeshyst._comparison_tasks import (
 )
 from bayeshyst.data.record import Dataset, Record
 from bayeshyst.errors import DataError, ModelError, ParameterError
+from bayeshyst.inference.settings import SamplerSettings
 from bayeshyst.likelihoods import get_likelihood
 from bayeshyst.models import get as get_model
 
@@ -542,10 +543,7 @@ def compare_models(
     models: Sequence[str] | str,
     *,
     likelihood: str = "gaussian",
-    seed: int = 0,
-    n_walkers: int | None = None,
-    max_steps: int = 20_000,
-    first_chunk: int = 1_000,
+    sampler: SamplerSettings | None = None,
     draws_per_chain: int = 30,
     n_lofo_draws: int = 400,
     lofo: bool = True,
@@ -568,10 +566,13 @@ def compare_models(
         memory features).
     likelihood : str
         ``"gaussian"``, ``"student_t"`` or ``"ar1"`` for the parametric models.
-    seed : int
-        Same seed, same numbers (whatever ``n_jobs``).
-    n_walkers, max_steps, first_chunk : int
-        Sampler settings of every fit (see :func:`~bayeshyst.inference.sampling.sample_posterior`).
+    sampler : SamplerSettings, optional
+        How every fit is sampled (default :class:`SamplerSettings`; see
+        :func:`~bayeshyst.inference.sampling.sample_posterior`). ``sampler.seed`` is the
+        comparison's seed: each fit derives its own from it and what the fit is, so the
+        same seed gives the same numbers whatever ``n_jobs``. Its checkpoint is ignored
+        (each fit checkpoints under ``out_dir``), and so is its progress bar (parallel
+        fits would garble it; ``progress`` prints a line per finished fit instead).
     draws_per_chain : int
         Draws per walker kept for PSIS-LOO and WAIC.
     n_lofo_draws : int
@@ -585,7 +586,10 @@ def compare_models(
     n_jobs : int, optional
         Worker processes; default the machine's cores (``os.cpu_count()``).
     out_dir : path, optional
-        Posteriors (netCDF) and resumable sampler checkpoints go here.
+        Posteriors (netCDF, ``posteriors/``) and resumable sampler checkpoints
+        (``checkpoints/<identity>.h5``) go here; another command fitting the same
+        posterior with the same settings and checkpoint folder (the diagnosis of a
+        report) reuses a finished fit.
     progress : bool
         One line per finished fit on stderr.
 
@@ -599,8 +603,11 @@ def compare_models(
         raise DataError(f"data must be a Dataset or Record, got {type(data).__name__}")
     names = check_models(models)
     get_likelihood(likelihood)
-    for value, what, low in ((max_steps, "max_steps", 10), (first_chunk, "first_chunk", 10),
-                             (draws_per_chain, "draws_per_chain", 1),
+    sampler = SamplerSettings() if sampler is None else sampler
+    if not isinstance(sampler, SamplerSettings):
+        raise ParameterError(f"sampler must be a SamplerSettings, got {type(sampler).__name__}")
+    seed = sampler.seed
+    for value, what, low in ((draws_per_chain, "draws_per_chain", 1),
                              (n_lofo_draws, "n_lofo_draws", 1), (max_refits, "max_refits", 0),
                              (gp_n_train, "gp_n_train", 10)):
         if int(value) != value or value < low:
@@ -608,7 +615,7 @@ def compare_models(
     n_jobs = (os.cpu_count() or 1) if n_jobs is None else int(n_jobs)
     if n_jobs < 1:
         raise ParameterError(f"n_jobs must be >= 1, got {n_jobs}")
-    settings = CompareSettings(likelihood, n_walkers, int(max_steps), int(first_chunk),
+    settings = CompareSettings(likelihood, sampler.replace(checkpoint=None, progress=False),
                                int(draws_per_chain), int(n_lofo_draws), int(max_refits),
                                int(gp_n_train))
     groups = data.by_frequency()
@@ -636,8 +643,8 @@ def compare_models(
     lofo_all = {m: [r for s, r in done.items() if s.scope == "lofo" and s.model == m]
                 for m in names}
     overall = _assemble(names, None, True, joint, lofo_all, joint)
-    settings_d = {**settings.__dict__, "seed": seed, "lofo": bool(lofo) and len(keys) > 1,
-                  "n_jobs": n_jobs}
+    settings_d = {**settings.__dict__, "sampler": settings.sampler.to_dict(), "seed": seed,
+                  "lofo": bool(lofo) and len(keys) > 1, "n_jobs": n_jobs}
     return ComparisonResult(names, tuple(per), overall,
                             tuple(done[s] for s in tasks), settings_d,
                             time.perf_counter() - t0)

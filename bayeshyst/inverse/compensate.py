@@ -32,6 +32,7 @@ from bayeshyst.data.record import Dataset, Record
 from bayeshyst.data.virtual import VirtualActuator
 from bayeshyst.errors import DataError, ParameterError
 from bayeshyst.inference.fit import FitResult, fit_model
+from bayeshyst.inference.settings import SamplerSettings
 from bayeshyst.inverse.feedforward import (
     BAND,
     Draws,
@@ -386,13 +387,8 @@ def compensate(
     n_plants: int = 50,
     robust_quantile: float = 0.9,
     u_margin: float = 0.25,
-    seed: int = 0,
     likelihood: str = "gaussian",
-    n_walkers: int | None = None,
-    max_steps: int = 5_000,
-    first_chunk: int = 500,
-    checkpoint: str | Path | None = None,
-    progress: bool = False,
+    sampler: SamplerSettings | None = None,
 ) -> CompensationResult:
     """Design feedforward from the posterior of ``model`` and evaluate it per frequency.
 
@@ -404,7 +400,7 @@ def compensate(
         Model or spec string (``"pi_play+second_order"``).
     fit : FitResult, optional
         A posterior of ``model`` given ``data`` already sampled (its model must be
-        ``model``); default: sampled here, and the sampler settings below then apply.
+        ``model``); default: sampled here with ``likelihood`` and ``sampler``.
     plant : VirtualActuator, "posterior" or None
         What the commands are run on. None: the virtual actuator named by the records'
         ``truth`` metadata if any, else held-out posterior draws.
@@ -425,10 +421,12 @@ def compensate(
     u_margin : float
         Command limits: the data's input range widened by this fraction of its span
         at each end.
-    seed : int
-        Seeds the fit and the choice of draws; same seed, same result.
-    likelihood, n_walkers, max_steps, first_chunk, checkpoint, progress
+    likelihood : str
         As :func:`~bayeshyst.inference.fit.fit_model` (ignored with ``fit``).
+    sampler : SamplerSettings, optional
+        How the fit is sampled (default :class:`SamplerSettings`, the defaults of every
+        command; ignored with ``fit`` but for its seed). ``sampler.seed`` seeds the fit
+        and the choice of draws: same seed, same result.
 
     Returns
     -------
@@ -436,6 +434,10 @@ def compensate(
     """
     if isinstance(data, Record):
         data = Dataset((data,), name=data.name)
+    sampler = SamplerSettings() if sampler is None else sampler
+    if not isinstance(sampler, SamplerSettings):
+        raise ParameterError(f"sampler must be a SamplerSettings, got {type(sampler).__name__}")
+    seed = sampler.seed
     for name, value, low in (("cycles", cycles, 1), ("warmup_cycles", warmup_cycles, 0),
                              ("n_design_draws", n_design_draws, 1),
                              ("n_predict_draws", n_predict_draws, 10),
@@ -452,9 +454,7 @@ def compensate(
             raise ParameterError(f"fit is a posterior of {fit.posterior.model.name!r}, not of "
                                  f"the model asked for, {wanted.name!r}")
     else:
-        fit = fit_model(data, model, likelihood, seed=seed, n_walkers=n_walkers,
-                        max_steps=max_steps, first_chunk=first_chunk, checkpoint=checkpoint,
-                        progress=progress)
+        fit = fit_model(data, model, likelihood, sampler=sampler)
     post = fit.posterior
     model = post.model
     if plant is None:
