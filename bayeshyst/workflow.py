@@ -15,8 +15,11 @@ do it by hand:
    :func:`~bayeshyst.inverse.compensate.compensate` designs nominal, posterior-mean and
    robust commands from that posterior and scores them per frequency with bands.
 
-Each stage checkpoints under ``out_dir`` (the comparison's fits and the diagnosis'
-fits), so an interrupted report resumes where it stopped. Writing the files
+Every stage samples with the same :class:`~bayeshyst.inference.settings.SamplerSettings`
+(``ReportSettings.sampler``). Each fit checkpoints under ``out_dir/compare/checkpoints``,
+named by what it fits (:func:`~bayeshyst._comparison_tasks.fit_identity`): the
+diagnosis' base fit *is* the comparison's joint fit of the chosen model and is read
+back, not sampled again, and an interrupted report resumes where it stopped. Writing the files
 (HTML, ``summary.json``, netCDF) is :func:`bayeshyst.report.report_outputs.write_report_outputs`.
 """
 
@@ -35,6 +38,7 @@ from bayeshyst.diagnosis import DiagnosisResult, diagnose
 from bayeshyst.diagnosis.loop import DiagnosisFit
 from bayeshyst.errors import DataError, ParameterError
 from bayeshyst.inference.fit import FitResult
+from bayeshyst.inference.settings import SamplerSettings
 from bayeshyst.inverse.compensate import CompensationResult, compensate
 from bayeshyst.likelihoods import get_likelihood
 from bayeshyst.selection import ComparisonResult, check_models, compare_models
@@ -55,11 +59,12 @@ class ReportSettings:
     ----------
     likelihood : str
         Observation model of every parametric fit (``gaussian``, ``student_t``, ``ar1``).
-    max_steps, first_chunk : int
-        Sampler step budget per ensemble and steps before the first convergence check,
-        for every fit (comparison and diagnosis).
-    n_walkers : int or None
-        Walkers per ensemble (default ``max(32, 4 ndim)``).
+    sampler : SamplerSettings
+        How every fit (comparison, diagnosis, and so the feedforward's posterior) is
+        sampled; its seed is the report's seed (also of the feedforward's draws), its
+        progress flag shows the diagnosis fits' progress bars (the comparison prints a
+        line per fit instead). Its checkpoint is ignored: fits checkpoint under
+        ``out_dir``.
     lofo : bool
         Run the leave-one-frequency-out fits of the comparison.
     max_refits : int
@@ -79,9 +84,7 @@ class ReportSettings:
     """
 
     likelihood: str = "gaussian"
-    max_steps: int = 20_000
-    first_chunk: int = 1_000
-    n_walkers: int | None = None
+    sampler: SamplerSettings = field(default_factory=SamplerSettings)
     lofo: bool = True
     max_refits: int = 5
     gp_n_train: int = 1000
@@ -93,8 +96,10 @@ class ReportSettings:
     n_jobs: int | None = None
 
     def __post_init__(self) -> None:
-        for name in ("max_steps", "first_chunk", "max_rounds", "max_candidates",
-                     "design_draws", "gp_n_train"):
+        if not isinstance(self.sampler, SamplerSettings):
+            raise ParameterError(f"sampler must be a SamplerSettings, got "
+                                 f"{type(self.sampler).__name__}")
+        for name in ("max_rounds", "max_candidates", "design_draws", "gp_n_train"):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, int) or v < 1:
                 raise ParameterError(f"{name} must be a positive integer, got {v!r}")
@@ -108,6 +113,7 @@ class ReportSettings:
 
     def to_dict(self) -> dict[str, Any]:
         d = asdict(self)
+        d["sampler"] = self.sampler.to_dict()
         d["effects"] = None if self.effects is None else list(self.effects)
         return d
 
@@ -128,6 +134,7 @@ class ReportResult:
         Designed from the diagnosis' final model.
     settings : ReportSettings
     seed : int
+        The report's seed (``settings.sampler.seed``).
     warnings : tuple of str
         Plain-language cautions of the run as a whole (each stage keeps its own too).
     runtime_s : dict of str to float
@@ -208,7 +215,6 @@ def run_report(
     models: tuple[str, ...] | str = DEFAULT_MODELS,
     *,
     settings: ReportSettings | None = None,
-    seed: int = 0,
     out_dir: str | Path | None = None,
     progress: bool = False,
     on_fit: Callable[[DiagnosisFit], None] | None = None,
@@ -222,12 +228,12 @@ def run_report(
     models : tuple of str or comma-separated str
         Model specs to compare (``"gp"``/``"gp_memory"`` take part in the comparison only).
     settings : ReportSettings, optional
-        Budgets of every stage (default :class:`ReportSettings()`).
-    seed : int
-        Same seed, same numbers.
+        Budgets of every stage (default :class:`ReportSettings()`); ``settings.sampler``
+        samples every fit, and its seed is the report's: same seed, same numbers.
     out_dir : path, optional
-        Posteriors and resumable checkpoints of every fit go under it
-        (``compare/``, ``diagnose/checkpoints/``).
+        Posteriors and resumable checkpoints of every fit go under it: every fit
+        checkpoints in ``compare/checkpoints/`` (the diagnosis too, so its base fit
+        reuses the comparison's joint fit of the same model).
     progress : bool
         One line per stage and per finished fit on stderr.
     on_fit : callable, optional
@@ -248,12 +254,16 @@ def run_report(
     out = None if out_dir is None else Path(out_dir)
     times: dict[str, float] = {}
     s = settings
+    sampler = s.sampler.replace(checkpoint=None)
+    seed = sampler.seed
+    # the comparison's fits checkpoint here (run_task: <out_dir>/checkpoints), and so do
+    # the diagnosis' fits: its base fit has the comparison's joint fit's identity
+    checkpoints = None if out is None else out / "compare" / "checkpoints"
 
     _stage(progress, f"1/3 comparing {', '.join(names)} per frequency")
     t0 = time.perf_counter()
     comparison = compare_models(
-        data, names, likelihood=s.likelihood, seed=seed, n_walkers=s.n_walkers,
-        max_steps=s.max_steps, first_chunk=s.first_chunk, lofo=s.lofo,
+        data, names, likelihood=s.likelihood, sampler=sampler, lofo=s.lofo,
         max_refits=s.max_refits, gp_n_train=s.gp_n_train, n_jobs=s.n_jobs,
         out_dir=None if out is None else out / "compare", progress=progress)
     times["compare"] = time.perf_counter() - t0
@@ -265,17 +275,15 @@ def run_report(
         t0 = time.perf_counter()
         diagnosis = diagnose(
             data, chosen, s.likelihood, effects=s.effects, max_rounds=s.max_rounds,
-            max_candidates=s.max_candidates, seed=seed, n_walkers=s.n_walkers,
-            max_steps=s.max_steps, first_chunk=s.first_chunk, max_refits=s.max_refits,
-            checkpoint_dir=None if out is None else out / "diagnose" / "checkpoints",
-            progress=progress, on_fit=on_fit)
+            max_candidates=s.max_candidates, sampler=sampler, max_refits=s.max_refits,
+            checkpoint_dir=checkpoints, on_fit=on_fit)
         times["diagnose"] = time.perf_counter() - t0
         final = diagnosis.final
         _stage(progress, f"3/3 designing feedforward with {final.label}")
         t0 = time.perf_counter()
         compensation = compensate(data, final.model, fit=fit_result(final),
                                   n_design_draws=s.design_draws,
-                                  robust_quantile=s.robust_quantile, seed=seed)
+                                  robust_quantile=s.robust_quantile, sampler=sampler)
         times["compensate"] = time.perf_counter() - t0
     return ReportResult(data, comparison, chosen, diagnosis, compensation, settings, int(seed),
                         tuple(warnings), times)
@@ -298,8 +306,9 @@ class DemoPlan:
 #: report says so.
 DEMO_QUICK = DemoPlan(
     models=("pi_play(n_operators=5)", "bouc_wen"),
-    settings=ReportSettings(max_steps=300, first_chunk=300, lofo=False, max_refits=0,
-                            max_rounds=1, max_candidates=1, design_draws=8),
+    settings=ReportSettings(sampler=SamplerSettings(max_steps=300, first_chunk=300),
+                            lofo=False, max_refits=0, max_rounds=1, max_candidates=1,
+                            design_draws=8),
     description="quick: 2 models, 1/10/200 Hz, 300 steps per ensemble, no LOFO, one "
                 "diagnosis round",
     frequencies_hz=(1.0, 10.0, 200.0))
@@ -310,8 +319,9 @@ DEMO_QUICK = DemoPlan(
 #: 436 s) and a second diagnosis round (288 s with it); ``bayeshyst report`` runs both.
 DEMO_DEFAULT = DemoPlan(
     models=("pi_play(n_operators=8)", "bouc_wen", "gp_memory"),
-    settings=ReportSettings(max_steps=1000, first_chunk=500, lofo=False, max_refits=1,
-                            max_rounds=1, max_candidates=1, design_draws=16),
+    settings=ReportSettings(sampler=SamplerSettings(max_steps=1000, first_chunk=500),
+                            lofo=False, max_refits=1, max_rounds=1, max_candidates=1,
+                            design_draws=16),
     description="3 models, 5 frequencies, up to 1000 steps per ensemble, one diagnosis "
                 "round (no LOFO: see `bayeshyst report`)")
 
