@@ -7,6 +7,7 @@ Exit status: 0 success, 2 bad input (one clear line on stderr, nothing written h
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import os
 import sys
@@ -18,11 +19,11 @@ import numpy as np
 
 from bayeshyst import __version__
 from bayeshyst.errors import DataError, ModelError, ParameterError
-from bayeshyst.inference.settings import SamplerSettings
+from bayeshyst.inference.settings import MOVES, SamplerSettings
 from bayeshyst.report.files import jsonable
 
 __all__ = ["build_parser", "int_at_least", "main", "non_negative_float", "non_negative_int",
-           "positive_int", "probability"]
+           "positive_int", "probability", "sampler_settings"]
 
 EXIT_OK, EXIT_INTERNAL, EXIT_BAD_INPUT = 0, 1, 2
 
@@ -104,6 +105,40 @@ def int_at_least(minimum: int, what: str) -> Callable[[str], int]:
 positive_int = int_at_least(1, "a positive integer")
 non_negative_int = int_at_least(0, "an integer >= 0")
 
+#: The options every sampling command maps onto its :class:`SamplerSettings`, and the
+#: field each one sets (``--quiet`` sets ``progress`` to its negation).
+_SAMPLER_FLAGS = {"seed": "seed", "walkers": "n_walkers", "steps": "max_steps",
+                  "moves": "moves"}
+
+
+def sampler_settings(args: argparse.Namespace, **overrides: Any) -> SamplerSettings:
+    """The one :class:`SamplerSettings` of a command, from its command-line options.
+
+    ``--seed``, ``--walkers`` (``n_walkers``), ``--steps`` (``max_steps``), ``--moves``
+    and ``--quiet`` (``progress = not quiet``) are mapped here and nowhere else; an
+    option the command does not have (``bayeshyst demo`` has no ``--steps``), or left
+    at None, keeps the record's default. ``overrides`` (``checkpoint=...``, a demo's
+    budget) replace what the options give. ``first_chunk`` stays at its default unless
+    the step budget is below it.
+
+    Raises
+    ------
+    ParameterError
+        For values the record rejects (``--steps 5``: fewer steps than a convergence
+        check needs).
+    """
+    values: dict[str, Any] = {}
+    for flag, name in _SAMPLER_FLAGS.items():
+        value = getattr(args, flag, None)
+        if value is not None:
+            values[name] = value
+    if getattr(args, "quiet", None) is not None:
+        values["progress"] = not args.quiet
+    values.update(overrides)
+    if "first_chunk" not in values and "max_steps" in values:
+        values["first_chunk"] = min(SamplerSettings.first_chunk, values["max_steps"])
+    return SamplerSettings(**values)
+
 
 def _cmd_fit(args: argparse.Namespace) -> int:
     from bayeshyst.data import load
@@ -121,11 +156,10 @@ def _cmd_fit(args: argparse.Namespace) -> int:
     if not args.quiet:
         print(f"bayeshyst fit: {model.name} / {likelihood.name} on {data.name} "
               f"({len(data)} record(s), {data.n_samples} samples)", file=sys.stderr)
-    fit = fit_model(data, model, likelihood, sampler=SamplerSettings(
-        seed=args.seed, n_walkers=args.walkers, max_steps=args.steps, checkpoint=checkpoint,
-        progress=not args.quiet))
+    sampler = sampler_settings(args, checkpoint=checkpoint)
+    fit = fit_model(data, model, likelihood, sampler=sampler)
     summary = write_fit_outputs(fit, out, data_path=str(args.data), figures=not args.no_figures,
-                                seed=args.seed)
+                                seed=sampler.seed)
     if args.json:
         json.dump(jsonable(summary), sys.stdout, indent=2)
         sys.stdout.write("\n")
@@ -147,15 +181,15 @@ def _cmd_compare(args: argparse.Namespace) -> int:
     models = check_models(args.models)
     get_likelihood(args.likelihood)
     out = Path(args.out)
+    sampler = sampler_settings(args)
     if not args.quiet:
         freqs = ", ".join(f"{f:g}" for f in data.frequencies) or "none given"
         print(f"bayeshyst compare: {', '.join(models)} on {data.name} ({len(data)} record(s); "
               f"frequencies [Hz]: {freqs})", file=sys.stderr)
-    result = compare_models(data, models, likelihood=args.likelihood, seed=args.seed,
-                            n_walkers=args.walkers, max_steps=args.steps,
+    result = compare_models(data, models, likelihood=args.likelihood, sampler=sampler,
                             lofo=not args.no_lofo, max_refits=args.max_refits,
                             gp_n_train=args.gp_train, n_jobs=args.jobs, out_dir=out,
-                            progress=not args.quiet)
+                            progress=sampler.progress)
     summary = write_comparison_outputs(result, out, data_path=str(args.data),
                                        figures=not args.no_figures)
     if args.json:
@@ -208,20 +242,19 @@ def _cmd_compensate(args: argparse.Namespace) -> int:
         raise DataError(f"{args.reference}: no such reference file (--reference takes "
                         f"{' or '.join(REFERENCE_KINDS)} or a CSV file with columns t,y)")
     out = Path(args.out)
-    checkpoint = None if args.no_checkpoint else out / "checkpoint.h5"
+    sampler = sampler_settings(
+        args, checkpoint=None if args.no_checkpoint else out / "checkpoint.h5")
     if not args.quiet:
         freqs = ", ".join(f"{f:g}" for f in data.frequencies) or "none given"
         ref = args.reference if isinstance(reference, str) else f"file {args.reference}"
         print(f"bayeshyst compensate: {model.name} / {likelihood.name} on {data.name} "
               f"({len(data)} record(s); frequencies [Hz]: {freqs}); reference: {ref}",
               file=sys.stderr)
-    fit = fit_model(data, model, likelihood, sampler=SamplerSettings(
-        seed=args.seed, n_walkers=args.walkers, max_steps=args.steps, checkpoint=checkpoint,
-        progress=not args.quiet))
+    fit = fit_model(data, model, likelihood, sampler=sampler)
     result = compensate(data, model, fit=fit, reference=reference,
                         plant=None if args.plant == "auto" else args.plant,
                         n_design_draws=args.design_draws, robust_quantile=args.quantile,
-                        seed=args.seed)
+                        sampler=sampler)
     written = write_compensation_outputs(result, out, figures=not args.no_figures, fit=fit,
                                          data_path=str(args.data))
     if args.json:
@@ -272,6 +305,7 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
     effects = tuple(EFFECTS) if args.effects is None else _effect_list(args.effects)
     out = Path(args.out)
     checkpoints = None if args.no_checkpoint else out / "checkpoints"
+    sampler = sampler_settings(args)
     n_fits = 0
 
     def on_fit(fit: Any) -> None:
@@ -291,9 +325,8 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
               f"({len(data)} record(s); frequencies [Hz]: {freqs}); candidate effects: "
               f"{', '.join(effects)}", file=sys.stderr)
     result = diagnose(data, args.model, likelihood.name, effects=effects, alpha=args.alpha,
-                      threshold=args.threshold, max_rounds=args.max_rounds, seed=args.seed,
-                      n_walkers=args.walkers, max_steps=args.steps, checkpoint_dir=checkpoints,
-                      progress=not args.quiet, on_fit=on_fit)
+                      threshold=args.threshold, max_rounds=args.max_rounds, sampler=sampler,
+                      checkpoint_dir=checkpoints, on_fit=on_fit)
     written = write_diagnosis_outputs(result, out, data_name=str(args.data),
                                       figures=not args.no_figures)
     if args.json:
@@ -326,8 +359,8 @@ def _report_run(data: Any, data_path: str, models: tuple[str, ...], settings: An
         freqs = ", ".join(f"{f:g}" for f in data.frequencies) or "none given"
         print(f"bayeshyst {command}: {data.name} ({len(data)} record(s); frequencies [Hz]: "
               f"{freqs}); models: {', '.join(models)}", file=sys.stderr)
-    result = run_report(data, models, settings=settings, seed=args.seed, out_dir=out,
-                        progress=not args.quiet, on_fit=on_fit)
+    result = run_report(data, models, settings=settings, out_dir=out,
+                        progress=settings.sampler.progress, on_fit=on_fit)
     summary = write_report_outputs(result, out, data_path=data_path,
                                    figures=not args.no_figures)
     if args.json:
@@ -344,8 +377,7 @@ def _report_settings(args: argparse.Namespace) -> Any:
     from bayeshyst.workflow import ReportSettings
 
     return ReportSettings(
-        likelihood=args.likelihood, max_steps=args.steps,
-        first_chunk=min(1_000, args.steps), n_walkers=args.walkers, lofo=not args.no_lofo,
+        likelihood=args.likelihood, sampler=sampler_settings(args), lofo=not args.no_lofo,
         max_refits=args.max_refits, effects=None if args.effects is None
         else _effect_list(args.effects), max_rounds=args.max_rounds, n_jobs=args.jobs)
 
@@ -374,7 +406,11 @@ def _cmd_demo(args: argparse.Namespace) -> int:
     if not args.quiet:
         print(f"bayeshyst demo ({plan.description}) on the bundled virtual actuator data "
               f"{path.name}", file=sys.stderr)
-    return _report_run(data, path.name, plan.models, plan.settings, args, "demo")
+    # the plan's budget, the command line's seed and --quiet
+    budget = {k: v for k, v in dataclasses.asdict(plan.settings.sampler).items()
+              if k not in ("seed", "progress", "checkpoint")}
+    settings = dataclasses.replace(plan.settings, sampler=sampler_settings(args, **budget))
+    return _report_run(data, path.name, plan.models, settings, args, "demo")
 
 
 def _cmd_study(args: argparse.Namespace) -> int:
@@ -414,7 +450,15 @@ def _add_run_options(p: argparse.ArgumentParser, out_default: str, steps_help: s
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     p.add_argument("--steps", type=positive_int, default=20_000, help=steps_help)
     p.add_argument("--walkers", type=positive_int, default=None,
-                   help="walkers per ensemble (default max(32, 4 ndim))")
+                   help="walkers per ensemble (default: from the number of parameters the "
+                        "moves propose, max(12, 2 d + 2) structured, max(32, 4 ndim) de "
+                        "and stretch)")
+    p.add_argument("--moves", choices=MOVES, default="structured",
+                   help="sampler moves: structured (default) = exact Gibbs draws of the "
+                        "linear block + adaptive independence + differential evolution; "
+                        "de = emcee's differential-evolution moves on every coordinate, "
+                        "the previous engine, kept as a baseline; stretch = emcee's "
+                        "affine-invariant stretch move")
     p.add_argument("--json", action="store_true", help="print summary.json to stdout")
     p.add_argument("--quiet", action="store_true", help="no progress on stderr")
     p.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
