@@ -17,7 +17,7 @@ import numpy as np
 
 from bayeshyst.report.files import write_json
 from bayeshyst.selection import total_and_se
-from bayeshyst.study.tasks import FitOutcome, StudyTask
+from bayeshyst.study.tasks import FitOutcome, StudyTask, settings_fingerprint
 
 __all__ = ["TABLE_COLUMNS", "VOLATILE_COLUMNS", "failed_row", "fit_record", "read_record"]
 
@@ -100,7 +100,7 @@ def write_record(path: Path, record: dict[str, Any], task: StudyTask) -> None:
         "name": task.name, "digest": task.digest, "dataset": task.dataset,
         "model": task.model, "likelihood": task.likelihood,
         "frequency_hz": task.frequency_hz, "seed": task.seed, "fit_seed": task.fit_seed,
-        "data_sha256": task.data_sha256, "settings": task.settings.__dict__}})
+        "data_sha256": task.data_sha256, "settings": settings_fingerprint(task.settings)}})
 
 
 def read_record(path: Path, task: StudyTask) -> dict[str, Any] | None:

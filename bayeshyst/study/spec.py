@@ -9,8 +9,9 @@ A study is a TOML file (read with the standard library's :mod:`tomllib`)::
     frequencies_hz = [1, 10, 100]                # optional: fit only these
 
     [sampler]                                    # optional; every key optional
+    moves = "structured"                         # or "de", "stretch"
     max_steps = 4000
-    first_chunk = 1000
+    first_chunk = 100
     n_walkers = 32
     draws_per_chain = 30
     n_predictive_draws = 400
@@ -48,6 +49,7 @@ from typing import Any
 
 from bayeshyst._comparison_tasks import CompareSettings
 from bayeshyst.errors import DataError, ModelError, ParameterError
+from bayeshyst.inference.settings import MOVES, SamplerSettings
 
 __all__ = ["MEASURED_LOADERS", "DatasetSpec", "Study", "load_dataset", "read_study"]
 
@@ -55,11 +57,13 @@ _TOP_KEYS = ("name", "models", "likelihood", "likelihoods", "seed", "seeds", "fr
              "sampler", "datasets")
 _DATASET_KEYS = ("path", "measured", "name", "options", "columns", "delimiter", "warmup",
                  "units", "metadata")
-# the study's sampler keys and the CompareSettings field each one sets
-_SAMPLER_KEYS = {"n_walkers": "n_walkers", "max_steps": "max_steps",
-                 "first_chunk": "first_chunk", "draws_per_chain": "draws_per_chain",
-                 "n_predictive_draws": "n_lofo_draws", "max_refits": "max_refits",
-                 "gp_n_train": "gp_n_train"}
+# the [sampler] keys that set a SamplerSettings field (every fit samples with it) ...
+_SAMPLING_KEYS = {"moves": "moves", "n_walkers": "n_walkers", "max_steps": "max_steps",
+                  "first_chunk": "first_chunk"}
+# ... and those that set a CompareSettings field (how each fit is scored)
+_SCORING_KEYS = {"draws_per_chain": "draws_per_chain", "n_predictive_draws": "n_lofo_draws",
+                 "max_refits": "max_refits", "gp_n_train": "gp_n_train"}
+_SAMPLER_KEYS = {**_SAMPLING_KEYS, **_SCORING_KEYS}
 _SAMPLER_MIN = {"n_walkers": 4, "max_steps": 10, "first_chunk": 10, "draws_per_chain": 1,
                 "n_predictive_draws": 1, "max_refits": 0, "gp_n_train": 10}
 
@@ -129,7 +133,9 @@ class Study:
     frequencies_hz : tuple of float or None
         Only these excitation frequencies are fitted (None: every one in the data).
     settings : CompareSettings
-        Sampler and scoring settings of every fit (the likelihood field is set per task).
+        Sampler (``settings.sampler``) and scoring settings of every fit (the likelihood
+        field is set per task; the sampler's seed is not used: each fit derives its own
+        from the study's seeds).
     """
 
     name: str
@@ -143,7 +149,8 @@ class Study:
 
     def to_dict(self) -> dict[str, Any]:
         """The study as it was understood (``study.json`` of the outputs)."""
-        sampler = {k: getattr(self.settings, f) for k, f in _SAMPLER_KEYS.items()}
+        sampler = {k: getattr(self.settings.sampler, f) for k, f in _SAMPLING_KEYS.items()}
+        sampler.update({k: getattr(self.settings, f) for k, f in _SCORING_KEYS.items()})
         return {"name": self.name, "path": self.path, "models": list(self.models),
                 "likelihoods": list(self.likelihoods), "seeds": list(self.seeds),
                 "frequencies_hz": None if self.frequencies_hz is None
@@ -192,13 +199,27 @@ def _settings(where: str, sampler: Any) -> CompareSettings:
     if not isinstance(sampler, dict):
         raise ParameterError(f"{where}: [sampler] must be a table, got {sampler!r}")
     _unknown(f"{where} [sampler]", sampler, tuple(_SAMPLER_KEYS))
-    values = {}
+    sampling, scoring = {}, {}
     for key, value in sampler.items():
-        if not isinstance(value, int) or isinstance(value, bool) or value < _SAMPLER_MIN[key]:
+        if key == "moves":
+            if value not in MOVES:
+                close = difflib.get_close_matches(str(value), MOVES, n=1)
+                raise ParameterError(f"{where} [sampler]: unknown moves {value!r}"
+                                     + (f" (did you mean {close[0]!r}?)" if close else "")
+                                     + f"; expected one of {', '.join(MOVES)}")
+        elif not isinstance(value, int) or isinstance(value, bool) \
+                or value < _SAMPLER_MIN[key]:
             raise ParameterError(f"{where} [sampler]: {key} must be an integer >= "
                                  f"{_SAMPLER_MIN[key]}, got {value!r}")
-        values[_SAMPLER_KEYS[key]] = value
-    return CompareSettings(**values)
+        if key in _SAMPLING_KEYS:
+            sampling[_SAMPLING_KEYS[key]] = value
+        else:
+            scoring[_SCORING_KEYS[key]] = value
+    try:
+        record = SamplerSettings(**sampling)
+    except ParameterError as exc:
+        raise ParameterError(f"{where} [sampler]: {exc}") from None
+    return CompareSettings(sampler=record, **scoring)
 
 
 def _reader_options(where: str, fn: Callable[..., Any], options: Mapping[str, Any],

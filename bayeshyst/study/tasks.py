@@ -1,8 +1,10 @@
 """One fit of a study: (dataset, model, likelihood, excitation frequency, seed).
 
 A task is named by what its result depends on — the data it fits (sample values, not
-the file name), the model spec, the likelihood, the frequency, the seed and every
-sampler setting — hashed into :attr:`StudyTask.digest`. Its result is stored under
+the file name), the model spec, the likelihood, the frequency, the seed, every scoring
+setting and the sampler's fingerprint
+(:meth:`~bayeshyst.inference.settings.SamplerSettings.fingerprint`: moves, walkers,
+budget, convergence criteria) — hashed into :attr:`StudyTask.digest`. Its result is stored under
 that name, so a re-run finds what is already done and an edit of the study (another
 ``max_steps``, a changed file) makes new tasks instead of reusing stale results.
 
@@ -22,8 +24,9 @@ import shutil
 import socket
 import sys
 import tempfile
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, fields, replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -37,10 +40,21 @@ from bayeshyst._comparison_tasks import (
 )
 from bayeshyst.data.record import Dataset
 
-__all__ = ["TASK_FORMAT", "FitOutcome", "StudyTask", "data_digest", "execute", "slug"]
+__all__ = ["TASK_FORMAT", "FitOutcome", "StudyTask", "data_digest", "execute",
+           "settings_fingerprint", "slug"]
 
-TASK_FORMAT = 1
-"""Version of what a task's name covers; bump it when a result's meaning changes."""
+TASK_FORMAT = 2
+"""Version of what a task's name covers; bump it when a result's meaning changes
+(2: the structured sampler, settings as a SamplerSettings fingerprint)."""
+
+
+def settings_fingerprint(settings: CompareSettings) -> dict[str, Any]:
+    """JSON-ready :class:`CompareSettings` as far as a result depends on them: the
+    scoring fields and the sampler's fingerprint (not its checkpoint or progress bar)."""
+    out: dict[str, Any] = {f.name: getattr(settings, f.name) for f in fields(settings)
+                           if f.name != "sampler"}
+    out["sampler"] = settings.sampler.fingerprint()
+    return out
 
 
 def data_digest(data: Dataset) -> str:
@@ -93,7 +107,7 @@ class StudyTask:
         what = {"format": TASK_FORMAT, "data": self.data_sha256, "model": self.model,
                 "likelihood": self.likelihood, "frequency_hz": self.frequency_hz,
                 "seed": self.seed, "dataset": self.dataset,
-                "settings": {k: v for k, v in self.settings.__dict__.items()}}
+                "settings": settings_fingerprint(self.settings)}
         return hashlib.sha256(json.dumps(what, sort_keys=True).encode()).hexdigest()
 
     @property
