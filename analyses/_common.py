@@ -38,6 +38,7 @@ from bayeshyst import cli as _cli
 from bayeshyst.data.record import Dataset, Record
 from bayeshyst.errors import DataError, ModelError, ParameterError
 from bayeshyst.files import atomic_path
+from bayeshyst.inference.settings import SamplerSettings
 from bayeshyst.report.files import write_rows_csv as write_csv  # one CSV writer
 from bayeshyst.selection import split_top_level
 
@@ -99,14 +100,22 @@ def budget(args: argparse.Namespace, quick: Mapping[str, Any], full: Mapping[str
            overrides: Mapping[str, Any] | None = None) -> dict[str, Any]:
     """The quick or full settings of an analysis with its command-line overrides applied.
 
-    ``--steps`` sets ``max_steps`` and caps ``first_chunk``; each entry of ``overrides``
-    that is not None replaces the setting of that name (which must exist: a misspelt
-    name raises KeyError instead of being ignored).
+    ``cfg["sampler"]`` is the one :class:`~bayeshyst.inference.settings.SamplerSettings`
+    every fit of the analysis samples with: the quick or full one with ``--seed``,
+    ``--walkers`` (``n_walkers``) and ``--steps`` (``max_steps``, capping
+    ``first_chunk``) applied. Each entry of ``overrides`` that is not None replaces the
+    setting of that name (which must exist: a misspelt name raises KeyError instead of
+    being ignored).
     """
     cfg = dict(quick if args.quick else full)
+    sampler: SamplerSettings = cfg["sampler"]
+    changes: dict[str, Any] = {"seed": args.seed}
     if args.steps is not None:
-        cfg["max_steps"] = args.steps
-        cfg["first_chunk"] = min(cfg["first_chunk"], args.steps)
+        changes["max_steps"] = args.steps
+        changes["first_chunk"] = min(sampler.first_chunk, args.steps)
+    if getattr(args, "walkers", None) is not None:
+        changes["n_walkers"] = args.walkers
+    cfg["sampler"] = sampler.replace(**changes)
     for key, value in (overrides or {}).items():
         if key not in cfg:
             raise KeyError(f"no setting {key!r} to override; have {sorted(cfg)}")

@@ -81,6 +81,7 @@ from analyses._common import (
     write_text,
 )
 from bayeshyst.errors import DataError, ParameterError
+from bayeshyst.inference.settings import SamplerSettings
 from bayeshyst.report.files import write_json
 
 PROG = "model_selection_study"
@@ -88,11 +89,12 @@ DATASETS = ("virtual", *MEASURED)
 
 FULL_MODELS = ("pi_play", "bouc_wen", "pi_play(n_operators=6)+second_order", "gp_memory")
 QUICK_MODELS = ("bouc_wen", "pi_play(n_operators=4)")
-FULL = {"max_steps": 10_000, "first_chunk": 1_000, "lofo": True, "max_refits": 5,
+FULL = {"sampler": SamplerSettings(max_steps=10_000), "lofo": True, "max_refits": 5,
         "cut": Cut(samples_per_cycle=200, cycles=10, trim_rest_s=0.2)}
 # 3 cycles after the warm-up: the cycle-wise LOO needs >= 2 whole cycles for a standard
 # error (a partial last cycle joins its neighbour)
-QUICK = {"max_steps": 200, "first_chunk": 200, "lofo": False, "max_refits": 0,
+QUICK = {"sampler": SamplerSettings(max_steps=200, first_chunk=200), "lofo": False,
+         "max_refits": 0,
          "cut": Cut(samples_per_cycle=50, cycles=3, trim_rest_s=0.2)}
 #: Quick mode halves the bundled records' 200 samples per cycle (all 4 cycles kept).
 QUICK_VIRTUAL_CUT = Cut(samples_per_cycle=100)
@@ -122,7 +124,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--steps", type=positive_int, default=None,
                    help="step budget per ensemble of every fit (default 10000; --quick 200)")
     p.add_argument("--walkers", type=positive_int, default=None,
-                   help="walkers per ensemble (default max(32, 4 ndim))")
+                   help="walkers per ensemble (default: from the number of parameters)")
     p.add_argument("--jobs", type=positive_int, default=None,
                    help="worker processes (default one per core)")
     p.add_argument("--max-refits", type=non_negative_int, default=None,
@@ -330,9 +332,8 @@ def _study(args: argparse.Namespace) -> int:
         freqs = ", ".join(f"{f:g}" for f in data.frequencies) or "none given"
         log(f"{key}: {len(models)} models on {data.name} ({len(data)} record(s), "
             f"{data.n_samples} samples; frequencies [Hz]: {freqs})")
-        result = compare_models(data, models, likelihood=args.likelihood, seed=args.seed,
-                                n_walkers=args.walkers, max_steps=cfg["max_steps"],
-                                first_chunk=cfg["first_chunk"], lofo=cfg["lofo"],
+        result = compare_models(data, models, likelihood=args.likelihood,
+                                sampler=cfg["sampler"], lofo=cfg["lofo"],
                                 max_refits=cfg["max_refits"], n_jobs=args.jobs,
                                 out_dir=out / slug(key), progress=not args.quiet)
         write_comparison_outputs(result, out / slug(key),
@@ -364,9 +365,9 @@ def _study(args: argparse.Namespace) -> int:
         "likelihood": args.likelihood, "converged": converged,
         "status": "converged" if converged else "NOT converged",
         "winners": wins, "datasets": per_dataset, "skipped": skipped,
-        "settings": {"max_steps": cfg["max_steps"], "first_chunk": cfg["first_chunk"],
+        "settings": {"sampler": cfg["sampler"].to_dict(),
                      "lofo": cfg["lofo"], "max_refits": cfg["max_refits"],
-                     "n_walkers": args.walkers, "n_jobs": args.jobs, "seed": args.seed,
+                     "n_jobs": args.jobs, "seed": cfg["sampler"].seed,
                      "mr_current_a": args.mr_current,
                      "cut": {"samples_per_cycle": cfg["cut"].samples_per_cycle,
                              "cycles": cfg["cut"].cycles,

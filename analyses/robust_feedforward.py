@@ -73,6 +73,7 @@ from analyses._common import (
     write_text,
 )
 from bayeshyst.errors import ParameterError
+from bayeshyst.inference.settings import SamplerSettings
 from bayeshyst.report.files import write_json
 
 PROG = "robust_feedforward"
@@ -80,8 +81,8 @@ COMMANDS = ("uncompensated", "nominal", "posterior", "robust")
 
 FULL_MODELS = ("pi_play(n_operators=8)+second_order", "bouc_wen+second_order")
 QUICK_MODELS = ("pi_play(n_operators=4)",)
-FULL = {"max_steps": 20_000, "first_chunk": 1_000, "design_draws": 24}
-QUICK = {"max_steps": 200, "first_chunk": 200, "design_draws": 16}
+FULL = {"sampler": SamplerSettings(max_steps=20_000), "design_draws": 24}
+QUICK = {"sampler": SamplerSettings(max_steps=200, first_chunk=200), "design_draws": 16}
 
 TABLE_COLUMNS = ("model", "frequency_hz", "reference", "plant_kind", "converged",
                  *(f"{c}_nrmse_percent" for c in COMMANDS),
@@ -116,7 +117,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--steps", type=positive_int, default=None,
                    help="step budget per ensemble (default 20000; --quick 200)")
     p.add_argument("--walkers", type=positive_int, default=None,
-                   help="walkers per ensemble (default max(32, 4 ndim))")
+                   help="walkers per ensemble (default: from the number of parameters)")
     p.add_argument("--no-checkpoint", action="store_true",
                    help="do not checkpoint the samplers (OUT/<model>/checkpoint.h5)")
     return p
@@ -240,6 +241,7 @@ def _analyse(args: argparse.Namespace) -> int:
 
     log = Progress(PROG, args.quiet)
     cfg = budget(args, QUICK, FULL, {"design_draws": args.design_draws})
+    sampler = cfg["sampler"]
     # validate everything cheap before anything is written
     data = load(args.data)
     frequencies = args.frequencies
@@ -257,15 +259,14 @@ def _analyse(args: argparse.Namespace) -> int:
     for spec, model in zip(specs, models, strict=True):
         folder = out / slug(spec)
         log(f"{spec}: fitting {data.name} ({len(data)} record(s); frequencies [Hz] "
-            f"{', '.join(f'{f:g}' for f in data.frequencies)}), budget {cfg['max_steps']} steps")
-        fit = fit_model(data, model, likelihood, seed=args.seed, n_walkers=args.walkers,
-                        max_steps=cfg["max_steps"], first_chunk=cfg["first_chunk"],
-                        checkpoint=None if args.no_checkpoint else folder / "checkpoint.h5")
+            f"{', '.join(f'{f:g}' for f in data.frequencies)}), budget {sampler.max_steps} steps")
+        fit = fit_model(data, model, likelihood, sampler=sampler.replace(
+            checkpoint=None if args.no_checkpoint else folder / "checkpoint.h5"))
         log(f"{spec}: fit {'converged' if fit.converged else 'NOT converged'} "
             f"({fit.sampling.runtime_s:.1f} s); designing commands")
         result = compensate(data, model, fit=fit, reference=args.reference,
                             n_design_draws=cfg["design_draws"],
-                            robust_quantile=args.quantile, seed=args.seed)
+                            robust_quantile=args.quantile, sampler=sampler)
         write_compensation_outputs(result, folder, fit=fit, data_path=str(args.data),
                                    figures=not (args.no_figures or args.quick))
         these = table_rows(spec, result)
@@ -294,8 +295,8 @@ def _analyse(args: argparse.Namespace) -> int:
         "converged": converged, "status": "converged" if converged else "NOT converged",
         "models": per_model, "rows": rows,
         "percent_of": "peak-to-peak of the reference",
-        "settings": {**cfg, "robust_quantile": args.quantile, "likelihood": likelihood.name,
-                     "n_walkers": args.walkers, "seed": args.seed},
+        "settings": {**cfg, "sampler": sampler.to_dict(), "robust_quantile": args.quantile,
+                     "likelihood": likelihood.name, "seed": sampler.seed},
         "files": {"table": "feedforward.csv", "text": "feedforward.txt", "figures": figures,
                   "per_model": [m["folder"] for m in per_model]},
         "runtime_s": round(log.elapsed, 2),

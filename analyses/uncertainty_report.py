@@ -62,6 +62,7 @@ from analyses._common import (
     write_csv,
     write_text,
 )
+from bayeshyst.inference.settings import SamplerSettings
 from bayeshyst.report.files import write_json
 
 PROG = "uncertainty_report"
@@ -78,8 +79,8 @@ COVERAGE_COLUMNS = ("frequency_hz", "n_scored", "stroke", "coverage", "band_widt
 PARAMETER_COLUMNS = ("parameter", "unit", "mean", "sd", "hdi_low", "hdi_high",
                      "hdi_width_percent_of_mean")
 
-FULL = {"max_steps": 20_000, "first_chunk": 1_000}
-QUICK = {"max_steps": 200, "first_chunk": 200}
+FULL = {"sampler": SamplerSettings(max_steps=20_000)}
+QUICK = {"sampler": SamplerSettings(max_steps=200, first_chunk=200)}
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -98,7 +99,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--steps", type=positive_int, default=None,
                    help="step budget per ensemble (default 20000; --quick 200)")
     p.add_argument("--walkers", type=positive_int, default=None,
-                   help="walkers per ensemble (default max(32, 4 ndim))")
+                   help="walkers per ensemble (default: from the number of parameters)")
     p.add_argument("--no-checkpoint", action="store_true",
                    help="do not checkpoint the sampler to OUT/fit/checkpoint.h5")
     return p
@@ -324,6 +325,7 @@ def _analyse(args: argparse.Namespace) -> int:
 
     log = Progress(PROG, args.quiet)
     settings = budget(args, QUICK, FULL)
+    sampler = settings["sampler"]
     # validate everything cheap before anything is written
     data = load(args.data)
     frequencies = args.frequencies
@@ -337,10 +339,9 @@ def _analyse(args: argparse.Namespace) -> int:
     log(f"{model.name} / {likelihood.name} on {data.name}: {len(data)} record(s), "
         f"{data.n_samples} samples, frequencies [Hz] "
         f"{', '.join(f'{f:g}' for f in data.frequencies) or 'none'}; budget "
-        f"{settings['max_steps']} steps{' (quick)' if args.quick else ''}")
-    fit = fit_model(data, model, likelihood, seed=args.seed, n_walkers=args.walkers,
-                    max_steps=settings["max_steps"], first_chunk=settings["first_chunk"],
-                    checkpoint=None if args.no_checkpoint else fit_dir / "checkpoint.h5")
+        f"{sampler.max_steps} steps{' (quick)' if args.quick else ''}")
+    fit = fit_model(data, model, likelihood, sampler=sampler.replace(
+        checkpoint=None if args.no_checkpoint else fit_dir / "checkpoint.h5"))
     conv = "converged" if fit.converged else "NOT converged"
     log(f"fit done ({conv}, {fit.sampling.runtime_s:.1f} s); writing fit/")
     fit_summary = write_fit_outputs(fit, fit_dir, data_path=str(args.data),
@@ -382,7 +383,7 @@ def _analyse(args: argparse.Namespace) -> int:
         "per_frequency": [r for r in rows if r["frequency_hz"] != "all"],
         "overall": next(r for r in rows if r["frequency_hz"] == "all"),
         "parameters": params,
-        "settings": {**settings, "n_walkers": args.walkers, "seed": args.seed,
+        "settings": {"sampler": sampler.to_dict(), "seed": sampler.seed,
                      "checkpoint": not args.no_checkpoint},
         "files": {"coverage": "coverage.csv", "parameters": "parameters.csv",
                   "report": "uncertainty.txt", "figures": figures,

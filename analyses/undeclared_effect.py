@@ -76,16 +76,18 @@ from analyses._common import (
     write_text,
 )
 from bayeshyst.errors import DataError, ParameterError
+from bayeshyst.inference.settings import SamplerSettings
 from bayeshyst.report.files import write_json
 
 PROG = "undeclared_effect"
 
-FULL = {"datasets": MEASURED, "max_steps": 20_000, "first_chunk": 1_000, "max_rounds": 6,
+FULL = {"datasets": MEASURED, "sampler": SamplerSettings(max_steps=20_000), "max_rounds": 6,
         "max_candidates": 2, "max_refits": 5, "n_draws": 200,
         "cuts": {"piezo_150v": Cut(samples_per_cycle=1000),  # 5 kHz -> 1 kHz
                  "micromanipulator": Cut(),
                  "mr_damper": Cut(samples_per_cycle=200)}}
-QUICK = {"datasets": ("piezo_150v",), "max_steps": 200, "first_chunk": 200, "max_rounds": 1,
+QUICK = {"datasets": ("piezo_150v",), "sampler": SamplerSettings(max_steps=200, first_chunk=200),
+         "max_rounds": 1,
          "max_candidates": 1, "max_refits": 0, "n_draws": 50,
          "cuts": {key: Cut(samples_per_cycle=100, cycles=3, trim_rest_s=0.2)
                   for key in MEASURED}}
@@ -114,7 +116,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--steps", type=positive_int, default=None,
                    help="step budget per ensemble of every fit (default 20000; --quick 200)")
     p.add_argument("--walkers", type=positive_int, default=None,
-                   help="walkers per ensemble (default max(32, 4 ndim))")
+                   help="walkers per ensemble (default: from the number of parameters)")
     p.add_argument("--max-refits", type=non_negative_int, default=None, metavar="N",
                    help="exact LOO refits per fit for cycles with Pareto k > 0.7 (each costs a "
                         "fit; default 5; --quick 0)")
@@ -242,8 +244,7 @@ def _analyse(args: argparse.Namespace) -> int:
         result = diagnose(data, args.model, args.likelihood, effects=effects,
                           alpha=args.alpha, threshold=args.threshold,
                           max_rounds=cfg["max_rounds"], max_candidates=cfg["max_candidates"],
-                          seed=args.seed, n_walkers=args.walkers, max_steps=cfg["max_steps"],
-                          first_chunk=cfg["first_chunk"], n_draws=cfg["n_draws"],
+                          sampler=cfg["sampler"], n_draws=cfg["n_draws"],
                           max_refits=cfg["max_refits"],
                           checkpoint_dir=None if args.no_checkpoint else folder / "checkpoints",
                           on_fit=on_fit)
@@ -262,8 +263,9 @@ def _analyse(args: argparse.Namespace) -> int:
         "converged": converged, "status": "converged" if converged else "NOT converged",
         "datasets": entries,
         "settings": {k: v for k, v in cfg.items() if k not in ("cuts", "datasets")}
-        | {"alpha": args.alpha, "threshold": args.threshold, "n_walkers": args.walkers,
-           "seed": args.seed, "mr_current_a": args.mr_current},
+        | {"sampler": cfg["sampler"].to_dict(), "alpha": args.alpha,
+           "threshold": args.threshold, "seed": cfg["sampler"].seed,
+           "mr_current_a": args.mr_current},
         "files": {"text": "undeclared_effect.txt",
                   "per_dataset": [e["folder"] for e in entries]},
         "runtime_s": round(log.elapsed, 2),

@@ -26,8 +26,8 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 MODELS = ["pi_play(n_operators=4)", "pi_play(n_operators=4)+second_order", "gp"]
-SETTINGS = dict(max_steps=1000, first_chunk=500, n_walkers=24, max_refits=0,
-                draws_per_chain=20, n_lofo_draws=200, gp_n_train=300, seed=3)
+SAMPLER = dict(max_steps=1000, first_chunk=500, n_walkers=24, seed=3)
+SCORING = dict(max_refits=0, draws_per_chain=20, n_lofo_draws=200, gp_n_train=300)
 
 
 def make_data():
@@ -52,6 +52,7 @@ def make_data():
 
 def main(argv: list[str] | None = None) -> int:
     """Run the benchmark; with ``--write`` record it in RESULTS.md."""
+    from bayeshyst.inference.settings import SamplerSettings
     from bayeshyst.selection import compare_models
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -59,12 +60,13 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     data = make_data()
     cores = os.cpu_count() or 1
-    compare_models(data, MODELS[:1], n_jobs=1, lofo=False, **{**SETTINGS, "max_steps": 50,
-                                                              "first_chunk": 50})  # warm caches
+    sampler = SamplerSettings(**SAMPLER)
+    compare_models(data, MODELS[:1], n_jobs=1, lofo=False, **SCORING,
+                   sampler=sampler.replace(max_steps=50, first_chunk=50))  # warm caches
     times, results = {}, {}
     for jobs in (1, cores):
         t0 = time.perf_counter()
-        results[jobs] = compare_models(data, MODELS, n_jobs=jobs, **SETTINGS)
+        results[jobs] = compare_models(data, MODELS, n_jobs=jobs, sampler=sampler, **SCORING)
         times[jobs] = time.perf_counter() - t0
     same = all(a.elpd_loo == b.elpd_loo or (np.isnan(a.elpd_loo) and np.isnan(b.elpd_loo))
                for fa, fb in zip(results[1].per_frequency, results[cores].per_frequency,
@@ -76,7 +78,8 @@ def main(argv: list[str] | None = None) -> int:
         f"Python {platform.python_version()}; measured alone.",
         "",
         f"One comparison: 3 frequencies x {len(MODELS)} models = {n_fits} fits "
-        f"({SETTINGS['max_steps']} steps, {SETTINGS['n_walkers']} walkers per ensemble).",
+        f"({sampler.max_steps} steps, {sampler.n_walkers} walkers per ensemble, "
+        f"{sampler.moves} moves).",
         "",
         "| workers | wall time | speed-up |",
         "|---|---|---|",
