@@ -2,11 +2,19 @@
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
+import numba
 import pytest
 
 from bayeshyst.errors import DataError
+
+if os.environ.get("PYTEST_XDIST_WORKER"):
+    # each xdist worker has a core of its own: numba's thread team on top of that puts
+    # four threads on two cores, and a parallel kernel then waits for descheduled
+    # threads (a second-order block measured 20x slower than its serial loop that way)
+    numba.set_num_threads(1)
 
 SHARED_DATA_SKIP = (
     "../shared/data not found: measured-data tests need the shared folder beside the checkout"

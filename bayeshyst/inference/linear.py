@@ -37,7 +37,6 @@ from typing import Any
 import numpy as np
 from scipy import special
 
-from bayeshyst.inference._gram import gram_stats
 from bayeshyst.inference.posterior import NOISE, OBS, Posterior
 from bayeshyst.models.base import LinearDesign
 from bayeshyst.params import Identity, Normal
@@ -99,6 +98,41 @@ class Conditional:
         xi = random.randn(w, p)
         step = np.linalg.solve(self.chol.transpose(0, 2, 1), xi[:, :, None])[:, :, 0]
         return self.mean + np.where(self.ok[:, None], step, 0.0)
+
+
+def _stacked(phi: np.ndarray, r: np.ndarray) -> np.ndarray:
+    """``X = [Phi, r]`` per walker, shape (W, N, P + 1), non-finite entries zeroed (their
+    walkers are flagged failed by the caller)."""
+    w, n = r.shape
+    p = phi.shape[2]
+    x = np.empty((w, n, p + 1))
+    x[:, :, :p] = phi
+    x[:, :, p] = r
+    return np.where(np.isfinite(x), x, 0.0)
+
+
+def _grams(x: np.ndarray, keep: np.ndarray, lagged: bool
+           ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None]:
+    """Gram matrices (W, Q, Q) of the kept samples of one record.
+
+    ``first = x_0 x_0^T`` (when sample 0 is kept), ``lag0 = sum_{k>=1} x_k x_k^T``; with
+    ``lagged`` also ``cross = sum x_k x_{k-1}^T`` and ``prev = sum x_{k-1} x_{k-1}^T`` (the
+    AR(1) innovations ``x_k - phi x_{k-1}``), sums over the kept ``k >= 1``. Stacked BLAS
+    products: each walker's matrix is one product of the same shape whatever the batch,
+    so cached and recomputed values agree to the bit (tested).
+    """
+    w, _, q = x.shape
+    first = (x[:, 0, :, None] * x[:, 0, None, :]) if keep[0] else np.zeros((w, q, q))
+    idx = np.flatnonzero(keep[1:]) + 1
+    if idx.size and idx[-1] - idx[0] + 1 == idx.size:  # a contiguous run: views
+        xk, xp = x[:, idx[0]:idx[-1] + 1], x[:, idx[0] - 1:idx[-1]]
+    else:
+        xk, xp = x[:, idx], x[:, idx - 1]
+    xkt = xk.transpose(0, 2, 1)
+    lag0 = xkt @ xk
+    if not lagged:
+        return first, lag0, None, None
+    return first, lag0, xkt @ xp, xp.transpose(0, 2, 1) @ xp
 
 
 class LinearStructure:
@@ -303,27 +337,31 @@ class LinearStructure:
 
     def _compute(self, z: np.ndarray) -> LinearStats:
         """Grams of the walkers ``z`` (W, ndim) (no cache)."""
-        w = z.shape[0]
-        q = self.p + 1
-        first = np.zeros((w, q, q))
-        lag0 = np.zeros((w, q, q))
-        cross = np.zeros((w, q, q)) if self.lagged else np.zeros((1, 1, 1))
-        prev = np.zeros((w, q, q)) if self.lagged else np.zeros((1, 1, 1))
-        n = n_first = 0
         rows, failed = self.designs(z)
+        return self._stats_of(rows, failed)
+
+    def _stats_of(self, rows: list[tuple[np.ndarray, np.ndarray]],
+                  failed: np.ndarray) -> LinearStats:
+        w = failed.shape[0]
+        q = self.p + 1
+        first, lag0 = np.zeros((w, q, q)), np.zeros((w, q, q))
+        cross = np.zeros((w, q, q)) if self.lagged else None
+        prev = np.zeros((w, q, q)) if self.lagged else None
+        n = n_first = 0
         for rec, (phi, const) in zip(self._records, rows, strict=True):
             r = self._reference_residual(rec, phi, const)
-            bad = ~np.all(np.isfinite(r), axis=1)
-            failed |= bad
-            r = np.where(bad[:, None], 0.0, r)
-            phi = np.where(np.isfinite(phi), phi, 0.0)
+            failed |= ~np.all(np.isfinite(r), axis=1)
             keep = rec["keep"] if rec["keep"] is not None else np.ones(r.shape[1], dtype=bool)
-            gram_stats(np.ascontiguousarray(phi), np.ascontiguousarray(r), keep, self.lagged,
-                       first, lag0, cross, prev)
+            f, l0, c, pv = _grams(_stacked(np.broadcast_to(phi, (w, *phi.shape[1:])), r), keep,
+                                  self.lagged)
+            first += f
+            lag0 += l0
+            if self.lagged:
+                cross += c
+                prev += pv
             n += int(np.count_nonzero(keep))
             n_first += int(keep[0])
-        return LinearStats(first, lag0, cross if self.lagged else None,
-                           prev if self.lagged else None, n, n_first, failed)
+        return LinearStats(first, lag0, cross, prev, n, n_first, failed)
 
     def whitened_rows(self, z: np.ndarray, beta: np.ndarray | None = None
                       ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -350,25 +388,7 @@ class LinearStructure:
         rows, failed = self.designs(z)
         if beta is None:
             # Grams from the same designs (no second simulation): the projected beta
-            q = self.p + 1
-            w = z.shape[0]
-            first = np.zeros((w, q, q))
-            lag0 = np.zeros((w, q, q))
-            cross = np.zeros((w, q, q)) if self.lagged else np.zeros((1, 1, 1))
-            prev = np.zeros((w, q, q)) if self.lagged else np.zeros((1, 1, 1))
-            n = n_first = 0
-            for rec, (phi, const) in zip(self._records, rows, strict=True):
-                r = self._reference_residual(rec, phi, const)
-                keep = (rec["keep"] if rec["keep"] is not None
-                        else np.ones(r.shape[1], dtype=bool))
-                gram_stats(np.ascontiguousarray(np.where(np.isfinite(phi), phi, 0.0)),
-                           np.ascontiguousarray(np.where(np.isfinite(r), r, 0.0)), keep,
-                           self.lagged, first, lag0, cross, prev)
-                n += int(np.count_nonzero(keep))
-                n_first += int(keep[0])
-            st = LinearStats(first, lag0, cross if self.lagged else None,
-                             prev if self.lagged else None, n, n_first, failed)
-            beta = self.conditional(st, z).mean
+            beta = self.conditional(self._stats_of(rows, failed.copy()), z).mean
         res_parts, des_parts = [], []
         for rec, (phi, const) in zip(self._records, rows, strict=True):
             with np.errstate(invalid="ignore", over="ignore"):
@@ -460,10 +480,8 @@ class LinearStructure:
         rows, failed = self.designs(z)
         for rec, (phi, const) in zip(self._records, rows, strict=True):
             r = self._reference_residual(rec, phi, const)
-            bad = ~np.all(np.isfinite(r), axis=1)
-            failed |= bad
-            r = np.ascontiguousarray(np.where(bad[:, None], 0.0, r))
-            phi = np.ascontiguousarray(np.where(np.isfinite(phi), phi, 0.0))
+            failed |= ~np.all(np.isfinite(r), axis=1)
+            x = _stacked(np.broadcast_to(phi, (w, *phi.shape[1:])), r)
             keep = rec["keep"] if rec["keep"] is not None else np.ones(r.shape[1], dtype=bool)
             bounds = [*rec["unit_starts"], r.shape[1]]
             for j in range(len(bounds) - 1):
@@ -471,7 +489,12 @@ class LinearStructure:
                 mask = np.zeros(r.shape[1], dtype=bool)
                 mask[bounds[j]:bounds[j + 1]] = True
                 mask &= keep
-                gram_stats(phi, r, mask, self.lagged, first[u], lag0[u], cross[u], prev[u])
+                if not mask.any():
+                    continue
+                f, l0, c, pv = _grams(x, mask, self.lagged)
+                first[u], lag0[u] = f, l0
+                if self.lagged:
+                    cross[u], prev[u] = c, pv
                 n_unit[u] = int(np.count_nonzero(mask))
                 n_first[u] = int(mask[0])
         tot = LinearStats(first.sum(axis=0), lag0.sum(axis=0),
