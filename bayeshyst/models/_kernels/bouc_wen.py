@@ -763,11 +763,10 @@ def _osc_one(u, t, fn, zeta, gain, alpha, beta, gamma, n, state, y, per_period, 
                     # heading there with |z|^n so small that its whole effect on the
                     # way is below tol, step straight onto the crossing instead
                     z1a = abs(Z[1])
-                    z2a = abs(Z[2])
-                    rho = 2.0 * az / (z1a + math.sqrt(z1a * z1a + 4.0 * z2a * az))
+                    den = z1a + math.sqrt(z1a * z1a + 4.0 * abs(Z[2]) * az)
                     cross = z * Z[1] < 0.0 and p0 * az * bp <= tol * alpha
-                    if not cross and h > OSC_BRANCH * rho:
-                        h = OSC_BRANCH * rho
+                    if not cross and h * den > 2.0 * OSC_BRANCH * az:
+                        h = 2.0 * OSC_BRANCH * az / den
                 # local error: the last two terms of the remainder's series
                 ra = abs(R[OSC_ORDER - 1])
                 rb = abs(R[OSC_ORDER])
@@ -777,6 +776,8 @@ def _osc_one(u, t, fn, zeta, gain, alpha, beta, gamma, n, state, y, per_period, 
                     h = min(h, math.exp(math.log(tol / ra) * (1.0 / (OSC_ORDER - 1))))
                 if rb * h7 * h > tol:
                     h = min(h, math.exp(math.log(tol / rb) * (1.0 / OSC_ORDER)))
+                if not h > 0.0:
+                    return False  # the series overflowed: no step is small enough
                 if h < rem:
                     h = rem / math.ceil(rem / h)  # equal sub-steps over the rest
                 else:
