@@ -14,6 +14,7 @@ from bayeshyst.data.virtual import (
     hysteresis_percent,
 )
 from bayeshyst.errors import DataError, ParameterError
+from bayeshyst.inference.settings import SamplerSettings
 from bayeshyst.inverse.compensate import compensate, load_reference, reference_signal
 
 
@@ -36,8 +37,9 @@ def test_generating_model_tracks_below_one_percent_at_1hz():
     data = loops(HYSTERESIS_ONLY, [1.0])
     rec = data[0]
     assert 10.0 < hysteresis_percent(rec.u[100:], rec.y[100:]) < 15.0  # the plant
-    res = compensate(data, "preisach_density(n_grid=32)", max_steps=1000, n_walkers=24,
-                     n_design_draws=16, n_predict_draws=60, seed=2)
+    res = compensate(data, "preisach_density(n_grid=32)",
+                     sampler=SamplerSettings(max_steps=1000, n_walkers=24, seed=2),
+                     n_design_draws=16, n_predict_draws=60)
     assert res.plant_kind == "virtual actuator"
     (row,) = res.rows
     assert row.uncompensated_nrmse_percent > 3.0
@@ -66,9 +68,9 @@ def test_posterior_plants_bands_and_posterior_command():
     noisy = HYSTERESIS_ONLY.with_effects(noise=AR1Noise(rms_um=0.6, phi=0.0))
     data = loops(noisy, [1.0], cycles=3)
     n_design = 96
-    res = compensate(data, "pi_play(n_operators=4)", plant="posterior", max_steps=1500,
-                     n_walkers=24, n_design_draws=n_design, n_predict_draws=200, n_plants=200,
-                     seed=5)
+    res = compensate(data, "pi_play(n_operators=4)", plant="posterior",
+                     sampler=SamplerSettings(max_steps=1500, n_walkers=24, seed=5),
+                     n_design_draws=n_design, n_predict_draws=200, n_plants=200)
     (row,) = res.rows
     assert res.plant_kind == "posterior draw"
     assert 0.9 - 4 * 0.021 <= row.plants_inside_band <= 0.9 + 4 * 0.021
@@ -84,8 +86,9 @@ def test_static_model_on_dynamic_plant_error_grows_and_is_reported():
         dynamics=SecondOrder(resonance_hz=500.0, damping=0.2),
         hysteresis=PreisachHysteresis(center_v=75.0, halfwidth_slope=0.0))
     data = loops(plant, [1.0, 50.0, 150.0])
-    res = compensate(data, "pi_play(n_operators=8)", max_steps=1000, n_walkers=24,
-                     n_design_draws=12, n_predict_draws=60, seed=1)
+    res = compensate(data, "pi_play(n_operators=8)",
+                     sampler=SamplerSettings(max_steps=1000, n_walkers=24, seed=1),
+                     n_design_draws=12, n_predict_draws=60)
     low, top = res.rows[0], res.rows[-1]
     assert top.posterior_nrmse_percent > low.posterior_nrmse_percent
     assert not top.realised_inside_band

@@ -61,9 +61,9 @@ def test_compensate_writes_every_output(compensated):
         assert r["realised_inside_band"] == (lo <= r["posterior_nrmse_percent"] <= hi)
         # compensation beats driving the actuator with a scaled input
         assert r["posterior_nrmse_percent"] < r["uncompensated_nrmse_percent"]
-    # 300 steps cannot converge: the summary must say so
-    assert summary["converged"] is False
-    assert any("NOT converge" in w for w in summary["warnings"])
+    # the verdict is the fit's, and a fit that did not converge is a warning
+    assert summary["converged"] is summary["fit"]["converged"]
+    assert any("NOT converge" in w for w in summary["warnings"]) is not summary["converged"]
     assert summary["files"]["posterior"] == "posterior.nc"
     for name in ("summary.json", "compensation.csv", "compensation.txt", "curves.npz",
                  "posterior.nc", "compensate.png", "checkpoint.h5"):
@@ -84,6 +84,19 @@ def test_compensate_writes_every_output(compensated):
             for key in ("y_d", "u_posterior", "y_robust", "band_lo", "band_hi"):
                 assert curves[f"{p}_{key}"].shape == (n,)
     assert not [p for p in out.rglob("*") if ".tmp" in p.name]
+
+
+def test_non_converged_fit_says_so(data_csv, tmp_path):
+    # 20 steps of which the first 10 adapt the moves (discarded): at most 10 steps x 12
+    # walkers x 2 ensembles = 240 draws are kept, fewer than the ESS >= 400 required,
+    # and 10 steps cannot hold 50 autocorrelation times
+    out = tmp_path / "out"
+    assert main(["compensate", str(data_csv), "--model", "pi_play(n_operators=4)",
+                 "--steps", "20", "--walkers", "12", "--design-draws", "8", "--quiet",
+                 "--no-figures", "--no-checkpoint", "--out", str(out)]) == 0
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["converged"] is False and summary["fit"]["converged"] is False
+    assert any("NOT converge" in w for w in summary["warnings"])
 
 
 def test_reference_file_and_json(data_csv, tmp_path, capsys):

@@ -99,9 +99,9 @@ def test_diagnose_writes_every_output(diagnosed):
         assert isinstance(step["accepted"], bool)
     accepted = [s for s in summary["steps"] if s["accepted"]]
     assert [s["effect"] for s in accepted] == summary["effects_found"]
-    # 300 steps cannot converge: the summary must say so
-    assert summary["converged"] is False
-    assert any("did not converge" in w for w in summary["warnings"])
+    # a fit that did not converge is a warning (the dedicated test below forces one)
+    if not summary["converged"]:
+        assert any("did not converge" in w for w in summary["warnings"])
     # every effect was tested on the base residual; drift is skipped once the model has it
     assert [t["effect"] for t in summary["rounds"][0]["tests"]] == list(EFFECTS)
     last = {t["effect"]: t for t in summary["rounds"][-1]["tests"]}
@@ -137,6 +137,21 @@ def test_diagnose_writes_every_output(diagnosed):
             assert float(row[key]) == step[key]
 
 
+def test_non_converged_fits_say_so(drift_csv, tmp_path):
+    # 20 steps of which the first 10 adapt the moves (discarded): at most 10 steps x 12
+    # walkers x 2 ensembles = 240 draws are kept, fewer than the ESS >= 400 required,
+    # and 10 steps cannot hold 50 autocorrelation times
+    out = tmp_path / "out"
+    code, _, err = _run(["diagnose", str(drift_csv), "--model", MODEL, "--steps", "20",
+                         "--walkers", "12", "--effects", "drift", "--max-rounds", "1",
+                         "--no-figures", "--no-checkpoint", "--out", str(out)])
+    assert code == 0, err
+    assert f"fit 1 done: {MODEL} (NOT converged)" in err
+    summary = _strict_json((out / "summary.json").read_text())
+    assert summary["converged"] is False
+    assert any(f"{MODEL}: the sampler did not converge" in w for w in summary["warnings"])
+
+
 def test_json_on_stdout_is_the_summary(diagnosed):
     printed = _strict_json(diagnosed.stdout)
     assert printed == _strict_json((diagnosed.out / "summary.json").read_text())
@@ -146,8 +161,13 @@ def test_json_on_stdout_is_the_summary(diagnosed):
 def test_progress_line_per_fit(diagnosed):
     lines = [ln for ln in diagnosed.stderr.splitlines() if " done: " in ln]
     assert len(lines) == 2
-    assert f"fit 1 done: {MODEL} (NOT converged)" in lines[0]
-    assert f"fit 2 done: {MODEL}+drift" in lines[1]
+    assert f"fit 1 done: {MODEL} (" in lines[0]
+    assert f"fit 2 done: {MODEL}+drift (" in lines[1]
+    # each line carries its fit's verdict: the summary's is the base's and the final's
+    summary = _strict_json((diagnosed.out / "summary.json").read_text())
+    verdicts = [ln.split(" (", 1)[1].split(")", 1)[0] for ln in lines]
+    assert set(verdicts) <= {"converged", "NOT converged"}
+    assert (verdicts == ["converged", "converged"]) is summary["converged"]
     assert "Traceback" not in diagnosed.stderr
 
 

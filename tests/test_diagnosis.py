@@ -22,6 +22,7 @@ from bayeshyst.data.virtual import AR1Noise, VirtualActuator
 from bayeshyst.diagnosis import analyse_residual, diagnose
 from bayeshyst.inference.posterior import Posterior
 from bayeshyst.inference.sampling import sample_posterior
+from bayeshyst.inference.settings import SamplerSettings
 from bayeshyst.models import get as get_model
 
 #: the model under test for the virtual actuator: the same family as its hysteresis
@@ -56,8 +57,8 @@ def virtual_data(effects: dict, *, seed: int = 0, freqs=(1.0, 20.0, 200.0),
 def short_analysis(data: Dataset, model: str, seed: int = 1):
     """Residual tests after a short fit (300 steps)."""
     post = Posterior(model, data)
-    res = sample_posterior(post, n_walkers=2 * post.ndim + 4, max_steps=300,
-                           first_chunk=150, seed=seed)
+    res = sample_posterior(post, SamplerSettings(n_walkers=2 * post.ndim + 4, max_steps=300,
+                                                 first_chunk=150, seed=seed))
     return analyse_residual(post, res, res.draws(100, seed=seed))
 
 
@@ -101,8 +102,9 @@ def test_physical_estimates_of_hidden_effects():
 
 def test_two_hidden_effects_are_both_found_and_the_error_drops():
     data = virtual_data({**HIDDEN["rate_dependence"], **HIDDEN["drift"]})
-    result = diagnose(data, PREISACH, n_walkers=32, max_steps=300, first_chunk=150,
-                      n_draws=100, max_refits=0, max_candidates=1, max_rounds=2, seed=3)
+    result = diagnose(data, PREISACH, sampler=SamplerSettings(
+        n_walkers=32, max_steps=300, first_chunk=150, seed=3),
+                      n_draws=100, max_refits=0, max_candidates=1, max_rounds=2)
     assert set(result.effects_found) == {"rate_dependence", "drift"}, str(result)
     accepted = [s for s in result.steps if s.accepted]
     for step in accepted:
@@ -136,9 +138,10 @@ def test_clean_controls_find_no_effect_in_95_percent_of_seeds():
     # diagnoses at a true rate of 1 % happen with probability 1.7 %
     found = []
     for seed in range(20):
-        result = diagnose(_pi_data(seed), "pi_play(n_operators=3)", n_walkers=16,
-                          max_steps=300, first_chunk=150, n_draws=100, max_refits=0,
-                          max_candidates=1, seed=seed)
+        result = diagnose(_pi_data(seed), "pi_play(n_operators=3)",
+                          sampler=SamplerSettings(n_walkers=16, max_steps=300,
+                                                  first_chunk=150, seed=seed),
+                          n_draws=100, max_refits=0, max_candidates=1)
         found.append(result.effects_found)
     n_empty = sum(1 for f in found if not f)
     assert n_empty >= 19, found
@@ -149,8 +152,9 @@ def test_clean_controls_find_no_effect_in_95_percent_of_seeds():
 @pytest.mark.parametrize("effect", sorted(HIDDEN))
 def test_each_hidden_effect_is_added_first_and_the_error_drops(effect):
     data = virtual_data(HIDDEN[effect])
-    result = diagnose(data, PREISACH, n_walkers=32, max_steps=600, first_chunk=300,
-                      n_draws=100, max_refits=1, max_candidates=1, max_rounds=1, seed=5)
+    result = diagnose(data, PREISACH, sampler=SamplerSettings(
+        n_walkers=32, max_steps=600, first_chunk=300, seed=5),
+                      n_draws=100, max_refits=1, max_candidates=1, max_rounds=1)
     step = result.steps[0]
     assert step.effect == effect and step.accepted, str(result)
     assert step.after.rmse < step.before.rmse

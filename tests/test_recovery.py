@@ -28,6 +28,7 @@ import bayeshyst.models as M
 from bayeshyst.data import Record
 from bayeshyst.inference.posterior import Posterior
 from bayeshyst.inference.sampling import sample_posterior
+from bayeshyst.inference.settings import SamplerSettings
 from bayeshyst.models.base import DataScales
 
 BW_TRUTH = {"k": 0.3, "alpha": 0.12, "beta": 0.004, "gamma": 0.001, "n": 1.3}
@@ -60,13 +61,15 @@ def _labels_and_truth(space, truth):
 @functools.lru_cache(maxsize=4)
 def _bw_fit(seed):
     post = Posterior("bouc_wen", bw_record(seed, n=1200))
-    return post, sample_posterior(post, seed=seed, max_steps=8000, n_walkers=WALKERS)
+    return post, sample_posterior(post, SamplerSettings(seed=seed, max_steps=8000,
+                                                        n_walkers=WALKERS))
 
 
 def _fit_stats(post, truth_full, seed, res=None):
     """(squared Mahalanobis distance of the truth in z, dict label -> covered by 90 % HDI)."""
     if res is None:
-        res = sample_posterior(post, seed=seed, max_steps=8000, n_walkers=WALKERS)
+        res = sample_posterior(post, SamplerSettings(seed=seed, max_steps=8000,
+                                                     n_walkers=WALKERS))
     assert res.converged, res.convergence
     zt = post.space.pack(truth_full)
     z = res.flat_z

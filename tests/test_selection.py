@@ -18,6 +18,7 @@ import pytest
 import bayeshyst.models as M
 from bayeshyst.data import Dataset, Record
 from bayeshyst.inference.posterior import cycle_units
+from bayeshyst.inference.settings import SamplerSettings
 from bayeshyst.models.base import DataScales
 from bayeshyst.selection import compare_models
 
@@ -46,9 +47,11 @@ def _hammerstein_data(freqs=(1.0, 80.0), sigma=0.04, per_cycle=100, cycles=4, se
 @pytest.fixture(scope="module")
 def comparison():
     data = _hammerstein_data()
-    return compare_models(data, [STATIC, OTHER, HAMMERSTEIN, "gp"], max_steps=1500,
-                          first_chunk=500, n_walkers=24, lofo=False, max_refits=0,
-                          draws_per_chain=40, gp_n_train=300, n_jobs=2, seed=1)
+    return compare_models(data, [STATIC, OTHER, HAMMERSTEIN, "gp"],
+                          sampler=SamplerSettings(max_steps=1500, first_chunk=500,
+                                                  n_walkers=24, seed=1),
+                          lofo=False, max_refits=0, draws_per_chain=40, gp_n_train=300,
+                          n_jobs=2)
 
 
 def test_generating_family_first_at_low_frequency(comparison):
@@ -97,8 +100,8 @@ def test_gp_and_parametric_models_share_the_table(comparison):
 
 def test_same_seed_same_numbers_whatever_the_workers():
     data = _hammerstein_data(freqs=(2.0, 20.0), cycles=3, per_cycle=60)
-    kw = dict(max_steps=200, first_chunk=100, n_walkers=16, max_refits=0, seed=7,
-              draws_per_chain=10, n_lofo_draws=50)
+    kw = dict(sampler=SamplerSettings(max_steps=200, first_chunk=100, n_walkers=16, seed=7),
+              max_refits=0, draws_per_chain=10, n_lofo_draws=50)
     a = compare_models(data, [STATIC], n_jobs=1, **kw)
     b = compare_models(data, [STATIC], n_jobs=2, **kw)
     for fa, fb in zip((*a.per_frequency, a.overall), (*b.per_frequency, b.overall),
@@ -126,8 +129,10 @@ def test_mr_damper_comparison_runs_end_to_end(shared_data_dir, tmp_path):
     mr = load_mr_damper(shared_data_dir, current_a=0.5, frequency_hz=[0.1, 1.0, 5.0])
     data = Dataset(tuple(_decimated(r) for r in mr), name="mr_damper_0.5A")
     res = compare_models(data, ["bouc_wen", "pi_play(n_operators=6)", "gp_memory"],
-                         max_steps=400, first_chunk=200, n_walkers=20, lofo=False,
-                         max_refits=0, draws_per_chain=10, gp_n_train=200, n_jobs=2)
+                         sampler=SamplerSettings(max_steps=400, first_chunk=200,
+                                                 n_walkers=20),
+                         lofo=False, max_refits=0, draws_per_chain=10, gp_n_train=200,
+                         n_jobs=2)
     summary = write_comparison_outputs(res, tmp_path, data_path="mr_damper")
     assert [e["frequency_hz"] for e in summary["per_frequency"]] == [0.1, 1.0, 5.0]
     for entry in summary["per_frequency"]:
@@ -141,8 +146,8 @@ def test_mr_damper_comparison_runs_end_to_end(shared_data_dir, tmp_path):
 
 def test_single_frequency_and_unknown_frequency_groups():
     data = _hammerstein_data(freqs=(2.0, 30.0), cycles=3, per_cycle=60)
-    kw = dict(max_steps=100, first_chunk=100, n_walkers=16, max_refits=0, draws_per_chain=5,
-              n_lofo_draws=20, n_jobs=1)
+    kw = dict(sampler=SamplerSettings(max_steps=100, first_chunk=100, n_walkers=16),
+              max_refits=0, draws_per_chain=5, n_lofo_draws=20, n_jobs=1)
     one = compare_models(data[0], [STATIC], **kw)
     # one frequency: the joint fit is the per-frequency fit, and nothing is held out
     assert [fc.frequency_hz for fc in one.per_frequency] == [2.0]
@@ -173,7 +178,8 @@ def test_a_failing_fit_is_recorded_and_ranked_last(monkeypatch):
 
     monkeypatch.setattr(tasks, "_run_parametric", flaky)
     data = _hammerstein_data(freqs=(2.0, 20.0), cycles=3, per_cycle=60)
-    res = compare_models(data, [STATIC, OTHER], max_steps=100, first_chunk=100, n_walkers=16,
+    res = compare_models(data, [STATIC, OTHER],
+                         sampler=SamplerSettings(max_steps=100, first_chunk=100, n_walkers=16),
                          max_refits=0, draws_per_chain=5, n_lofo_draws=20, n_jobs=1,
                          lofo=False)
     assert len(res.failed) == 1 and "integrator blew up" in res.failed[0].error
@@ -210,8 +216,10 @@ def virtual_comparison():
         recs.append(act.record(t, u, rng=i, name=f"v{f:g}", warmup=100, frequency_hz=f))
     return compare_models(Dataset(tuple(recs), name="virtual"),
                           [PREISACH, OTHER, "pi_play(n_operators=6)", PREISACH_DYN, "gp"],
-                          max_steps=1500, first_chunk=500, n_walkers=24, lofo=False,
-                          max_refits=0, draws_per_chain=40, gp_n_train=300, n_jobs=2, seed=1)
+                          sampler=SamplerSettings(max_steps=1500, first_chunk=500,
+                                                  n_walkers=24, seed=1),
+                          lofo=False, max_refits=0, draws_per_chain=40, gp_n_train=300,
+                          n_jobs=2)
 
 
 def test_virtual_actuator_generating_family_first_at_low_frequency(virtual_comparison):

@@ -168,7 +168,8 @@ def test_task_names_follow_inputs_and_settings(files: Path, tmp_path: Path) -> N
     study = read_study(files / "study.toml")
     names = [t.name for t in plan_study(study)[1] if not isinstance(t, dict)]
     assert len(set(names)) == len(names) == len(MODELS) * 4
-    longer = replace(study, settings=replace(study.settings, max_steps=300))
+    longer = replace(study, settings=replace(
+        study.settings, sampler=study.settings.sampler.replace(max_steps=300)))
     assert not set(names) & {t.name for t in plan_study(longer)[1] if not isinstance(t, dict)}
     # the same file content under a new path is the same task; changed values are not
     (tmp_path / "runs").mkdir()

@@ -22,6 +22,7 @@ import numpy as np
 import pytest
 
 from bayeshyst._comparison_tasks import CompareSettings
+from bayeshyst.inference.settings import SamplerSettings
 from bayeshyst.report.study_figures import (
     _build_best_model,
     _build_scores_vs_frequency,
@@ -47,7 +48,7 @@ def _study(datasets: list[str], models: tuple[str, ...], seeds: tuple[int, ...] 
     specs = tuple(DatasetSpec(d, f"/data/{d}.csv", None, (), f"datasets[{i}]")
                   for i, d in enumerate(datasets))
     return Study("synthetic", "/data/study.toml", specs, models, likelihoods, seeds, None,
-                 CompareSettings(max_steps=100, first_chunk=50))
+                 CompareSettings(sampler=SamplerSettings(max_steps=100, first_chunk=50)))
 
 
 def _ok_row(ds: str, model: str, f: float | None, seed: int, pw: np.ndarray, *,
