@@ -1,4 +1,5 @@
-"""Atomic writes: whole or nothing, and the permissions a plain open() would give."""
+"""Atomic writes: whole or nothing, and the permissions a plain open() would give; a
+failed run takes back what it created and nothing else."""
 
 from __future__ import annotations
 
@@ -7,7 +8,7 @@ import stat
 
 import pytest
 
-from bayeshyst.files import atomic_path, atomic_paths
+from bayeshyst.files import atomic_path, atomic_paths, removed_on_failure
 from bayeshyst.report.files import write_json
 
 
@@ -48,3 +49,104 @@ def test_failure_leaves_targets_untouched_and_no_temp_files(tmp_path):
         raise Boom
     assert a.read_text() == "A" and not b.exists()
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a.txt"]
+
+
+# ------------------------------------------------------------------- removed_on_failure
+class Failed(Exception):
+    pass
+
+
+def _listing(root):
+    return sorted(str(p.relative_to(root)) for p in root.rglob("*"))
+
+
+def test_a_failed_run_removes_its_folder_and_the_parents_it_created(tmp_path):
+    out = tmp_path / "a" / "b" / "out"
+    with pytest.raises(Failed), removed_on_failure(out):
+        (out / "checkpoints").mkdir(parents=True)
+        (out / "checkpoints" / "fit.h5").write_bytes(b"chains")
+        (out / "posterior.nc").write_bytes(b"half")
+        raise Failed
+    assert list(tmp_path.iterdir()) == []  # not even tmp_path/a
+
+
+def test_a_failed_run_keeps_what_was_there_before(tmp_path):
+    out = tmp_path / "out"
+    (out / "old").mkdir(parents=True)
+    (out / "notes.txt").write_text("mine")
+    (out / "checkpoint.h5").write_bytes(b"earlier run")
+    (out / "old" / "summary.json").write_text("{}")
+    with pytest.raises(Failed), removed_on_failure(out):
+        # a resumed run appends to the earlier checkpoint and adds files of its own
+        with (out / "checkpoint.h5").open("ab") as fh:
+            fh.write(b" + more")
+        (out / "old" / "new.png").write_bytes(b"png")
+        (out / "new" / "deep").mkdir(parents=True)
+        (out / "new" / "deep" / "x").write_text("x")
+        raise Failed
+    assert _listing(out) == ["checkpoint.h5", "notes.txt", "old", "old/summary.json"]
+    assert (out / "notes.txt").read_text() == "mine"
+    assert (out / "checkpoint.h5").read_bytes() == b"earlier run + more"
+
+
+def test_nothing_is_removed_after_the_first_result(tmp_path):
+    out = tmp_path / "out"
+    with pytest.raises(Failed), removed_on_failure(out) as outputs:
+        out.mkdir()
+        (out / "checkpoint.h5").write_bytes(b"chains")
+        outputs.keep()
+        (out / "posterior.nc").write_bytes(b"x")
+        raise Failed
+    assert _listing(out) == ["checkpoint.h5", "posterior.nc"]
+
+
+def test_a_created_file_matching_results_is_a_result(tmp_path):
+    out = tmp_path / "out"
+    with pytest.raises(Failed), removed_on_failure(out, results=("fits/*.json",)):
+        (out / "fits").mkdir(parents=True)
+        (out / "work").mkdir()
+        (out / "work" / "a.h5").write_bytes(b"x")
+        raise Failed
+    assert not out.exists()  # a folder named fits/ is not a result, a stored fit is
+    with pytest.raises(Failed), removed_on_failure(out, results=("fits/*.json",)):
+        (out / "fits").mkdir(parents=True)
+        (out / "fits" / "0a1b.json").write_text("{}")
+        (out / "work").mkdir()
+        raise Failed
+    assert _listing(out) == ["fits", "fits/0a1b.json", "work"]
+
+
+def test_success_and_interrupt_remove_nothing(tmp_path):
+    out = tmp_path / "out"
+    with removed_on_failure(out):
+        out.mkdir()
+        (out / "summary.json").write_text("{}")
+    assert _listing(out) == ["summary.json"]
+    # an interrupted run is resumed, not failed: its checkpoint stays
+    with pytest.raises(KeyboardInterrupt), removed_on_failure(tmp_path / "int"):
+        (tmp_path / "int").mkdir()
+        (tmp_path / "int" / "checkpoint.h5").write_bytes(b"x")
+        raise KeyboardInterrupt
+    assert (tmp_path / "int" / "checkpoint.h5").exists()
+
+
+def test_links_are_removed_not_followed(tmp_path):
+    outside = tmp_path / "outside"
+    outside.mkdir()
+    (outside / "precious.txt").write_text("keep")
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "old_link").symlink_to(outside)
+    with pytest.raises(Failed), removed_on_failure(out):
+        (out / "new_link").symlink_to(outside)
+        raise Failed
+    assert _listing(out) == ["old_link"]
+    assert (outside / "precious.txt").read_text() == "keep"
+
+
+def test_an_output_path_that_is_a_file_is_left_alone(tmp_path):
+    out = tmp_path / "out"
+    out.write_text("a file, not a folder")
+    with pytest.raises(Failed), removed_on_failure(out):
+        raise Failed
+    assert out.read_text() == "a file, not a folder"
