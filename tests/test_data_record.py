@@ -9,7 +9,14 @@ import pickle
 import numpy as np
 import pytest
 
-from bayeshyst.data.record import DEFAULT_UNITS, MIN_SAMPLES, Dataset, Record
+from bayeshyst.data.record import (
+    DEFAULT_UNITS,
+    MAGNITUDE_MAX,
+    MIN_SAMPLES,
+    Dataset,
+    Record,
+    check_fittable,
+)
 from bayeshyst.errors import DataError
 
 
@@ -180,3 +187,25 @@ def test_records_and_datasets_pickle_and_copy():
     assert back == ds and not back[0].u.flags.writeable
     assert back[0].metadata["nested"]["a"] == (1, 2)
     assert copy.deepcopy(rec) == rec and copy.copy(rec) == rec
+
+
+# ------------------------------------------------------------------------ fittable
+def test_a_constant_record_is_valid_but_not_fittable():
+    rec = Record(np.arange(4.0), np.zeros(4), np.arange(4.0), name="hold")
+    assert rec.n == 4  # in memory it is a Record like any other
+    with pytest.raises(DataError, match=r"^bench\.csv: column 'u': constant \(0\.0 in every "
+                       r"sample\); the input must vary"):
+        check_fittable(rec, "bench.csv")
+    with pytest.raises(DataError, match=r"^bench\.csv: input 'volt': constant"):
+        check_fittable(rec, "bench.csv", {"u": "input 'volt'"})
+    # over a Dataset the columns are judged together, as the models' priors see them
+    check_fittable(Dataset([rec, rec.with_(name="loop", u=np.arange(4.0))]), "bench.csv")
+
+
+def test_fittable_checks_the_input_before_the_output():
+    t, big = np.arange(4.0), np.array([0.0, 1.0, 0.0, 1.0]) * 10 * MAGNITUDE_MAX
+    with pytest.raises(DataError, match=r"column 'u': largest \|value\| 1e\+51 is outside"):
+        check_fittable(Record(t, big, big), "f")
+    with pytest.raises(DataError, match=r"column 'y': largest \|value\| 1e\+51 is outside"):
+        check_fittable(Record(t, big / 1e10, big), "f")
+    assert check_fittable(make(), "f") is None

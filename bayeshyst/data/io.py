@@ -28,6 +28,13 @@ Columns (roles)
 datasets) are optional. Rows are split into one Record per maximal run of constant
 (``record``, ``frequency_hz``). Other columns are ignored and listed in
 ``metadata["ignored_columns"]``.
+
+Fittable data
+-------------
+By default the readers also refuse what no model can be fitted to, once, here at the
+file: an input or output that is constant over the whole file, or magnitudes outside
+the range a fit handles (:func:`~bayeshyst.data.record.check_fittable`). ``fittable=False``
+reads any finite data (to convert or plot it).
 """
 
 from __future__ import annotations
@@ -36,7 +43,8 @@ import io
 import itertools
 import os
 import zipfile
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -53,7 +61,7 @@ from bayeshyst.data.parsing import (
     role_labels,
     sidecar_path,
 )
-from bayeshyst.data.record import MIN_SAMPLES, Dataset, Record
+from bayeshyst.data.record import MIN_SAMPLES, Dataset, Record, check_fittable
 from bayeshyst.errors import DataError
 from bayeshyst.files import atomic_paths
 
@@ -97,6 +105,7 @@ def _assemble(
     name: str | None,
     ignored: Sequence[str] = (),
     kind: str = "column",
+    fittable: bool = True,
 ) -> Dataset:
     """Split validated columns into Records, reporting problems at file positions."""
     label = role_labels(resolved, kind)
@@ -173,19 +182,40 @@ def _assemble(
             segment = segment[a:b]
         else:
             segment = None
-        records.append(
-            Record(
-                t=t,
-                u=cols["u"][a:b],
-                y=cols["y"][a:b],
-                segment=segment,
-                warmup=int(w),
-                metadata=meta,
-                units={**sc.get("units", {}), **entry.get("units", {}), **(units or {})},
-                name=rec_name,
+        with _naming(path):
+            records.append(
+                Record(
+                    t=t,
+                    u=cols["u"][a:b],
+                    y=cols["y"][a:b],
+                    segment=segment,
+                    warmup=int(w),
+                    metadata=meta,
+                    units={**sc.get("units", {}), **entry.get("units", {}), **(units or {})},
+                    name=rec_name,
+                )
             )
-        )
-    return Dataset(records, name=name or sc.get("name") or stem)
+    with _naming(path):
+        data = Dataset(records, name=name or sc.get("name") or stem)
+    if fittable:
+        check_fittable(data, str(path), label)
+    return data
+
+
+@contextmanager
+def _naming(path: Path) -> Iterator[None]:
+    """Put ``path`` in front of a DataError that does not name it.
+
+    Record and Dataset validation name the record and its ``metadata["source"]``, which
+    a sidecar or the ``metadata`` argument may have set to something other than the
+    file (the bundled data say "virtual actuator"); every reader error names the file.
+    """
+    try:
+        yield
+    except DataError as exc:
+        if str(path) in str(exc):
+            raise
+        raise DataError(f"{path}: {exc}") from exc
 
 
 # --------------------------------------------------------------------------- readers
@@ -198,6 +228,7 @@ def read_csv(
     metadata: Mapping[str, Any] | None = None,
     units: Mapping[str, str] | None = None,
     name: str | None = None,
+    fittable: bool = True,
 ) -> Dataset:
     """Read a delimited text file with header ``t,u,y[,segment][,frequency_hz]``.
 
@@ -219,6 +250,10 @@ def read_csv(
         Merged over the sidecar units and the defaults ``{"t": "s", "u": "V", "y": "um"}``.
     name : str, optional
         Dataset name (default: the sidecar's ``name``, else the file stem).
+    fittable : bool, default True
+        Refuse data no model can be fitted to (:func:`~bayeshyst.data.record.check_fittable`:
+        a constant input or output, magnitudes outside the supported range). False
+        reads any finite data, e.g. to convert or plot it.
 
     Returns
     -------
@@ -230,8 +265,8 @@ def read_csv(
     Raises
     ------
     DataError
-        Malformed file or sidecar; the message names file, 1-based line, column and the
-        expected vs found value.
+        Malformed file or sidecar, or (``fittable``) data no model can be fitted to; the
+        message names file, 1-based line, column and the expected vs found value.
     """
     p = check_file(path)
     side = read_sidecar(p)
@@ -247,6 +282,7 @@ def read_csv(
     return _assemble(
         p, cols, lambda i: f"line {table.lines[i]}", resolved, side,
         warmup=warmup, metadata=metadata, units=units, name=name, ignored=ignored,
+        fittable=fittable,
     )
 
 
@@ -308,6 +344,7 @@ def read_npz(
     metadata: Mapping[str, Any] | None = None,
     units: Mapping[str, str] | None = None,
     name: str | None = None,
+    fittable: bool = True,
 ) -> Dataset:
     """Read a NumPy ``.npz`` archive with arrays ``t, u, y[, segment][, frequency_hz]``.
 
@@ -329,6 +366,8 @@ def read_npz(
         Merged over sidecar units and defaults.
     name : str, optional
         Dataset name (default: sidecar ``name``, else the file stem).
+    fittable : bool, default True
+        As in :func:`read_csv`.
 
     Returns
     -------
@@ -353,7 +392,8 @@ def read_npz(
                 ) from exc
             except (OSError, zipfile.BadZipFile, EOFError) as exc:
                 raise DataError(f"{p}: array {key!r}: corrupt archive member ({exc})") from exc
-    opts = {"warmup": warmup, "metadata": metadata, "units": units, "name": name}
+    opts = {"warmup": warmup, "metadata": metadata, "units": units, "name": name,
+            "fittable": fittable}
     return _read_arrays(p, variables, "array", columns, opts)
 
 
@@ -365,6 +405,7 @@ def read_mat(
     metadata: Mapping[str, Any] | None = None,
     units: Mapping[str, str] | None = None,
     name: str | None = None,
+    fittable: bool = True,
 ) -> Dataset:
     """Read a MATLAB ``.mat`` file (v4-v7.2) with variables ``t, u, y[, ...]``.
 
@@ -375,7 +416,7 @@ def read_mat(
     ----------
     path : path-like
         The ``.mat`` file; variables of shape (n,), (n, 1) or (1, n).
-    columns, warmup, metadata, units, name
+    columns, warmup, metadata, units, name, fittable
         As in :func:`read_npz` (``columns`` maps roles to variable names).
 
     Returns
@@ -399,7 +440,8 @@ def read_mat(
             f"({type(exc).__name__}: {exc})"
         ) from exc
     variables = {k: v for k, v in raw.items() if not k.startswith("__")}
-    opts = {"warmup": warmup, "metadata": metadata, "units": units, "name": name}
+    opts = {"warmup": warmup, "metadata": metadata, "units": units, "name": name,
+            "fittable": fittable}
     return _read_arrays(p, variables, "variable", columns, opts)
 
 
@@ -422,12 +464,13 @@ def load(path: str | os.PathLike[str], **options: Any) -> Dataset:
         (:func:`read_mat`).
     **options
         Passed to the reader (``columns``, ``warmup``, ``metadata``, ``units``, ``name``,
-        and ``delimiter`` for text).
+        ``fittable``, and ``delimiter`` for text).
 
     Raises
     ------
     DataError
-        Missing file, a directory, an unknown suffix, or a malformed file.
+        Missing file, a directory, an unknown suffix, a malformed file, or (unless
+        ``fittable=False``) data no model can be fitted to.
     """
     p = check_file(path)
     reader = SUFFIXES.get(p.suffix.lower())

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import csv
 import json
+import math
 import os
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
@@ -320,8 +321,10 @@ def _check_entry(sp: Path, obj: Mapping[str, Any], allowed: Sequence[str], prefi
             if not isinstance(value, dict):
                 raise _type_error(sp, full, "an object", value)
             freq = value.get("frequency_hz")
+            # json.loads accepts Infinity and NaN, which no frequency can be
             if freq is not None and (
-                isinstance(freq, bool) or not isinstance(freq, int | float) or not freq > 0
+                isinstance(freq, bool) or not isinstance(freq, int | float)
+                or not 0 < freq < math.inf
             ):
                 raise _type_error(sp, f"{full}.frequency_hz", "a positive number or null", freq)
         if key in ("units", "columns"):

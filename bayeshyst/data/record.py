@@ -24,12 +24,38 @@ import numpy as np
 
 from bayeshyst.errors import DataError
 
-__all__ = ["DEFAULT_UNITS", "MIN_SAMPLES", "Dataset", "Record"]
+__all__ = ["DEFAULT_UNITS", "MAGNITUDE_MAX", "MIN_SAMPLES", "RESOLUTION_MIN", "SPAN_MIN",
+           "Dataset", "Record", "check_fittable"]
 
 #: Fewest samples a Record may hold. Four is the smallest count that can contain one
 #: rise and one fall of the input (a minimal loop) and still leave two scored samples
 #: after a one-sample warm-up; anything shorter cannot inform a hysteresis model.
 MIN_SAMPLES = 4
+
+# The magnitudes of input and output that a fit handles, checked by check_fittable when
+# data are read from a file. Measured with ``bayeshyst fit`` (pi_play, 200 steps) on a
+# synthetic record (u 13..142 V, y 6..27 um, noise 0.05 um) with u and y multiplied by
+# 10^k: the summaries are scale-equivariant (every parameter's mean and sd, RMSE) for
+# u and y from 1e-149 to 1e152 times together, y alone from 1e-99 to 1e151 and u alone
+# from 1e-148 to 1e142, i.e. while the gain span(y)/span(u) stays within 1e+-150. Past
+# that the fit breaks on float64 itself: squares of the data, of the gain and its
+# inverse (the linear block's Grams and prior precisions) overflow past ~1.3e154 or
+# underflow below ~1.5e-154 (at y ~ 1e-199 every density is zero; at gain ~ 1e159 the
+# Grams are singular). Bounding |x| by 1e50 and the span by 1e-50 keeps every such
+# square, gain^2 (<= 1e200) and sum of 1e8 squares (<= 1e108) a hundred orders of
+# magnitude inside float64, while no physical unit choice comes near the bounds.
+#: Largest ``max|x|`` of the input and of the output of a fittable file.
+MAGNITUDE_MAX = 1e50
+#: Smallest peak-to-peak span of the input and of the output of a fittable file.
+SPAN_MIN = 1e-50
+# A column that sits far from zero varies over few float64 values: with y offset to
+# 2e13 its 21 um span spans ~5e3 ulps and the fit of the measurement above went wrong
+# (RMSE 1.5x the unshifted fit's, 3.8x with 100x less noise); offset to 2e10 and 2e11
+# (span/max|y| = 1e-9, 1e-10) it matched to every printed digit, at 2e12 it began to
+# drift (RMSE 1.3 % off with the smaller noise). A span of at least 1e-9 max|x| leaves
+# at most 2.2e-7 of the span per ulp, far below any sensor's noise.
+#: Smallest ``span / max|x|`` of the input and of the output of a fittable file.
+RESOLUTION_MIN = 1e-9
 
 #: Units assumed for columns that the caller does not specify.
 DEFAULT_UNITS: Mapping[str, str] = MappingProxyType({"t": "s", "u": "V", "y": "um"})
@@ -89,6 +115,62 @@ def _as_vector(values: Any, column: str, where: str, dtype: type = np.float64) -
 def _first_bad(mask: np.ndarray) -> int:
     """Index of the first True in a boolean mask (caller knows there is one)."""
     return int(np.argmax(mask))
+
+
+def check_fittable(data: Record | Dataset, source: str,
+                   labels: Mapping[str, str] | None = None) -> None:
+    """Refuse data that no model can be fitted to, naming the file and the column.
+
+    Over all records together (as the models' priors see them), the input ``u`` and
+    the output ``y`` must each vary, and lie inside the magnitudes a fit handles:
+    ``max|x| <= MAGNITUDE_MAX``, ``span(x) >= SPAN_MIN`` and
+    ``span(x) >= RESOLUTION_MIN * max|x|`` (``span`` = peak-to-peak).
+
+    Parameters
+    ----------
+    data : Record or Dataset
+        Validated data.
+    source : str
+        Where the data came from (the file), the start of every message.
+    labels : mapping of str to str, optional
+        How to name the ``"u"`` and ``"y"`` columns, e.g. ``{"y": "column 'disp' (y)"}``
+        (default ``"column 'u'"``, ``"column 'y'"``).
+
+    Raises
+    ------
+    DataError
+        If a column is constant, or a magnitude is outside the supported range; the
+        message names ``source``, the column, the magnitude found and the range.
+
+    Notes
+    -----
+    Records built in memory are not checked (a constant input is a valid Record); the
+    models refuse a constant input or output when they scale their priors.
+    """
+    records = [data] if isinstance(data, Record) else list(data)
+    supported = (f"max|x| <= {MAGNITUDE_MAX:g}, peak-to-peak >= {SPAN_MIN:g} and >= "
+                 f"{RESOLUTION_MIN:g} max|x|")
+    for col, what in (("u", "input"), ("y", "output")):
+        label = (labels or {}).get(col, f"column {col!r}")
+        x = np.concatenate([getattr(r, col) for r in records])
+        lo, hi = float(x.min()), float(x.max())
+        if lo == hi:
+            raise DataError(f"{source}: {label}: constant ({lo!r} in every sample); the "
+                            f"{what} must vary for any hysteresis to be identified")
+        # max|x| first: for |x| near the float64 limit the span itself would overflow
+        big = max(abs(lo), abs(hi))
+        if big > MAGNITUDE_MAX:
+            raise DataError(f"{source}: {label}: largest |value| {big:.3g} is outside the "
+                            f"supported range ({supported}); express it in a larger unit")
+        span = hi - lo
+        if span < SPAN_MIN:
+            raise DataError(f"{source}: {label}: peak-to-peak {span:.3g} is outside the "
+                            f"supported range ({supported}); express it in a smaller unit")
+        if span < RESOLUTION_MIN * big:
+            raise DataError(f"{source}: {label}: peak-to-peak {span:.3g} is only "
+                            f"{span / big:.2g} of its largest |value| {big:.3g}, outside the "
+                            f"supported range ({supported}): float64 barely resolves the "
+                            f"variation; subtract the constant level before fitting")
 
 
 @dataclass(frozen=True, eq=False, repr=False)
