@@ -20,12 +20,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from bayeshyst._comparison_tasks import TaskSpec, derived_seed, run_task
+from bayeshyst._comparison_tasks import CompareSettings, TaskSpec, derived_seed, run_task
 from bayeshyst.cli import main
 from bayeshyst.data import load
 from bayeshyst.data.io import write_csv
 from bayeshyst.data.record import Dataset
 from bayeshyst.errors import ModelError, ParameterError
+from bayeshyst.inference.settings import SamplerSettings
 from bayeshyst.study import plan_study, read_study, run_study
 from bayeshyst.study.rows import TABLE_COLUMNS, VOLATILE_COLUMNS
 from bayeshyst.workflow import bundled_data
@@ -168,9 +169,15 @@ def test_task_names_follow_inputs_and_settings(files: Path, tmp_path: Path) -> N
     study = read_study(files / "study.toml")
     names = [t.name for t in plan_study(study)[1] if not isinstance(t, dict)]
     assert len(set(names)) == len(names) == len(MODELS) * 4
-    longer = replace(study, settings=replace(
-        study.settings, sampler=study.settings.sampler.replace(max_steps=300)))
-    assert not set(names) & {t.name for t in plan_study(longer)[1] if not isinstance(t, dict)}
+    for change in ({"max_steps": 300}, {"moves": "de"}):
+        other = replace(study, settings=replace(
+            study.settings, sampler=study.settings.sampler.replace(**change)))
+        assert not set(names) & {t.name for t in plan_study(other)[1]
+                                 if not isinstance(t, dict)}, change
+    # the progress bar and the checkpoint are not what a fit's result depends on
+    same = replace(study, settings=replace(
+        study.settings, sampler=study.settings.sampler.replace(progress=True)))
+    assert [t.name for t in plan_study(same)[1] if not isinstance(t, dict)] == names
     # the same file content under a new path is the same task; changed values are not
     (tmp_path / "runs").mkdir()
     for p in (files / "runs").glob("act-*.csv"):
@@ -202,6 +209,10 @@ def test_task_names_follow_inputs_and_settings(files: Path, tmp_path: Path) -> N
      "give 'seed' or 'seeds', not both"),
     ('models = ["bouc_wen"]\n[sampler]\nmax_steps = 5\n[[datasets]]\npath = "x.csv"\n',
      "max_steps must be an integer >= 10, got 5"),
+    ('models = ["bouc_wen"]\n[sampler]\nmax_step = 50\n[[datasets]]\npath = "x.csv"\n',
+     "unknown key 'max_step' (did you mean 'max_steps'?)"),
+    ('models = ["bouc_wen"]\n[sampler]\nmoves = "strech"\n[[datasets]]\npath = "x.csv"\n',
+     "unknown moves 'strech' (did you mean 'stretch'?)"),
     ('models = ["bouc_wen"]\n[[datasets]]\nmeasured = "mr_damper"\noptions = {current = 1}\n',
      "unknown key 'current' (did you mean 'current_a'?)"),
     ('models = ["bouc_wen"]\n', "expected at least one [[datasets]] table"),
@@ -217,6 +228,31 @@ def test_bad_study_files_are_refused_with_the_key_named(tmp_path: Path, body: st
     out = tmp_path / "out"
     assert main(["study", str(path), "--out", str(out), "--quiet"]) == 2
     assert message in capsys.readouterr().err and not out.exists()
+
+
+def test_sampler_table_maps_onto_the_sampler_and_scoring_settings(tmp_path: Path) -> None:
+    path = tmp_path / "s.toml"
+    path.write_text('models = ["bouc_wen"]\n[sampler]\nmoves = "de"\nn_walkers = 20\n'
+                    'max_steps = 300\nfirst_chunk = 50\ndraws_per_chain = 7\n'
+                    'n_predictive_draws = 60\nmax_refits = 1\ngp_n_train = 99\n'
+                    '[[datasets]]\npath = "x.csv"\n')
+    st = read_study(path)
+    s = st.settings
+    assert (s.sampler.moves, s.sampler.n_walkers, s.sampler.max_steps,
+            s.sampler.first_chunk) == ("de", 20, 300, 50)
+    assert (s.draws_per_chain, s.n_lofo_draws, s.max_refits, s.gp_n_train) == (7, 60, 1, 99)
+    # keys not given keep the defaults of every command
+    default = read_study(_write(tmp_path / "d.toml", 'models = ["bouc_wen"]\n'
+                                '[[datasets]]\npath = "x.csv"\n')).settings
+    assert default.sampler == SamplerSettings() and default == CompareSettings()
+    assert st.to_dict()["sampler"] == {
+        "moves": "de", "n_walkers": 20, "max_steps": 300, "first_chunk": 50,
+        "draws_per_chain": 7, "n_predictive_draws": 60, "max_refits": 1, "gp_n_train": 99}
+
+
+def _write(path: Path, text: str) -> Path:
+    path.write_text(text)
+    return path
 
 
 def test_unmatched_glob_is_a_failed_dataset_not_a_bad_file(tmp_path: Path) -> None:
