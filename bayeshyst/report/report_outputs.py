@@ -403,13 +403,24 @@ def _glance_html(summary: dict[str, Any]) -> H.Markup:
     return H.join(parts)
 
 
+def _flat(settings: dict[str, Any], prefix: str = "") -> list[tuple[str, Any]]:
+    """``{"sampler": {"moves": ...}}`` -> ``[("sampler.moves", ...)]``: one row per setting."""
+    rows: list[tuple[str, Any]] = []
+    for k, v in settings.items():
+        if isinstance(v, dict):
+            rows += _flat(v, f"{prefix}{k}.")
+        else:
+            rows.append((f"{prefix}{k}", v))
+    return rows
+
+
 def _reproduce_html(summary: dict[str, Any]) -> H.Markup:
     rt = summary["runtime_s"]
     return H.join([
         H.paragraph(f"bayeshyst {summary['versions']['bayeshyst']}, Python "
                     f"{summary['versions']['python']}, seed {summary['seed']}. Same data, "
                     "settings and seed give the same numbers."),
-        H.table(["setting", "value"], [[k, _short(v)] for k, v in summary["settings"].items()],
+        H.table(["setting", "value"], [[k, _short(v)] for k, v in _flat(summary["settings"])],
                 numeric=[False, False]),
         H.paragraph("Wall time: " + ", ".join(f"{k} {v:.1f} s" for k, v in rt.items()) + "."),
         H.paragraph("Files next to this report: summary.json (every number shown here), "
