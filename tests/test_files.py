@@ -6,10 +6,11 @@ from __future__ import annotations
 import json
 import stat
 
+import numpy as np
 import pytest
 
 from bayeshyst.files import atomic_path, atomic_paths, removed_on_failure
-from bayeshyst.report.files import write_json
+from bayeshyst.report.files import jsonable, nonfinite_fields, write_json
 
 
 def _mode(path):
@@ -25,6 +26,17 @@ def test_new_files_get_the_mode_of_a_plain_open(tmp_path):
     write_json(tmp_path / "s.json", {"a": float("nan")})
     assert _mode(tmp_path / "s.json") == _mode(plain)
     assert json.loads((tmp_path / "s.json").read_text()) == {"a": None}
+
+
+def test_nonfinite_fields_are_where_json_gets_null():
+    obj = {"a": 1.0, "params": {"w[0]": {"sd": float("inf"), "mean": 0.5}},
+           "rows": [1, float("nan"), {"x": np.float32("-inf")}], "arr": np.array([1.0, np.inf]),
+           "ok": True, "n": 3, "text": "nan"}
+    assert nonfinite_fields(obj) == ["params.w[0].sd", "rows[1]", "rows[2].x", "arr[1]"]
+    plain = jsonable(obj)
+    assert plain["params"]["w[0]"]["sd"] is None and plain["rows"][1] is None
+    assert plain["rows"][2]["x"] is None and plain["arr"] == [1.0, None]
+    assert nonfinite_fields(plain) == [] and plain["text"] == "nan"
 
 
 def test_replacing_keeps_the_old_mode(tmp_path):

@@ -14,7 +14,8 @@ import numpy as np
 
 from bayeshyst.files import atomic_path
 
-__all__ = ["atomic_path", "csv_cell", "jsonable", "write_json", "write_rows_csv"]
+__all__ = ["atomic_path", "csv_cell", "jsonable", "nonfinite_fields", "write_json",
+           "write_rows_csv"]
 
 
 def csv_cell(value: Any) -> Any:
@@ -49,6 +50,37 @@ def jsonable(obj: Any) -> Any:
         x = float(obj)
         return x if math.isfinite(x) else None
     return obj
+
+
+def nonfinite_fields(obj: Any, prefix: str = "") -> list[str]:
+    """Where ``obj`` holds a non-finite float, as paths like ``params.w[0].sd``.
+
+    :func:`jsonable` writes these as ``null``; a summary lists them in a warning so that
+    a reader learns why a number is missing (an overflow, an undefined statistic).
+
+    Parameters
+    ----------
+    obj : any
+        Nested dicts, lists, tuples, arrays and scalars, as given to :func:`jsonable`.
+    prefix : str
+        Path of ``obj`` itself (default: the top level).
+
+    Returns
+    -------
+    list of str
+        The paths, in the order of ``obj``.
+    """
+    if isinstance(obj, dict):
+        return [path for k, v in obj.items()
+                for path in nonfinite_fields(v, f"{prefix}.{k}" if prefix else str(k))]
+    if isinstance(obj, np.ndarray):
+        obj = obj.tolist()
+    if isinstance(obj, list | tuple):
+        return [path for i, v in enumerate(obj)
+                for path in nonfinite_fields(v, f"{prefix}[{i}]")]
+    if isinstance(obj, float | np.floating) and not math.isfinite(obj):
+        return [prefix]
+    return []
 
 
 def write_json(path: str | Path, obj: Any, *, default: Callable[[Any], Any] = str) -> Path:

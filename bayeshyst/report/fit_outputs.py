@@ -8,7 +8,7 @@ from typing import Any
 import numpy as np
 
 from bayeshyst.inference.fit import FitResult
-from bayeshyst.report.files import write_json
+from bayeshyst.report.files import nonfinite_fields, write_json
 
 __all__ = ["fit_summary", "write_fit_outputs"]
 
@@ -43,6 +43,9 @@ def fit_summary(fit: FitResult, *, data_path: str | None = None,
     (|r| >= 0.5, in the sampler's unconstrained coordinates), ``rmse``,
     ``nrmse_percent``, ``max_error``, ``max_error_percent``, ``per_frequency``,
     ``runtime_s``, ``seed``, ``settings``, ``data``, ``files``, ``warnings``.
+
+    A number that is not finite (an overflow, a statistic the chains cannot give) is
+    ``inf``/``nan`` here, ``null`` in ``summary.json``, and named in ``warnings``.
     """
     s = fit.sampling
     c = s.convergence
@@ -68,7 +71,7 @@ def fit_summary(fit: FitResult, *, data_path: str | None = None,
               "max_error": e.max_error, "max_error_percent": e.max_error_percent,
               "n_samples": e.n_samples} for e in fit.per_frequency]
     post = fit.posterior
-    return {
+    summary = {
         "command": "fit",
         "model": s.model,
         "likelihood": s.likelihood,
@@ -102,6 +105,11 @@ def fit_summary(fit: FitResult, *, data_path: str | None = None,
         "files": files or {},
         "warnings": warnings,
     }
+    # JSON has no inf or NaN: such a number is written as null, and said so here
+    missing = nonfinite_fields({k: v for k, v in summary.items() if k != "warnings"})
+    if missing:
+        warnings.append("not a finite number, written as null: " + ", ".join(missing))
+    return summary
 
 
 def write_fit_outputs(fit: FitResult, out: str | Path, *, data_path: str | None = None,
