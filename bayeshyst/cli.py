@@ -1,7 +1,8 @@
 """Command line: a thin argparse layer over the public API.
 
 Exit status: 0 success, 2 bad input (one clear line on stderr, nothing written half-way),
-1 internal error.
+1 internal error. A command that fails before its first result leaves its output
+folder as it found it (:func:`bayeshyst.files.removed_on_failure`).
 """
 
 from __future__ import annotations
@@ -19,6 +20,7 @@ import numpy as np
 
 from bayeshyst import __version__
 from bayeshyst.errors import DataError, ModelError, ParameterError
+from bayeshyst.files import removed_on_failure
 from bayeshyst.inference.settings import MOVES, SamplerSettings
 from bayeshyst.report.files import jsonable
 
@@ -157,9 +159,13 @@ def _cmd_fit(args: argparse.Namespace) -> int:
         print(f"bayeshyst fit: {model.name} / {likelihood.name} on {data.name} "
               f"({len(data)} record(s), {data.n_samples} samples)", file=sys.stderr)
     sampler = sampler_settings(args, checkpoint=checkpoint)
-    fit = fit_model(data, model, likelihood, sampler=sampler)
-    summary = write_fit_outputs(fit, out, data_path=str(args.data), figures=not args.no_figures,
-                                seed=sampler.seed)
+    with removed_on_failure(out) as outputs:
+        fit = fit_model(data, model, likelihood, sampler=sampler)
+        # the sampled chains are the result: should writing fail, their checkpoint stays
+        # and the rerun resumes from it instead of sampling again
+        outputs.keep()
+        summary = write_fit_outputs(fit, out, data_path=str(args.data),
+                                    figures=not args.no_figures, seed=sampler.seed)
     if args.json:
         json.dump(jsonable(summary), sys.stdout, indent=2)
         sys.stdout.write("\n")
@@ -186,12 +192,15 @@ def _cmd_compare(args: argparse.Namespace) -> int:
         freqs = ", ".join(f"{f:g}" for f in data.frequencies) or "none given"
         print(f"bayeshyst compare: {', '.join(models)} on {data.name} ({len(data)} record(s); "
               f"frequencies [Hz]: {freqs})", file=sys.stderr)
-    result = compare_models(data, models, likelihood=args.likelihood, sampler=sampler,
-                            lofo=not args.no_lofo, max_refits=args.max_refits,
-                            gp_n_train=args.gp_train, n_jobs=args.jobs, out_dir=out,
-                            progress=sampler.progress)
-    summary = write_comparison_outputs(result, out, data_path=str(args.data),
-                                       figures=not args.no_figures)
+    # each finished fit stores its posterior: from the first one on, a failure keeps
+    # what is there for the rerun to resume from
+    with removed_on_failure(out, results=("posteriors/*.nc",)):
+        result = compare_models(data, models, likelihood=args.likelihood, sampler=sampler,
+                                lofo=not args.no_lofo, max_refits=args.max_refits,
+                                gp_n_train=args.gp_train, n_jobs=args.jobs, out_dir=out,
+                                progress=sampler.progress)
+        summary = write_comparison_outputs(result, out, data_path=str(args.data),
+                                           figures=not args.no_figures)
     if args.json:
         json.dump(jsonable(summary), sys.stdout, indent=2)
         sys.stdout.write("\n")
@@ -250,13 +259,17 @@ def _cmd_compensate(args: argparse.Namespace) -> int:
         print(f"bayeshyst compensate: {model.name} / {likelihood.name} on {data.name} "
               f"({len(data)} record(s); frequencies [Hz]: {freqs}); reference: {ref}",
               file=sys.stderr)
-    fit = fit_model(data, model, likelihood, sampler=sampler)
-    result = compensate(data, model, fit=fit, reference=reference,
-                        plant=None if args.plant == "auto" else args.plant,
-                        n_design_draws=args.design_draws, robust_quantile=args.quantile,
-                        sampler=sampler)
-    written = write_compensation_outputs(result, out, figures=not args.no_figures, fit=fit,
-                                         data_path=str(args.data))
+    with removed_on_failure(out) as outputs:
+        fit = fit_model(data, model, likelihood, sampler=sampler)
+        # the sampled chains are the first result: should the design fail, their
+        # checkpoint stays and the rerun resumes from it instead of sampling again
+        outputs.keep()
+        result = compensate(data, model, fit=fit, reference=reference,
+                            plant=None if args.plant == "auto" else args.plant,
+                            n_design_draws=args.design_draws, robust_quantile=args.quantile,
+                            sampler=sampler)
+        written = write_compensation_outputs(result, out, figures=not args.no_figures,
+                                             fit=fit, data_path=str(args.data))
     if args.json:
         sys.stdout.write((out / "summary.json").read_text())
     else:
@@ -311,6 +324,7 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
     def on_fit(fit: Any) -> None:
         nonlocal n_fits
         n_fits += 1
+        outputs.keep()  # a finished fit is a result: its checkpoint makes a rerun quick
         if args.quiet:
             return
         fired = [t.effect for t in fit.analysis.fired()]
@@ -324,11 +338,13 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
         print(f"bayeshyst diagnose: {model.name} / {likelihood.name} on {data.name} "
               f"({len(data)} record(s); frequencies [Hz]: {freqs}); candidate effects: "
               f"{', '.join(effects)}", file=sys.stderr)
-    result = diagnose(data, args.model, likelihood.name, effects=effects, alpha=args.alpha,
-                      threshold=args.threshold, max_rounds=args.max_rounds, sampler=sampler,
-                      checkpoint_dir=checkpoints, on_fit=on_fit)
-    written = write_diagnosis_outputs(result, out, data_name=str(args.data),
-                                      figures=not args.no_figures)
+    with removed_on_failure(out) as outputs:
+        result = diagnose(data, args.model, likelihood.name, effects=effects,
+                          alpha=args.alpha, threshold=args.threshold,
+                          max_rounds=args.max_rounds, sampler=sampler,
+                          checkpoint_dir=checkpoints, on_fit=on_fit)
+        written = write_diagnosis_outputs(result, out, data_name=str(args.data),
+                                          figures=not args.no_figures)
     if args.json:
         sys.stdout.write((out / "summary.json").read_text())
     else:
@@ -338,9 +354,18 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+# a report's comparison stores each finished fit's posterior here; from the first one
+# on, a failed report keeps what is there for the rerun to resume from
+_REPORT_RESULTS = ("compare/posteriors/*.nc",)
+
+
 def _report_run(data: Any, data_path: str, models: tuple[str, ...], settings: Any,
-                args: argparse.Namespace, command: str) -> int:
-    """The shared part of ``report`` and ``demo``: run every stage, write, print."""
+                args: argparse.Namespace, command: str, outputs: Any) -> Any:
+    """The shared part of ``report`` and ``demo``: run every stage and write.
+
+    ``outputs`` is the caller's :func:`removed_on_failure` of ``--out``. Returns the
+    summary written, for :func:`_report_print`.
+    """
     from bayeshyst.report.report_outputs import write_report_outputs
     from bayeshyst.workflow import run_report
 
@@ -350,6 +375,7 @@ def _report_run(data: Any, data_path: str, models: tuple[str, ...], settings: An
     def on_fit(fit: Any) -> None:
         nonlocal n_fits
         n_fits += 1
+        outputs.keep()
         if not args.quiet:
             conv = "converged" if fit.sampling.converged else "NOT converged"
             print(f"bayeshyst {command}: diagnosis fit {n_fits} done: {fit.label} ({conv}); "
@@ -363,6 +389,12 @@ def _report_run(data: Any, data_path: str, models: tuple[str, ...], settings: An
                         progress=settings.sampler.progress, on_fit=on_fit)
     summary = write_report_outputs(result, out, data_path=data_path,
                                    figures=not args.no_figures)
+    return result, summary
+
+
+def _report_print(args: argparse.Namespace, result: Any, summary: Any) -> int:
+    """Print what ``report`` and ``demo`` did (after the outputs are written)."""
+    out = Path(args.out)
     if args.json:
         sys.stdout.write((out / "summary.json").read_text())
     else:
@@ -391,7 +423,9 @@ def _cmd_report(args: argparse.Namespace) -> int:
     data = load(args.data)
     models = check_models(args.models) if args.models else DEFAULT_MODELS
     settings = _report_settings(args)
-    return _report_run(data, str(args.data), models, settings, args, "report")
+    with removed_on_failure(args.out, results=_REPORT_RESULTS) as outputs:
+        done = _report_run(data, str(args.data), models, settings, args, "report", outputs)
+    return _report_print(args, *done)
 
 
 def _cmd_demo(args: argparse.Namespace) -> int:
@@ -399,18 +433,23 @@ def _cmd_demo(args: argparse.Namespace) -> int:
     from bayeshyst.workflow import DEMO_DEFAULT, DEMO_QUICK, bundled_data
 
     plan = DEMO_QUICK if args.quick else DEMO_DEFAULT
-    path = bundled_data("virtual_multifreq.csv", fallback_dir=Path(args.out) / "data")
-    data = load(path)
-    if plan.frequencies_hz is not None:
-        data = data.select(plan.frequencies_hz)
-    if not args.quiet:
-        print(f"bayeshyst demo ({plan.description}) on the bundled virtual actuator data "
-              f"{path.name}", file=sys.stderr)
-    # the plan's budget, the command line's seed and --quiet
-    budget = {k: v for k, v in dataclasses.asdict(plan.settings.sampler).items()
-              if k not in ("seed", "progress", "checkpoint")}
-    settings = dataclasses.replace(plan.settings, sampler=sampler_settings(args, **budget))
-    return _report_run(data, path.name, plan.models, settings, args, "demo")
+    # the data regenerated into --out (no bundled data/) are the run's own, taken back
+    # with the rest if it fails before its first result
+    with removed_on_failure(args.out, results=_REPORT_RESULTS) as outputs:
+        path = bundled_data("virtual_multifreq.csv", fallback_dir=Path(args.out) / "data")
+        data = load(path)
+        if plan.frequencies_hz is not None:
+            data = data.select(plan.frequencies_hz)
+        if not args.quiet:
+            print(f"bayeshyst demo ({plan.description}) on the bundled virtual actuator "
+                  f"data {path.name}", file=sys.stderr)
+        # the plan's budget, the command line's seed and --quiet
+        budget = {k: v for k, v in dataclasses.asdict(plan.settings.sampler).items()
+                  if k not in ("seed", "progress", "checkpoint")}
+        settings = dataclasses.replace(plan.settings,
+                                       sampler=sampler_settings(args, **budget))
+        done = _report_run(data, path.name, plan.models, settings, args, "demo", outputs)
+    return _report_print(args, *done)
 
 
 def _cmd_study(args: argparse.Namespace) -> int:
@@ -423,10 +462,13 @@ def _cmd_study(args: argparse.Namespace) -> int:
     if not args.quiet:
         print(f"bayeshyst study: {study}; outputs in {out}/", file=sys.stderr)
     try:
-        result = run_study(study, out, scheduler=args.scheduler, n_workers=args.workers,
-                           serial=args.serial, retry_failed=args.retry_failed,
-                           progress=not args.quiet,
-                           figures=not args.no_figures or args.report, html=args.report)
+        # each finished fit is stored as it completes: from the first one on, a failure
+        # keeps what is there for the rerun to resume from
+        with removed_on_failure(out, results=("fits/*.json",)):
+            result = run_study(study, out, scheduler=args.scheduler, n_workers=args.workers,
+                               serial=args.serial, retry_failed=args.retry_failed,
+                               progress=not args.quiet,
+                               figures=not args.no_figures or args.report, html=args.report)
     except KeyboardInterrupt:
         n_done = len(list((out / "fits").glob("*.json")))
         print(f"bayeshyst study: interrupted; {n_done} finished fit(s) are stored in "

@@ -29,6 +29,18 @@ def data_csv(tmp_path_factory):
 
 
 @pytest.fixture(scope="module")
+def odd_csvs(tmp_path_factory):
+    """The pi record with y scaled past what a fit handles (the scales of issue 17), and
+    with a constant input."""
+    _, rec, _ = pi_data(n_ops=3, n=1500)
+    root = tmp_path_factory.mktemp("odd")
+    records = {"BIG": rec.with_(y=rec.y * 1e200), "TINY": rec.with_(y=rec.y * 1e-300),
+               "CONST": rec.with_(u=np.ones(rec.n))}
+    return {key: write_csv(Dataset((r,), name="pi"), root / f"{key.lower()}.csv")
+            for key, r in records.items()}
+
+
+@pytest.fixture(scope="module")
 def fitted(data_csv, tmp_path_factory):
     out = tmp_path_factory.mktemp("fit")
     code = main(["fit", str(data_csv), "--model", "pi_play", "--out", str(out), "--steps", "300",
@@ -89,16 +101,60 @@ def test_json_flag_prints_the_summary(data_csv, tmp_path, capsys):
     (["DATA", "--model", "pi_plya"], "unknown model 'pi_plya'"),
     (["DATA", "--model", "pi_play", "--likelihood", "cauchy"], "unknown likelihood 'cauchy'"),
     (["DATA", "--model", "pi_play", "--steps", "0"], "positive integer"),
+    # refused where the data are read, naming the file, the column, what was found and
+    # the range (they used to end in sd = inf, or in a sampler error and a checkpoint)
+    (["BIG", "--model", "pi_play"], ": column 'y': largest |value| 2.67e+201 is outside the "
+                                    "supported range (max|x| <= 1e+50, "),
+    (["TINY", "--model", "pi_play"], ": column 'y': peak-to-peak 2.08e-299 is outside the "
+                                     "supported range ("),
+    (["CONST", "--model", "pi_play"], ": column 'u': constant (1.0 in every sample)"),
 ])
-def test_bad_input_exits_2_with_one_line_and_writes_nothing(args, message, data_csv, tmp_path):
+def test_bad_input_exits_2_with_one_line_and_writes_nothing(args, message, data_csv, odd_csvs,
+                                                            tmp_path):
     out = tmp_path / "out"
-    args = [str(data_csv) if a == "DATA" else a for a in args]
+    files = {"DATA": data_csv, **odd_csvs}
+    args = [str(files.get(a, a)) for a in args]
     res = subprocess.run([sys.executable, "-m", "bayeshyst.cli", "fit", *args, "--out", str(out),
                           "--quiet"], capture_output=True, text=True, cwd=tmp_path,
                          env={"PYTHONPATH": str(ROOT), "PATH": "/usr/bin:/bin"})
     assert res.returncode == 2, res.stderr
     assert message in res.stderr and "Traceback" not in res.stderr
+    if args[0] in map(str, odd_csvs.values()):  # one line, naming the file first
+        assert res.stderr.startswith(f"bayeshyst fit: error: {args[0]}{message}")
+        assert res.stderr.strip().count("\n") == 0
     assert not out.exists()
+
+
+# (u factor, y factor): far apart, up to 1e45 of the supported 1e50
+SCALES = [(1.0, 1e-45), (1.0, 1e45), (1e-45, 1e45), (1e40, 1.0)]
+
+
+@pytest.mark.parametrize(("u_scale", "y_scale"), SCALES)
+def test_fit_is_scale_equivariant_over_the_supported_range(u_scale, y_scale, fitted,
+                                                            data_csv, tmp_path):
+    # the oracle: the same record in other units gives the same posterior in those units,
+    # within the Monte Carlo error of the chains (the unscaled run is ``fitted``)
+    from bayeshyst.data import load
+
+    rec = load(data_csv)[0]
+    path = write_csv(Dataset((rec.with_(u=rec.u * u_scale, y=rec.y * y_scale),), name="pi"),
+                     tmp_path / "scaled.csv")
+    assert main(["fit", str(path), "--model", "pi_play", "--out", str(tmp_path / "out"),
+                 "--steps", "300", "--seed", "3", "--quiet", "--no-figures"]) == 0
+    base = json.loads((fitted[1] / "summary.json").read_text())
+    scaled = json.loads((tmp_path / "out" / "summary.json").read_text())
+    assert not any("written as null" in w for w in scaled["warnings"])
+    ess = min(base["ess_min"], scaled["ess_min"])
+    gain = y_scale / u_scale
+    for label, p in base["params"].items():
+        unit = y_scale if label in ("obs.offset", "noise.sigma") else gain  # p0, w: y/u
+        got = scaled["params"][label]
+        # a mean's MC standard error is sd / sqrt(ESS), a sd's relative one 1/sqrt(2 ESS)
+        assert got["mean"] / unit == pytest.approx(p["mean"], abs=3 * p["sd"] / ess**0.5), label
+        assert got["sd"] / unit == pytest.approx(p["sd"], rel=3 / (2 * ess) ** 0.5), label
+    for key in ("rmse", "max_error"):
+        assert scaled[key] / y_scale == pytest.approx(base[key], rel=3 / ess**0.5)
+    assert scaled["nrmse_percent"] == pytest.approx(base["nrmse_percent"], rel=3 / ess**0.5)
 
 
 def test_fit_model_api_matches_truth_on_well_specified_data():
@@ -113,3 +169,29 @@ def test_fit_model_api_matches_truth_on_well_specified_data():
                          ("w[1]", theta["w"][1])):
         assert summary[label].hdi_lo <= value <= summary[label].hdi_hi, label
     assert np.isfinite(fit.overall.rmse) and "tracking error" in str(fit)
+
+
+def test_a_number_that_is_not_finite_is_written_as_null_and_named_in_warnings(tmp_path):
+    # what an overflow would leave in a summary (sd = inf and RMSE inf in issue 17)
+    import dataclasses
+
+    from bayeshyst.inference.fit import fit_model
+    from bayeshyst.inference.settings import SamplerSettings
+    from bayeshyst.report.files import write_json
+    from bayeshyst.report.fit_outputs import fit_summary
+
+    model, rec, _ = pi_data(n_ops=2, n=400)
+    fit = fit_model(rec, model, sampler=SamplerSettings(seed=0, max_steps=20, first_chunk=20))
+    fit = dataclasses.replace(fit, overall=dataclasses.replace(
+        fit.overall, rmse=float("inf"), max_error=float("nan")))
+    summary = fit_summary(fit)
+    assert summary["rmse"] == float("inf")  # the dict keeps the number for Python callers
+    assert "not a finite number, written as null: rmse, max_error" in summary["warnings"]
+
+    def refuse(token):
+        raise AssertionError(f"{token} in summary.json")
+
+    written = json.loads(write_json(tmp_path / "summary.json", summary).read_text(),
+                         parse_constant=refuse)
+    assert written["rmse"] is None and written["max_error"] is None
+    assert written["warnings"] == summary["warnings"]
