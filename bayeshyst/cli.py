@@ -20,7 +20,7 @@ import numpy as np
 
 from bayeshyst import __version__
 from bayeshyst.errors import DataError, ModelError, ParameterError
-from bayeshyst.files import removed_on_failure
+from bayeshyst.files import RunOutputs, removed_on_failure
 from bayeshyst.inference.settings import MOVES, SamplerSettings
 from bayeshyst.report.files import jsonable
 
@@ -360,11 +360,13 @@ _REPORT_RESULTS = ("compare/posteriors/*.nc",)
 
 
 def _report_run(data: Any, data_path: str, models: tuple[str, ...], settings: Any,
-                args: argparse.Namespace, command: str, outputs: Any) -> Any:
+                args: argparse.Namespace, command: str,
+                outputs: RunOutputs) -> tuple[Any, Any]:
     """The shared part of ``report`` and ``demo``: run every stage and write.
 
-    ``outputs`` is the caller's :func:`removed_on_failure` of ``--out``. Returns the
-    summary written, for :func:`_report_print`.
+    ``outputs`` is the caller's :func:`removed_on_failure` of ``--out`` (a finished
+    diagnosis fit marks the first result). Returns ``(result, summary)`` for
+    :func:`_report_print`.
     """
     from bayeshyst.report.report_outputs import write_report_outputs
     from bayeshyst.workflow import run_report
