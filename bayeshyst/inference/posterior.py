@@ -12,6 +12,7 @@ simulation per record; it is what the sampler calls.
 from __future__ import annotations
 
 import copy
+import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -20,7 +21,7 @@ import numpy as np
 
 from bayeshyst.data.record import Dataset, Record
 from bayeshyst.data.segment import cycle_labels
-from bayeshyst.errors import DataError, ParameterError
+from bayeshyst.errors import DataError, ParameterError, SimulationError
 from bayeshyst.likelihoods import Likelihood, get_likelihood
 from bayeshyst.models import get as get_model
 from bayeshyst.models.base import HysteresisModel
@@ -93,6 +94,38 @@ def cycle_units(record: Record) -> list[tuple[int, int]]:
     return [(bounds[j], bounds[j + 1]) for j in range(len(ids))]
 
 
+def _offset_prior(model: HysteresisModel, space: ParamSpace,
+                  data: Dataset) -> tuple[float, float]:
+    """Centre and width of the observation offset's Normal prior.
+
+    Centred where the model at the centre of its prior needs it, ``mean(y - yhat_0)``,
+    with width ``sqrt((2 span(y))^2 + mean|yhat_0|^2)``: the output's own span, plus the
+    model output's magnitude, which the gain priors (100 % wide) can move as much. For
+    an input far from zero (a stage driven at 1 kV +- 10 V) the needed offset is
+    ``mean(y) - gain mean(u)``, far outside ``mean(y) +- 2 span(y)``; at the usual
+    0-150 V it changes little. Without a finite simulation at the prior centre the
+    prior is ``Normal(mean(y), 2 span(y))``.
+    """
+    y = np.concatenate([r.y for r in data])
+    span = float(np.ptp(y))
+    centre, extra = float(np.mean(y)), 0.0
+    try:
+        z0 = np.median(space.sample_prior(np.random.default_rng(0), 501), axis=0)
+        theta = space.unpack(z0)
+        resid, mag = [], []
+        for rec in data:
+            yhat = model.simulate(rec.u, rec.t, theta)
+            resid.append(rec.y - yhat)
+            mag.append(np.abs(yhat))
+        r, m = np.concatenate(resid), np.concatenate(mag)
+        if np.all(np.isfinite(r)) and np.all(np.isfinite(m)):
+            centre, extra = float(np.mean(r)), float(np.mean(m))
+    except (ParameterError, SimulationError, FloatingPointError, ValueError):
+        pass
+    sd = math.hypot(2.0 * span, extra) if math.isfinite(extra) else 2.0 * span
+    return centre, sd if sd > 0 else 1.0
+
+
 class Posterior:
     """Posterior of a model's parameters (and noise, and offset) given data.
 
@@ -148,10 +181,9 @@ class Posterior:
         self.offset = bool(offset)
         parts = [self.model_space]
         if self.offset:
-            y = np.concatenate([r.y for r in data])
-            span = float(np.ptp(y))
+            centre, sd = _offset_prior(self.model, self.model_space, data)
             parts.append(ParamSpace((Param(
-                "offset", Normal(float(np.mean(y)), 2.0 * span), unit=data[0].units.get("y", ""),
+                "offset", Normal(centre, sd), unit=data[0].units.get("y", ""),
                 description="observation offset added to the model output"),)).prefixed(OBS))
         parts.append(self.likelihood.param_space(data).prefixed(NOISE))
         self.space = ParamSpace.concat(parts)
