@@ -185,6 +185,53 @@ def test_metadata_with_script_comes_out_escaped(tmp_path: Path) -> None:
     assert "a & b" in text
 
 
+def test_report_samples_the_base_models_joint_posterior_once(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The diagnosis' base fit is the comparison's joint fit of the chosen model (same
+    posterior, same sampler settings, same checkpoint folder): it is read back from the
+    comparison's checkpoint, not sampled a second time."""
+    import emcee
+
+    from bayeshyst._comparison_tasks import fit_sampler
+    from bayeshyst.inference.posterior import Posterior
+    from bayeshyst.inference.settings import SamplerSettings
+    from bayeshyst.workflow import ReportSettings, run_report
+
+    fresh: list[tuple[str, int, str]] = []  # (model, records, held out) per new ensemble
+    real = emcee.EnsembleSampler.sample
+
+    def spy(self: emcee.EnsembleSampler, *args: object, **kwargs: object):
+        if self.iteration == 0:
+            post = self.log_prob_fn.f.__self__
+            fresh.append((post.model.name, len(post.data), str(post.held_out)))
+        yield from real(self, *args, **kwargs)
+
+    monkeypatch.setattr(emcee.EnsembleSampler, "sample", spy)
+    data = load(bundled_data()).select([1.0, 50.0])
+    model = "pi_play(n_operators=4)"
+    sampler = SamplerSettings(max_steps=100, first_chunk=50, seed=4)
+    settings = ReportSettings(sampler=sampler, lofo=False, max_refits=0, max_rounds=1,
+                              max_candidates=1, effects=("rate_dependence",),
+                              design_draws=8, n_jobs=1)
+    out = tmp_path / "out"
+    result = run_report(data, (model,), settings=settings, out_dir=out)
+    assert result.chosen_model == model and result.seed == 4
+    base = Posterior(model, data, "gaussian")
+    # the joint posterior of the base model: one run of n_ensembles ensembles, in total
+    joint = [f for f in fresh if f[1] == len(data) and f[0] == base.model.name
+             and f[2] == str(base.held_out)]
+    assert len(joint) == sampler.n_ensembles, fresh
+    assert result.diagnosis.base.sampling.chains.shape[0] == sampler.n_ensembles
+    # one checkpoint per distinct fit, all in the comparison's folder: the comparison's
+    # joint and per-frequency fits, and the diagnosis' augmented fits (not its base fit)
+    folder = out / "compare" / "checkpoints"
+    files = sorted(folder.glob("*.h5"))
+    n_compare = 1 + len(data.frequencies)
+    assert len(files) == n_compare + len(result.diagnosis.steps)
+    assert fit_sampler(base, sampler, sampler.seed, folder).checkpoint in files
+    assert not (out / "diagnose" / "checkpoints").exists()
+
+
 def test_report_bad_input_exits_2_and_writes_nothing(tmp_path: Path,
                                                     capsys: pytest.CaptureFixture) -> None:
     out = tmp_path / "out"
