@@ -29,7 +29,7 @@ import os
 import sys
 import time
 from collections.abc import Callable, Sequence
-from concurrent.futures import ProcessPoolExecutor, as_completed
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -43,7 +43,9 @@ from bayeshyst._comparison_tasks import (
     CompareSettings,
     TaskResult,
     TaskSpec,
+    fit_identity,
     run_task,
+    split_data,
 )
 from bayeshyst.data.record import Dataset, Record
 from bayeshyst.errors import DataError, ModelError, ParameterError
@@ -411,6 +413,30 @@ def _pool_context() -> Any:
     return mp.get_context("fork" if "fork" in methods else "spawn")
 
 
+def _shared_fits(data: Dataset, tasks: list[TaskSpec],
+                 settings: CompareSettings) -> dict[TaskSpec, str]:
+    """The fit identity of every parametric task (tasks whose data or model cannot be
+    set up here are left out: they fail in their worker, with their own message).
+
+    Tasks with one identity sample one posterior into one checkpoint (with two
+    frequencies, leaving one out fits the other's records), so they must not run at the
+    same time: the second one reads the first one's finished run instead.
+    """
+    from bayeshyst.inference.posterior import Posterior
+
+    out = {}
+    for spec in tasks:
+        if spec.model in GP_MODELS:
+            continue
+        try:
+            train, _ = split_data(data, spec)
+            post = Posterior(spec.model, train, settings.likelihood)
+        except (DataError, ModelError, ParameterError, ValueError):
+            continue
+        out[spec] = fit_identity(post, settings.sampler)
+    return out
+
+
 def _run_all(data: Dataset, tasks: list[TaskSpec], settings: CompareSettings, seed: int,
              out_dir: Path | None, n_jobs: int,
              report: Callable[[int, int, TaskResult], None] | None) -> dict[TaskSpec, TaskResult]:
@@ -423,14 +449,35 @@ def _run_all(data: Dataset, tasks: list[TaskSpec], settings: CompareSettings, se
             if report:
                 report(len(done), len(tasks), done[spec])
         return done
+    # a task whose fit another task makes (same identity, same checkpoint) waits for it
+    identity = _shared_fits(data, order, settings) if out_dir is not None else {}
+    waiting: dict[str, list[TaskSpec]] = {}
+    first = []
+    for spec in order:
+        key = identity.get(spec)
+        if key is not None and key in waiting:
+            waiting[key].append(spec)
+        else:
+            first.append(spec)
+            if key is not None:
+                waiting[key] = []
     with ProcessPoolExecutor(max_workers=n_jobs, mp_context=_pool_context(),
                              initializer=_worker_init) as pool:
-        futures = {pool.submit(run_task, data, spec, settings, seed, out_dir): spec
-                   for spec in order}
-        for fut in as_completed(futures):
-            done[futures[fut]] = fut.result()
-            if report:
-                report(len(done), len(tasks), done[futures[fut]])
+        pending = {pool.submit(run_task, data, spec, settings, seed, out_dir): spec
+                   for spec in first}
+        while pending:
+            finished, _ = wait(pending, return_when=FIRST_COMPLETED)
+            for fut in finished:
+                spec = pending.pop(fut)
+                done[spec] = fut.result()
+                # one at a time: even reading a finished run reopens its file to write
+                queue = waiting.get(identity.get(spec, ""))
+                if queue:
+                    other = queue.pop(0)
+                    pending[pool.submit(run_task, data, other, settings, seed,
+                                        out_dir)] = other
+                if report:
+                    report(len(done), len(tasks), done[spec])
     return done
 
 

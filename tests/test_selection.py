@@ -111,6 +111,40 @@ def test_same_seed_same_numbers_whatever_the_workers():
             math.isnan(fa.scores[0].elpd_lofo) and math.isnan(fb.scores[0].elpd_lofo))
 
 
+def _timed_task(data, spec, settings, seed, out_dir):
+    """Stands in for run_task in the pool's workers: notes when it ran."""
+    import time
+
+    from bayeshyst._comparison_tasks import TaskResult
+
+    t0 = time.time()
+    time.sleep(0.3)
+    (out_dir / f"{spec.key}.t").write_text(f"{t0} {time.time()}")
+    return TaskResult(spec, np.zeros(0), np.zeros(0), ())
+
+
+def test_tasks_fitting_one_posterior_do_not_run_at_once(monkeypatch, tmp_path):
+    # with two frequencies, leaving one out fits the other's records: the same posterior,
+    # the same checkpoint file, which two workers must not write at the same time
+    import bayeshyst.selection as sel
+    from bayeshyst._comparison_tasks import CompareSettings
+
+    monkeypatch.setattr(sel, "run_task", _timed_task)
+    data = _hammerstein_data(freqs=(2.0, 20.0), cycles=3, per_cycle=60)
+    tasks = sel._tasks((STATIC, OTHER), [2.0, 20.0], True)
+    settings = CompareSettings(sampler=SamplerSettings(max_steps=100))
+    # a worker per task: without the scheduling every task would start at once
+    done = sel._run_all(data, tasks, settings, 0, tmp_path, len(tasks), None)
+    assert set(done) == set(tasks)
+    identity = sel._shared_fits(data, tasks, settings)
+    assert len(set(identity.values())) == 2 * 3  # per model: joint and one per frequency
+    when = {t: tuple(map(float, (tmp_path / f"{t.key}.t").read_text().split())) for t in tasks}
+    for a in tasks:
+        for b in tasks:
+            if a != b and identity[a] == identity[b]:
+                assert when[a][1] <= when[b][0] or when[b][1] <= when[a][0], (a.key, b.key)
+
+
 # ----------------------------------------------------------------- measured MR damper
 def _decimated(rec, per_cycle=80, cycles=3.5):
     f = rec.frequency_hz
