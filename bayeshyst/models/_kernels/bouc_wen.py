@@ -492,9 +492,9 @@ def _osc_series(h, w2, dz, X, V, XS, VS):
     """Scaled coefficients ``XS[k] = X_k h^k`` (and ``VS``) of the exact solution.
 
     Past ``OSC_ORDER + 1`` the forcing polynomial has ended and the coefficients follow
-    the free recurrence; they are summed until below 1e-17 of the state (for ``ω h <
-    OSC_SERIES`` each is < ``ω h / k`` times the one before). Returns the last index and
-    the sums ``x(h), ẋ(h)``.
+    the free recurrence of the (stiffened) stage ``w2``; they are summed until below 1e-17
+    of the state (for ``ω h < OSC_SERIES`` each is < ``ω h / k`` times the one before).
+    Returns the last index and the sums ``x(h), ẋ(h)``.
     """
     hk = 1.0
     x1 = 0.0
@@ -906,8 +906,10 @@ def _bw_oscillator_batch_par(u, t, fn, zeta, gain, alpha, beta, gamma, n, per_pe
     """Mass–spring–damper with a Bouc–Wen restoring term for W walkers.
 
     ``ẍ + 2ζω ẋ + ω² x = ω² (G u - z)``, ``ż = α ẋ - β|ẋ||z|^(n-1) z - γ ẋ|z|^n``;
-    ``u`` linear between samples. The linear part is propagated exactly, forced by the
-    Taylor polynomial of ``z`` in time; see :class:`~bayeshyst.models.BoucWenOscillator`.
+    ``u`` linear between samples. Each step propagates the linear part exactly, stiffened
+    by the local ``dz/dx`` and forced by the Taylor polynomial of the rest of ``z``; steps
+    as long as the local error of ``z`` allows, ending on the kinks of ``ż``. See
+    :class:`~bayeshyst.models.BoucWenOscillator`.
 
     Parameters
     ----------
