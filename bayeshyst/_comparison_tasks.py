@@ -228,10 +228,19 @@ def fit_identity(post: Posterior, sampler: SamplerSettings) -> str:
 def fit_sampler(post: Posterior, sampler: SamplerSettings, seed: int,
                 store: Path | None) -> SamplerSettings:
     """The settings of one fit: its seed derived from ``seed`` and the fit's identity,
-    its checkpoint ``store/<identity>.h5`` (none without a store)."""
+    its checkpoint ``store/<identity>-<seed>.h5`` (none without a store).
+
+    With emcee's own moves a user-given walker count is raised to ``2 ndim + 2`` (they
+    need at least twice the dimension; an augmented model has more parameters), here
+    and so identically for every command that fits the same posterior.
+    """
+    if sampler.n_walkers is not None and sampler.moves != "structured":
+        sampler = sampler.replace(n_walkers=max(sampler.n_walkers, 2 * post.ndim + 2))
     key = fit_identity(post, sampler)
-    return sampler.replace(seed=derived_seed(seed, key),
-                           checkpoint=None if store is None else Path(store) / f"{key}.h5")
+    fit_seed = derived_seed(seed, key)
+    return sampler.replace(
+        seed=fit_seed,
+        checkpoint=None if store is None else Path(store) / f"{key}-{fit_seed}.h5")
 
 
 def _logmeanexp(ll: np.ndarray) -> np.ndarray:

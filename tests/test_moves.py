@@ -149,6 +149,24 @@ def test_structure_statistics_do_not_depend_on_the_batch():
             np.testing.assert_array_equal(a[j], b[0])
 
 
+def test_statistics_cache_keeps_every_walker_of_a_call_when_it_trims(monkeypatch):
+    # more distinct walkers than the cache holds, mixed with cached ones: every lookup
+    # must find its walker, and cached values equal a fresh computation
+    import bayeshyst.inference.linear as L
+
+    monkeypatch.setattr(L, "_CACHE_SIZE", 4)
+    _, rec, _ = pi_data(n_ops=2, n=600)
+    post = Posterior("pi_play(n_operators=2)+second_order", rec)
+    s = LinearStructure(post)
+    z = post.space.sample_prior(np.random.default_rng(5), 9)
+    s.stats(z[:3])
+    for batch in (z[[0, 5, 1, 6, 7, 2]], z[[8, 0, 3, 4]], z):
+        got = s.stats(batch)
+        ref = LinearStructure(post)._compute(batch)
+        np.testing.assert_array_equal(got.lag0, ref.lag0)
+        assert len(s._cache) <= 4
+
+
 def test_conditional_and_marginal_are_the_conjugate_posterior():
     model, rec, _ = pi_data(n_ops=3, sigma=0.05)
     post = Posterior(model, rec).fix("noise.sigma", 0.05)

@@ -161,3 +161,25 @@ def test_checkpoint_of_another_run_is_refused(tmp_path):
     _small_run(checkpoint=ck, seed=5)
     with pytest.raises(ParameterError, match="different run"):
         _small_run(checkpoint=ck, seed=6)
+
+
+def test_fit_sampler_names_a_fit_by_what_it_is_and_its_seed(tmp_path):
+    from bayeshyst._comparison_tasks import fit_identity, fit_sampler
+
+    model, rec, _ = pi_data(n_ops=2, n=600, warmup=100)
+    base = SamplerSettings(max_steps=200)
+    a = fit_sampler(Posterior(model, rec), base, 1, tmp_path)
+    again = fit_sampler(Posterior("pi_play(n_operators=2)", rec), base, 1, tmp_path)
+    other_seed = fit_sampler(Posterior(model, rec), base, 2, tmp_path)
+    assert a.checkpoint == again.checkpoint and a.seed == again.seed  # same posterior
+    assert other_seed.checkpoint != a.checkpoint and other_seed.seed != a.seed
+    assert fit_identity(Posterior(model, rec, "ar1"), base) != fit_identity(
+        Posterior(model, rec), base)
+    # a second seed into the same folder is another run, not a clash with the first
+    for s in (a, other_seed):
+        post = Posterior(model, rec)
+        sample_posterior(post, s, start=find_map(post, seed=0, n_starts=1))
+    assert len(list(tmp_path.glob("*.h5"))) == 2
+    # the de engine's walker floor applies to every command fitting that posterior
+    de = fit_sampler(Posterior(model, rec), base.replace(moves="de", n_walkers=4), 1, tmp_path)
+    assert de.n_walkers == 2 * Posterior(model, rec).ndim + 2

@@ -321,13 +321,9 @@ def _fit(data: Dataset, model: HysteresisModel, likelihood: str, label: str,
          st: DiagnosisSettings, checkpoint_dir: Path | None,
          warm: tuple[DiagnosisFit, dict[str, Any]] | None = None) -> DiagnosisFit:
     post = Posterior(model, data, likelihood)
-    sampler = st.sampler
-    if sampler.n_walkers is not None and sampler.moves != "structured":
-        # augmented models have more parameters: keep the ensemble at least 2 ndim + 2
-        sampler = sampler.replace(n_walkers=max(sampler.n_walkers, 2 * post.ndim + 2))
-    # the seed and checkpoint follow from what is fitted: the base fit of a report is the
-    # comparison's joint fit (same posterior, same settings, same checkpoint folder)
-    sampler = fit_sampler(post, sampler, st.seed, checkpoint_dir)
+    # the seed, checkpoint and walkers follow from what is fitted: the base fit of a report
+    # is the comparison's joint fit (same posterior, same settings, same checkpoint folder)
+    sampler = fit_sampler(post, st.sampler, st.seed, checkpoint_dir)
     seed = sampler.seed
     start = initial = None
     if warm is not None:

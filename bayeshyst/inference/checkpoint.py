@@ -69,9 +69,17 @@ class CheckpointBackend(HDFBackend):
         return None if raw is None else pickle.loads(np.asarray(raw).tobytes())
 
     def _repair(self) -> None:
-        with self.open("a") as f:
+        # read first: a finished run opened by a second reader (another command reusing
+        # the fit) must not be written to
+        with self.open("r") as f:
             g = f[self.name]
             ck = self._read_checkpoint(g)
+            consistent = (ck is not None and int(g.attrs["iteration"]) == ck["iteration"]
+                          and np.array_equal(g["accepted"][...], ck["accepted"]))
+        if consistent:
+            return
+        with self.open("a") as f:
+            g = f[self.name]
             if ck is None:
                 g.attrs["iteration"] = 0
                 g["accepted"][:] = 0

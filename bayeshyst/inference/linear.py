@@ -424,19 +424,23 @@ class LinearStructure:
         uniq: dict[bytes, int] = {}
         for j in todo:
             uniq.setdefault(keys[j], j)
+        fresh: dict[bytes, tuple] = {}
         if uniq:
             rows = np.array(list(uniq.values()))
             new = self._compute(z[rows])
             for i, k in enumerate(uniq):
-                self._cache[k] = (new.first[i], new.lag0[i],
-                                  None if new.cross is None else new.cross[i],
-                                  None if new.prev is None else new.prev[i],
-                                  bool(new.failed[i]), new.n, new.n_first)
-                while len(self._cache) > _CACHE_SIZE:
-                    self._cache.popitem(last=False)
-        entries = [self._cache[k] for k in keys]
+                fresh[k] = (new.first[i], new.lag0[i],
+                            None if new.cross is None else new.cross[i],
+                            None if new.prev is None else new.prev[i],
+                            bool(new.failed[i]), new.n, new.n_first)
+        entries = [fresh[k] if k in fresh else self._cache[k] for k in keys]
+        # store and refresh, then trim: the walkers of this call are the newest entries
         for k in keys:
+            if k in fresh:
+                self._cache[k] = fresh[k]
             self._cache.move_to_end(k)
+        while len(self._cache) > _CACHE_SIZE:
+            self._cache.popitem(last=False)
         return LinearStats(
             np.stack([e[0] for e in entries]), np.stack([e[1] for e in entries]),
             None if not self.lagged else np.stack([e[2] for e in entries]),
