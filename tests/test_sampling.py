@@ -61,8 +61,12 @@ def test_integrated_time_agrees_with_emcee_and_hdi_with_arviz():
 
 
 def test_chunk_boundaries_are_fixed_and_cover_the_budget():
-    assert chunk_boundaries(100, 1000) == [100, 200, 300, 450, 675, 1000]
+    assert chunk_boundaries(100, 1000) == [100, 150, 200, 250, 312, 390, 487, 608, 760, 950,
+                                           1000]
     assert chunk_boundaries(500, 300) == [300]
+    b = chunk_boundaries(100, 20_000)  # a quarter apart, at least first // 2
+    assert b[-1] == 20_000 and all(
+        max(50, a // 4) == c - a for a, c in zip(b[:-2], b[1:-1], strict=True))
 
 
 def test_prior_only_sampling_reproduces_the_prior():

@@ -108,7 +108,7 @@ def _stacked(phi: np.ndarray, r: np.ndarray) -> np.ndarray:
     x = np.empty((w, n, p + 1))
     x[:, :, :p] = phi
     x[:, :, p] = r
-    return np.where(np.isfinite(x), x, 0.0)
+    return x if np.all(np.isfinite(x)) else np.where(np.isfinite(x), x, 0.0)
 
 
 def _grams(x: np.ndarray, keep: np.ndarray, lagged: bool
@@ -133,6 +133,45 @@ def _grams(x: np.ndarray, keep: np.ndarray, lagged: bool
     if not lagged:
         return first, lag0, None, None
     return first, lag0, xkt @ xp, xp.transpose(0, 2, 1) @ xp
+
+
+def _grams_shared(phi: np.ndarray, r: np.ndarray, keep: np.ndarray, lagged: bool
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None]:
+    """:func:`_grams` for a design shared by every walker (``phi`` (N, P), e.g. Bouc–Wen's
+    ``[u, 1]``): the design's own products once, its products with each walker's
+    residual one ``r_w @ phi`` each (one call per walker: values independent of the
+    batch), and no ``W``-fold copy of the design."""
+    w, _ = r.shape
+    p = phi.shape[1]
+    q = p + 1
+    r = np.where(np.isfinite(r), r, 0.0)
+
+    def block(a_phi: np.ndarray, a_r: np.ndarray, b_phi: np.ndarray,
+              b_r: np.ndarray) -> np.ndarray:
+        out = np.empty((w, q, q))
+        out[:, :p, :p] = a_phi.T @ b_phi
+        out[:, :p, p] = np.stack([b_r[j] @ a_phi for j in range(w)]) if p else 0.0
+        out[:, p, :p] = np.stack([a_r[j] @ b_phi for j in range(w)]) if p else 0.0
+        out[:, p, p] = np.einsum("wn,wn->w", a_r, b_r, optimize=False)
+        return out
+
+    if not lagged:
+        # the Gaussian likelihood needs only the sum over every kept sample: one block
+        idx = np.flatnonzero(keep)
+        if idx.size and idx[-1] - idx[0] + 1 == idx.size:
+            sl = slice(idx[0], idx[-1] + 1)
+            return np.zeros((w, q, q)), block(phi[sl], r[:, sl], phi[sl], r[:, sl]), None, None
+        return (np.zeros((w, q, q)), block(phi[idx], r[:, idx], phi[idx], r[:, idx]),
+                None, None)
+    first = (block(phi[:1], r[:, :1], phi[:1], r[:, :1]) if keep[0]
+             else np.zeros((w, q, q)))
+    idx = np.flatnonzero(keep[1:]) + 1
+    if idx.size and idx[-1] - idx[0] + 1 == idx.size:  # a contiguous run: views
+        sk, sp = slice(idx[0], idx[-1] + 1), slice(idx[0] - 1, idx[-1])
+        pk, rk, pp, rp = phi[sk], r[:, sk], phi[sp], r[:, sp]
+    else:
+        pk, rk, pp, rp = phi[idx], r[:, idx], phi[idx - 1], r[:, idx - 1]
+    return first, block(pk, rk, pk, rk), block(pk, rk, pp, rp), block(pp, rp, pp, rp)
 
 
 class LinearStructure:
@@ -213,6 +252,7 @@ class LinearStructure:
         if reference is not None:
             self.set_reference(reference)
         self._base_designs = self._cached_base_designs()
+        self._shared_design = self._design_is_shared()
 
     # ------------------------------------------------------------------ construction
     @classmethod
@@ -231,6 +271,17 @@ class LinearStructure:
             self.beta_ref = beta
         self._cache.clear()
         self._constant = None
+
+    def _design_is_shared(self) -> bool:
+        """Whether the design's columns are the same for every walker (Bouc–Wen's ``[u,
+        1]``, an offset alone): then the Grams take the shared path whatever the batch
+        size (the path is a property of the model, so a walker's values never depend on
+        the batch it is computed in)."""
+        if self.design_idx.size == 0:
+            return True
+        z = self.post.space.sample_prior(np.random.default_rng(0), 2)
+        rows, _ = self.designs(z)
+        return all(phi.shape[0] == 1 for phi, _ in rows)
 
     def _cached_base_designs(self) -> list[LinearDesign] | None:
         """Base designs of a composite whose base has no free nonlinear parameter."""
@@ -332,6 +383,9 @@ class LinearStructure:
         # einsum without BLAS: every walker's residual is summed in the same order
         # whatever the batch, so cached and recomputed Grams agree to the bit
         with np.errstate(invalid="ignore", over="ignore"):
+            if self._shared_design:  # one product for every walker
+                return (rec["y"] - np.einsum("np,p->n", phi[0], self.beta_ref,
+                                             optimize=False))[None, :] - const
             fit = np.einsum("wnp,p->wn", phi, self.beta_ref, optimize=False)
             return rec["y"][None, :] - const - fit
 
@@ -352,8 +406,11 @@ class LinearStructure:
             r = self._reference_residual(rec, phi, const)
             failed |= ~np.all(np.isfinite(r), axis=1)
             keep = rec["keep"] if rec["keep"] is not None else np.ones(r.shape[1], dtype=bool)
-            f, l0, c, pv = _grams(_stacked(np.broadcast_to(phi, (w, *phi.shape[1:])), r), keep,
-                                  self.lagged)
+            if self._shared_design and np.all(np.isfinite(phi)):
+                f, l0, c, pv = _grams_shared(phi[0], r, keep, self.lagged)
+            else:
+                f, l0, c, pv = _grams(_stacked(np.broadcast_to(phi, (w, *phi.shape[1:])), r),
+                                      keep, self.lagged)
             first += f
             lag0 += l0
             if self.lagged:

@@ -200,7 +200,7 @@ def find_map(
     *,
     seed: int | np.random.Generator = 0,
     n_screen: int = 256,
-    n_starts: int = 3,
+    n_starts: int = 2,
     global_search: bool | str = "auto",
     de_maxiter: int = 100,
     x0: np.ndarray | None = None,
@@ -223,7 +223,8 @@ def find_map(
     n_screen : int
         Prior draws evaluated (one batch) to pick starting points.
     n_starts : int
-        Distinct starting points of the least squares.
+        Distinct starting points of the least squares (two that end at the same optimum
+        settle it; two that do not call the global search).
     global_search : bool or "auto"
         Run the differential evolution always (True), never (False), or when the
         starts disagree ("auto").

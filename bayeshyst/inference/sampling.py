@@ -167,13 +167,16 @@ class SamplingResult:
 
 
 def chunk_boundaries(first: int, max_steps: int) -> list[int]:
-    """Step counts at which convergence is assessed: ``first``, then growing by half.
+    """Step counts at which convergence is assessed: ``first``, then growing by a quarter
+    (at least ``first // 2`` steps apart).
 
     A fixed function of the settings, so resumed runs stop where uninterrupted ones do.
+    Checks a quarter apart waste at most a fifth of a run that converges between two
+    of them, and cost a few tens of milliseconds each.
     """
     out = [min(first, max_steps)]
     while out[-1] < max_steps:
-        out.append(min(max_steps, out[-1] + max(first, out[-1] // 2)))
+        out.append(min(max_steps, out[-1] + max(first // 2, out[-1] // 4, 1)))
     return out
 
 

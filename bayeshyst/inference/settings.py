@@ -34,9 +34,14 @@ class SamplerSettings:
     Attributes
     ----------
     n_walkers : int or None
-        Walkers per ensemble (rounded up to even). Default: ``max(12, 2 d + 2)`` for
+        Walkers per ensemble (rounded up to even). Default: ``max(16, 4 d + 4)`` for
         the structured moves, ``d`` the coordinates they propose (the linear block is
-        drawn, not proposed); ``max(32, 4 ndim)`` for ``de`` and ``stretch``.
+        drawn, not proposed): the independence proposal is re-fitted from the walkers'
+        draws (a few hundred for a d x d covariance) and R-hat needs chains of ~100 tau
+        whatever their number, so a wider ensemble buys effective samples at almost no
+        extra steps (Bouc–Wen, d = 5: 24 walkers converged in 200-250 steps with 2 800-
+        4 600 ESS, 12 in 250-312 steps with 2 000-2 700); ``max(32, 4 ndim)`` for ``de``
+        and ``stretch``.
     n_ensembles : int
         Independent ensembles (>= 2, so R-hat can compare them).
     moves : {"structured", "de", "stretch"}
@@ -49,9 +54,11 @@ class SamplerSettings:
     warmup : int or None
         Steps during which the structured moves' independence proposal is re-fitted to
         the ensemble (then frozen; these steps are always discarded). Default
-        ``min(100, max_steps // 2)``: started at the MAP with its Laplace covariance,
-        the proposal needs a few hundred ensemble draws to learn the posterior's
-        shape; ignored by ``de`` and ``stretch``.
+        ``min(50, max_steps // 2)``: started at the MAP with its Gauss–Newton covariance,
+        the proposal needs a few hundred ensemble draws to learn the posterior's shape
+        (Bouc–Wen, 6 000 samples, 24 walkers: 50 warm-up steps converged in 200 steps
+        with 4 000-4 300 ESS, 100 in 200-250 steps with 2 800-4 700); ignored by ``de``
+        and ``stretch``.
     rhat_threshold, min_ess, tau_factor : float
         Convergence criteria: rank-normalised R-hat below ``rhat_threshold`` across
         walkers and ensembles, bulk and tail ESS at least ``min_ess``, at least
@@ -116,7 +123,7 @@ class SamplerSettings:
         """Adaptation steps of the structured moves (0 for the other move sets)."""
         if self.moves != "structured":
             return 0
-        w = min(100, self.max_steps // 2) if self.warmup is None else self.warmup
+        w = min(50, self.max_steps // 2) if self.warmup is None else self.warmup
         return int(min(w, self.max_steps - 1))
 
     def walkers(self, n_proposed: int, ndim: int) -> int:
@@ -125,7 +132,7 @@ class SamplerSettings:
         if self.n_walkers is not None:
             w = self.n_walkers
         elif self.moves == "structured":
-            w = max(12, 2 * n_proposed + 2)
+            w = max(16, 4 * n_proposed + 4)
         else:
             w = max(32, 4 * ndim)
         return int(w) + int(w) % 2
