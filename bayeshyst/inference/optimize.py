@@ -176,23 +176,45 @@ def _polish(post: Posterior, z: np.ndarray, target: Any) -> tuple[float, np.ndar
 
 
 def _global_search(post: Posterior, rng: np.random.Generator, cand: np.ndarray,
-                   f: np.ndarray, maxiter: int) -> tuple[np.ndarray, float]:
+                   f: np.ndarray, maxiter: int, structure: Any = None) -> np.ndarray:
     """Differential evolution over the central 99 % of the prior in ``z``, its population
-    seeded with the best screened draws and filled with a Latin hypercube."""
+    seeded with the best screened draws and filled with a Latin hypercube.
+
+    With a linear block the search runs over the other coordinates only, the block at
+    its conditional mean for each (a profile: three dimensions instead of ten for a
+    five-operator PI model behind second-order dynamics).
+    """
     space = post.space
-    lo, hi = np.quantile(space.sample_prior(rng, 2000), [0.005, 0.995], axis=0)
+    idx = np.arange(space.ndim) if structure is None else structure.other_idx
+    if idx.size == 0:
+        return cand[int(np.argmin(f))]
+    base = cand[int(np.argmin(f))].copy()
+
+    def complete(zz: np.ndarray) -> np.ndarray:
+        z = np.repeat(base[None, :], zz.shape[0], axis=0)
+        z[:, idx] = zz
+        if structure is not None:
+            cond = structure.conditional(structure.stats(z), z)
+            zb, _ = structure.z_of(cond.mean)
+            good = cond.ok & np.all(np.isfinite(zb), axis=1)
+            z[np.ix_(good, structure.lin_idx)] = zb[good]
+        return z
+
+    lo, hi = np.quantile(space.sample_prior(rng, 2000)[:, idx], [0.005, 0.995], axis=0)
     hi = np.where(hi > lo, hi, lo + 1.0)
-    size = max(20, 10 * space.ndim)
-    inside = np.all((cand >= lo) & (cand <= hi), axis=1)
-    seeded = cand[np.argsort(np.where(inside, f, np.inf))][: size // 2]
+    d = idx.size
+    size = max(20, 10 * d)
+    sub = cand[:, idx]
+    inside = np.all((sub >= lo) & (sub <= hi), axis=1)
+    seeded = sub[np.argsort(np.where(inside, f, np.inf))][: size // 2]
     seeded = seeded[np.all((seeded >= lo) & (seeded <= hi), axis=1)]
-    lhs = lo + (hi - lo) * _latin_hypercube(size - seeded.shape[0], space.ndim, rng)
+    lhs = lo + (hi - lo) * _latin_hypercube(size - seeded.shape[0], d, rng)
     res = optimize.differential_evolution(
-        lambda zz: _neg(post, np.asarray(zz).T), list(zip(lo, hi, strict=True)),
+        lambda zz: _neg(post, complete(np.asarray(zz).T)), list(zip(lo, hi, strict=True)),
         maxiter=maxiter, tol=0.0, atol=0.0, init=np.vstack([seeded, lhs]),
         seed=int(rng.integers(2**31 - 1)), polish=False, vectorized=True,
         updating="deferred")
-    return np.asarray(res.x, dtype=float), float(res.fun)
+    return complete(np.asarray(res.x, dtype=float)[None, :])[0]
 
 
 def find_map(
@@ -264,13 +286,21 @@ def find_map(
     starts: list[np.ndarray] = []
     if x0 is not None and f[0] < _BIG:
         starts.append(cand[0])
-    for i in order:
-        if f[i] >= _BIG or len(starts) >= n_starts:
-            break
-        # distinct starts: not within a tenth of a prior scale of an earlier one
-        scale = space.prior_scale_z(cand[i])
-        if all(np.max(np.abs(cand[i] - st) / scale) > 0.1 for st in starts):
-            starts.append(cand[i])
+
+    def more_starts(k: int) -> list[np.ndarray]:
+        """The next ``k`` best screened draws not within a tenth of a prior scale of a
+        start already taken."""
+        new: list[np.ndarray] = []
+        for i in order:
+            if f[i] >= _BIG or len(new) >= k:
+                break
+            scale = space.prior_scale_z(cand[i])
+            if all(np.max(np.abs(cand[i] - st) / scale) > 0.1 for st in starts + new):
+                new.append(cand[i])
+        starts.extend(new)
+        return new
+
+    more_starts(n_starts - len(starts))
     if not starts:
         raise ParameterError(
             f"no parameter vector with finite posterior density among {cand.shape[0]} "
@@ -278,26 +308,39 @@ def find_map(
             "simulation failed"
         )
     lsq = post.likelihood.name in ("gaussian", "ar1", "student_t") and post.beta == 1.0
-    optima = []
-    for st in starts:
+
+    def local(st: np.ndarray) -> tuple[float, np.ndarray]:
         z = st
         if lsq:
             z, _ = least_squares_point(post, structure, st)
             if not np.isfinite(post.log_prob(z)):
                 z = st
-        optima.append(_polish(post, z, target))
-    optima.sort(key=lambda p: p[0])
+        return _polish(post, z, target)
+
+    def agree(opt: list[tuple[float, np.ndarray]]) -> bool:
+        # the best optimum reached from two starts (within half a nat) settles it
+        return len(opt) < 2 or not opt[1][0] < _BIG or opt[1][0] - opt[0][0] <= 0.5
+
+    optima = sorted((local(st) for st in starts), key=lambda p: p[0])
     notes = []
-    disagree = len(optima) > 1 and optima[1][0] < _BIG and optima[1][0] - optima[0][0] > 0.5
-    if global_search is True or (global_search == "auto" and disagree):
-        zg, _ = _global_search(post, rng, cand, f, de_maxiter)
+    tried = len(starts)
+    if global_search == "auto" and not agree(optima):
+        # before searching globally, a few more starts: a rugged posterior with one
+        # dominant basin is settled when a second start reaches the best optimum
+        optima = sorted(optima + [local(st) for st in more_starts(4)], key=lambda p: p[0])
+        tried = len(starts)
+        if agree(optima):
+            notes.append(f"the first least-squares starts ended at different optima; of "
+                         f"{tried} starts, two reached the best")
+    if global_search is True or (global_search == "auto" and not agree(optima)):
+        zg = _global_search(post, rng, cand, f, de_maxiter, structure)
         optima.append(_polish(post, zg, target))
         optima.sort(key=lambda p: p[0])
-        if disagree:
+        if global_search == "auto":
             notes.append(
-                f"the least-squares starts ended at optima {optima[-1][0] - optima[0][0]:.3g} "
-                f"nats apart (a multimodal or rugged posterior); a differential evolution "
-                f"searched the prior globally")
+                f"{tried} least-squares starts ended at optima up to "
+                f"{optima[-1][0] - optima[0][0]:.3g} nats apart (a multimodal or rugged "
+                f"posterior); a differential evolution searched the prior globally")
     best_f, best_z = optima[0]
     if best_f >= _BIG:
         raise ParameterError(f"MAP search for {post!r} found no finite posterior density")

@@ -22,6 +22,7 @@ uninterrupted run.
 from __future__ import annotations
 
 import hashlib
+import math
 import sys
 import time
 from dataclasses import dataclass, field
@@ -46,7 +47,8 @@ from bayeshyst.inference.settings import SamplerSettings
 from bayeshyst.params import ParamSpace
 
 __all__ = [
-    "ParamSummary", "SamplingResult", "adaptation_points", "chunk_boundaries", "sample_posterior",
+    "MIN_MOVE_RATE", "ParamSummary", "SamplingResult", "adaptation_points", "chunk_boundaries",
+    "extension_points", "sample_posterior",
 ]
 
 
@@ -184,6 +186,32 @@ def adaptation_points(warmup: int) -> list[int]:
     """Step counts at which the independence proposal is re-fitted: a quarter, half,
     three quarters and all of the warm-up (none without one)."""
     return sorted({warmup * k // 4 for k in (1, 2, 3, 4)} - {0})
+
+
+def extension_points(warmup: int, max_steps: int) -> list[int]:
+    """Where a warm-up whose proposal still moves too few walkers may be extended:
+    twice, four, eight ... times the warm-up, up to half the budget."""
+    out = []
+    b = 2 * warmup
+    while warmup > 0 and b <= max_steps // 2:
+        out.append(b)
+        b *= 2
+    return out
+
+
+#: Below this fraction of walker-steps that move the proposed coordinates, the warm-up
+#: goes on (the independence proposal is re-fitted again at the next extension point).
+#: Well-fitted proposals move 0.75-0.9 of them (Bouc-Wen, 6 000 samples: 0.78); a
+#: curved posterior the first fit missed moves 0.5-0.6.
+MIN_MOVE_RATE = 0.65
+
+
+def _move_rate(chain: np.ndarray, idx: np.ndarray) -> float:
+    """Fraction of consecutive walker-steps in ``chain`` (S, W, ndim) that changed the
+    coordinates ``idx``."""
+    if chain.shape[0] < 2 or idx.size == 0:
+        return 1.0
+    return float(np.mean(np.any(np.diff(chain[:, :, idx], axis=0) != 0, axis=2)))
 
 
 def _emcee_moves(moves: str) -> Any:
@@ -344,9 +372,9 @@ def sample_posterior(
 
     warmup = settings.warmup_steps if any(i is not None for i in indeps) else 0
     adapt_at = set(adaptation_points(warmup))
-    boundaries = sorted(set(chunk_boundaries(settings.first_chunk, settings.max_steps))
-                        | adapt_at)
+    extend_at = extension_points(warmup, settings.max_steps)
     checks = set(chunk_boundaries(settings.first_chunk, settings.max_steps))
+    boundaries = sorted(checks | adapt_at | set(extend_at))
     bar = None
     if settings.progress:
         from tqdm.auto import tqdm
@@ -356,6 +384,7 @@ def sample_posterior(
                    unit="step", initial=sum(s.iteration for s, _ in samplers),
                    mininterval=0.2 if sys.stderr.isatty() else 10.0)
     report = None
+    warm_end, frozen, last_adapt, last_rate = warmup, False, warmup, -math.inf
     try:
         for boundary in boundaries:
             for pair in samplers:
@@ -372,18 +401,38 @@ def sample_posterior(
                         bar.update(1)
                 if isinstance(sampler.backend, CheckpointBackend):
                     sampler.backend.flush()
-            if boundary in adapt_at:
-                # a fixed function of the stored chain: a resumed run re-fits the same
-                for (sampler, _), indep in zip(samplers, indeps, strict=True):
-                    if indep is not None:
-                        window = sampler.get_chain()[boundary // 2:boundary]
-                        indep.adapt(window.reshape(-1, ndim))
+            # every adaptation decision is a fixed function of the stored chain: a
+            # resumed run re-fits the same proposals at the same steps
+            refit = boundary in adapt_at
+            if boundary in extend_at and not frozen:
+                rate = min(_move_rate(s.get_chain()[last_adapt:boundary], other)
+                           for s, _ in samplers)
+                # go on while the proposal moves too few walkers and the last re-fit
+                # still helped (a curved posterior no mixture fits well stops here)
+                if rate >= MIN_MOVE_RATE or rate < last_rate + 0.05:
+                    frozen = True
+                else:
+                    refit, warm_end = True, boundary
+                last_rate = rate
+            if refit:
+                last_adapt = boundary
+                # one proposal from the draws of every ensemble (twice the draws for its
+                # shape; each ensemble stays a valid chain of its own once it is frozen,
+                # and they started apart, so R-hat between them keeps its meaning)
+                live = [i for i in indeps if i is not None]
+                if live:
+                    pooled = np.concatenate([s.get_chain()[boundary // 2:boundary]
+                                             .reshape(-1, ndim) for s, _ in samplers])
+                    live[0].adapt(pooled)
+                    for other_move in live[1:]:
+                        other_move.set_proposal(live[0].means, live[0].covariances,
+                                                live[0].weights)
             if boundary not in checks:
                 continue
             chains = [s.get_chain()[:boundary] for s, _ in samplers]
             report = assess(chains, rhat_threshold=settings.rhat_threshold,
                             min_ess=settings.min_ess, tau_factor=settings.tau_factor,
-                            min_burn=warmup)
+                            min_burn=warm_end)
             if bar is not None:
                 bar.set_postfix_str(f"R-hat {report.rhat_max:.3f}, ESS "
                                     f"{report.ess_bulk_min:.0f}, tau {report.tau_max:.0f}")
