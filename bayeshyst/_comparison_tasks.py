@@ -147,6 +147,8 @@ class TaskResult:
     warnings : tuple of str
     runtime_s : float
     failed_simulations : int
+    move_acceptance : dict of str to float
+        Acceptance rate of each sampler move (empty for the GP).
     netcdf : str or None
         Path of the saved InferenceData (parametric ``joint``/``frequency`` fits when an
         output folder was given).
@@ -170,6 +172,7 @@ class TaskResult:
     warnings: tuple[str, ...] = ()
     runtime_s: float = 0.0
     failed_simulations: int = 0
+    move_acceptance: dict[str, float] = field(default_factory=dict)
     netcdf: str | None = None
     error: str | None = None
     extra: dict[str, Any] = field(default_factory=dict)
@@ -369,7 +372,8 @@ def _run_parametric(data: Dataset, spec: TaskSpec, settings: CompareSettings, se
         return TaskResult(spec, pw, freqs, labels, n_params=post.ndim,
                           converged=res.converged, overall=overall, per_frequency=tuple(per),
                           warnings=tuple(notes), runtime_s=time.perf_counter() - t0,
-                          failed_simulations=failed)
+                          failed_simulations=failed,
+                          move_acceptance=dict(res.move_acceptance))
     scores = loo_scores(post, res, settings, seed, notes)
     idata, wa, pw, k, n_refits = (scores.idata, scores.waic, scores.pointwise,
                                   scores.pareto_k, scores.n_refits)
@@ -385,7 +389,7 @@ def _run_parametric(data: Dataset, spec: TaskSpec, settings: CompareSettings, se
                       converged=res.converged, n_refits=n_refits, overall=overall,
                       per_frequency=tuple(per), warnings=tuple(notes),
                       runtime_s=time.perf_counter() - t0, failed_simulations=failed,
-                      netcdf=path)
+                      move_acceptance=dict(res.move_acceptance), netcdf=path)
 
 
 def _run_gp(data: Dataset, spec: TaskSpec, settings: CompareSettings, seed: int) -> TaskResult:

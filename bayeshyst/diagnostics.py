@@ -221,6 +221,8 @@ def _report_attrs(post: Posterior, result: SamplingResult, thin: np.ndarray) -> 
         "failed_simulations": int(counts.failed),
         "prior_rejected": int(counts.prior_rejected),
         "acceptance_mean": float(np.mean(result.acceptance)),
+        # netCDF attributes are scalars or arrays: the per-move rates as JSON text
+        "move_acceptance": json.dumps(dict(result.move_acceptance)),
         "map_log_prob": float(result.start.log_prob),
         "map_z": np.asarray(result.start.z, dtype=float),
         "settings": json.dumps(result.settings, default=str, sort_keys=True),
@@ -442,8 +444,8 @@ def sampling_report(idata: az.InferenceData) -> dict[str, Any]:
     """The sampler's convergence report and counts saved with a posterior: ``converged``
     (bool), ``convergence_reasons`` (list), ``rhat_max``, ``ess_bulk_min``,
     ``ess_tail_min``, ``tau_max``, ``n_steps``, ``evaluations``, ``failed_simulations``,
-    ``runtime_s``, ``model``, ``likelihood`` (judged on the full chains, not the saved
-    draws). Missing entries are ``None``."""
+    ``runtime_s``, ``model``, ``likelihood``, ``move_acceptance`` (dict; judged on the
+    full chains, not the saved draws). Missing entries are ``None``."""
     stats = getattr(idata, "sample_stats", None)
     attrs = dict(stats.attrs) if stats is not None else {}
 
@@ -463,6 +465,8 @@ def sampling_report(idata: az.InferenceData) -> dict[str, Any]:
         "failed_simulations": (None if "failed_simulations" not in attrs
                                else int(attrs["failed_simulations"])),
         "runtime_s": num("runtime_s"),
+        "move_acceptance": (json.loads(attrs["move_acceptance"])
+                            if "move_acceptance" in attrs else None),
     }
 
 

@@ -339,7 +339,10 @@ class ComparisonResult:
             "fits": [{"key": t.spec.key, "model": t.spec.model, "scope": t.spec.scope,
                       "frequency_hz": t.spec.frequency_hz, "converged": t.converged,
                       "runtime_s": round(t.runtime_s, 2), "n_refits": t.n_refits,
-                      "failed_simulations": t.failed_simulations, "posterior": t.netcdf,
+                      "failed_simulations": t.failed_simulations,
+                      "move_acceptance": {k: round(v, 4) for k, v in
+                                          t.move_acceptance.items()},
+                      "posterior": t.netcdf,
                       "warnings": list(t.warnings), "error": t.error}
                      for t in self.tasks],
             "settings": self.settings,

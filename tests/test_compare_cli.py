@@ -62,6 +62,11 @@ def test_compare_writes_every_output(compared):
     assert summary["overall"]["best"] in {"pi_play(n_operators=3)", "duhem"}
     # 2 models x (joint + 2 frequencies + 2 held-out frequencies)
     assert len(summary["fits"]) == 10
+    for f in summary["fits"]:
+        # both models' linear blocks (PI weights; Duhem f, g) have Normal priors under a
+        # Gaussian likelihood: their Gibbs draws are exact, so always accepted
+        assert f["move_acceptance"]["gibbs_linear"] == 1.0
+        assert all(0.0 <= v <= 1.0 for v in f["move_acceptance"].values())
     # a fit that did not converge is named in the warnings (and only then)
     unconverged = [f["key"] for f in summary["fits"] if f["error"] is None and not f["converged"]]
     warned = [w for w in summary["warnings"] if "did not converge" in w]

@@ -58,6 +58,12 @@ def test_fit_writes_summary_posterior_and_figures(fitted):
         p = summary["params"][name]
         assert p["hdi_5"] <= p["mean"] <= p["hdi_95"] and p["sd"] > 0
     assert [f["frequency_hz"] for f in summary["per_frequency"]] == [3.0]
+    # pi_play's linear block under a Gaussian likelihood with Normal priors is drawn from
+    # its exact conditional: a Gibbs draw is always accepted; the other moves are rates
+    assert summary["linear_block"] == ["p0", "w", "obs.offset"]
+    assert summary["move_acceptance"]["gibbs_linear"] == 1.0
+    assert all(0.0 <= v <= 1.0 for v in summary["move_acceptance"].values())
+    assert {"independence", "differential"} <= set(summary["move_acceptance"])
     # the posterior-mean prediction of a well-specified model is at the noise level
     assert summary["rmse"] == pytest.approx(0.05, rel=0.3)
     assert not any(p.name.endswith(".tmp") for p in out.iterdir())

@@ -122,8 +122,14 @@ def test_demo_summary_has_every_section(demo: tuple[int, Path]) -> None:
         assert (out / "compare" / "posteriors" / Path(f["posterior"]).name).is_file()
     assert (out / "diagnose" / "posterior_base.nc").is_file()
     assert (out / "compensate" / comp["files"]["posterior"]).resolve().is_file()
-    # nothing converges at the quick budget, and the summary says so
-    assert any("did not converge" in w.lower() for w in summary["warnings"])
+    # the summary warns of non-convergence exactly when a fit did not converge; the
+    # quick demo is sized so that every fit converges (issue 17: 6 of 6 on 2 cores)
+    unconverged = [f["key"] for f in sel["fits"] if not f["converged"]]
+    if not summary["posteriors"]["base_converged"]:
+        unconverged.append("diagnosis base")
+    warned = any("not converge" in w.lower() for w in summary["warnings"])
+    assert warned is bool(unconverged)
+    assert not unconverged, f"fits that did not converge: {unconverged}"
 
 
 def test_report_html_embeds_every_figure_and_needs_no_network(demo: tuple[int, Path]) -> None:

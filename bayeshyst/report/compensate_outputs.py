@@ -80,6 +80,7 @@ def compensation_summary(result: CompensationResult, *, fit: FitResult | None = 
         out["fit"] = {"likelihood": s.likelihood, "converged": c.converged,
                       "convergence_reasons": list(c.reasons), "rhat_max": c.rhat_max,
                       "ess_min": c.ess_bulk_min, "n_steps": c.n_steps,
+                      "move_acceptance": dict(s.move_acceptance),
                       "nrmse_percent": fit.overall.nrmse_percent, "runtime_s": s.runtime_s,
                       "seed": s.seed}
     else:

@@ -158,6 +158,7 @@ def _posteriors(result: ReportResult, out: Path, figures: bool) -> tuple[dict[st
             "convergence_reasons": list(c.reasons), "rhat_max": c.rhat_max,
             "ess_bulk_min": c.ess_bulk_min, "n_steps": c.n_steps,
             "failed_simulations": fit.sampling.counts.failed,
+            "move_acceptance": dict(fit.sampling.move_acceptance),
             "params": [{"label": p.label, "unit": p.unit, "mean": p.mean, "sd": p.sd,
                         "hdi_5": p.hdi_lo, "hdi_95": p.hdi_hi}
                        for p in fit.sampling.summary(0.9)],
