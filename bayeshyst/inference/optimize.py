@@ -177,8 +177,9 @@ def _polish(post: Posterior, z: np.ndarray, target: Any) -> tuple[float, np.ndar
 
 def _global_search(post: Posterior, rng: np.random.Generator, cand: np.ndarray,
                    f: np.ndarray, maxiter: int, structure: Any = None) -> np.ndarray:
-    """Differential evolution over the central 99 % of the prior in ``z``, its population
-    seeded with the best screened draws and filled with a Latin hypercube.
+    """Differential evolution over five prior sd either side of the prior median in
+    ``z``, its population seeded with the best screened draws and filled with a Latin
+    hypercube.
 
     With a linear block the search runs over the other coordinates only, the block at
     its conditional mean for each (a profile: three dimensions instead of ten for a
@@ -200,8 +201,16 @@ def _global_search(post: Posterior, rng: np.random.Generator, cand: np.ndarray,
             z[np.ix_(good, structure.lin_idx)] = zb[good]
         return z
 
-    lo, hi = np.quantile(space.sample_prior(rng, 2000)[:, idx], [0.005, 0.995], axis=0)
-    hi = np.where(hi > lo, hi, lo + 1.0)
+    # five prior sd either side of the prior median (robust sd from the quartiles): a
+    # long record outweighs its prior by thousands of nats, and the mode it picks may
+    # lie far in the prior's tail (a second-order resonance at a 5 Hz drive's own
+    # frequency, 4.6 sd below a prior median of fs / 20, beat the mode inside the
+    # central 99 % by 1 400 nats on 6 000 samples)
+    q25, q50, q75 = np.quantile(space.sample_prior(rng, 2000)[:, idx], [0.25, 0.5, 0.75],
+                                axis=0)
+    half = 5.0 * (q75 - q25) / 1.349
+    half = np.where(half > 0, half, 1.0)
+    lo, hi = q50 - half, q50 + half
     d = idx.size
     size = max(20, 10 * d)
     sub = cand[:, idx]

@@ -25,7 +25,7 @@ import hashlib
 import math
 import sys
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import emcee
@@ -263,6 +263,25 @@ def _initial_positions(post: Posterior, start: MAPResult, initial: np.ndarray | 
     return out
 
 
+#: how far above the MAP's log density a walker may be before the MAP is called wrong
+#: (the polish stops within a small fraction of a nat; a draw cannot exceed the mode)
+MAP_SLACK = 1.0
+
+
+def _missed_mode(report: ConvergenceReport, samplers: list, start: MAPResult
+                 ) -> ConvergenceReport:
+    """Name the likely cause of a run that did not converge when walkers found higher
+    density than the MAP: the search missed the main mode, the chains started elsewhere
+    and are still migrating (or stuck between modes)."""
+    best = max(float(np.max(s.get_log_prob()[: report.n_steps])) for s, _ in samplers)
+    if not best > start.log_prob + MAP_SLACK:
+        return report
+    why = (f"walkers reached a log density {best - start.log_prob:.3g} nats above the "
+           f"MAP's: the MAP search missed the main mode and the chains started in a "
+           f"minor one (rerun with another seed, or start from the best draw)")
+    return replace(report, reasons=(*report.reasons, why))
+
+
 def sample_posterior(
     post: Posterior,
     settings: SamplerSettings | None = None,
@@ -443,6 +462,8 @@ def sample_posterior(
             bar.close()
     if report is None:  # internal invariant: chunk_boundaries always ends at max_steps
         raise ParameterError("no convergence check was made")
+    if not report.converged:
+        report = _missed_mode(report, samplers, start)
     burn = report.burn
     chains = np.stack([s.get_chain()[burn:report.n_steps] for s, _ in samplers])
     logp = np.stack([s.get_log_prob()[burn:report.n_steps] for s, _ in samplers])
