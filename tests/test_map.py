@@ -126,26 +126,55 @@ def test_global_search_reaches_a_mode_far_in_the_prior_tail():
         assert abs(found / f_n - 1.0) < 0.05, (seed, found, f_n)
 
 
-def test_walkers_above_the_map_name_a_missed_mode():
+def _offset_mode_missed():
+    """pi_play(2) data, its MAP, and a "MAP" 30 posterior sd off in the offset with its
+    own (much lower) density: a start that is not the mode."""
     from dataclasses import replace
-
-    from bayeshyst.inference.sampling import sample_posterior
-    from bayeshyst.inference.settings import SamplerSettings
 
     _, rec, _ = pi_data(n_ops=2, n=600)
     post = Posterior(get("pi_play", n_operators=2), rec)
     true_map = find_map(post, seed=0)
-    settings = SamplerSettings(seed=2, max_steps=20, first_chunk=20, warmup=6)
-    # from the real MAP no walker can exceed its density by more than the polish tolerance
-    ok = sample_posterior(post, settings, start=true_map)
-    assert not any("missed the main mode" in r for r in ok.convergence.reasons)
-    # a "MAP" 30 sd off in the offset, with its own (much lower) density: walkers find
-    # better points, the run is unconverged, and the report names the likely cause
     z = true_map.z.copy()
     j = int(np.arange(post.ndim)[post.space.slice_of("obs.offset")][0])
     z[j] += 30 * np.sqrt(true_map.covariance[j, j])
     wrong = replace(true_map, z=z, log_prob=float(post.log_prob(z)),
-                    theta=post.space.unpack(z))
+                    theta=post.space.unpack(z), notes=())
+    return post, true_map, wrong, j
+
+
+def test_walkers_above_the_map_restart_the_run_from_the_better_mode(tmp_path):
+    from bayeshyst.inference.sampling import sample_posterior
+    from bayeshyst.inference.settings import SamplerSettings
+
+    post, true_map, wrong, j = _offset_mode_missed()
+    settings = SamplerSettings(seed=2, max_steps=2000)
+    # from the real MAP no walker exceeds its density by more than the polish tolerance
+    ok = sample_posterior(post, settings.replace(max_steps=200), start=true_map)
+    assert not any("restarted" in n for n in ok.start.notes)
+    # from the wrong one the walkers climb past it: the run restarts from the polished
+    # optimum, says so, and samples the posterior around the real mode
     res = sample_posterior(post, settings, start=wrong)
+    assert any("restarted" in n for n in res.start.notes), res.start.notes
+    assert res.start.log_prob > true_map.log_prob - 0.1
+    assert res.converged
+    sd = np.sqrt(true_map.covariance[j, j])
+    assert abs(np.mean(res.flat_z[:, j]) - true_map.z[j]) < 0.5 * sd
+    # the restart is a fixed function of the chain: with a checkpoint the same draws,
+    # and the finished checkpoint read back gives them again
+    ck = settings.replace(checkpoint=tmp_path / "run.h5")
+    first = sample_posterior(post, ck, start=wrong)
+    again = sample_posterior(post, ck, start=wrong)
+    np.testing.assert_array_equal(first.chains, res.chains)
+    np.testing.assert_array_equal(again.chains, res.chains)
+
+
+def test_a_run_out_of_restarts_names_the_missed_mode(monkeypatch):
+    from bayeshyst.inference import sampling
+    from bayeshyst.inference.settings import SamplerSettings
+
+    post, _, wrong, _ = _offset_mode_missed()
+    monkeypatch.setattr(sampling, "MAX_RESTARTS", 0)
+    res = sampling.sample_posterior(post, SamplerSettings(seed=2, max_steps=20, first_chunk=20,
+                                                          warmup=6), start=wrong)
     assert not res.converged
     assert any("missed the main mode" in r for r in res.convergence.reasons)

@@ -282,6 +282,161 @@ def _missed_mode(report: ConvergenceReport, samplers: list, start: MAPResult
     return replace(report, reasons=(*report.reasons, why))
 
 
+#: how often a run may restart from a better mode its walkers found (each restart
+#: re-samples from scratch; a posterior that keeps revealing modes is reported as such)
+MAX_RESTARTS = 2
+
+
+@dataclass
+class _Advance:
+    """Where one attempt of :func:`sample_posterior` ended."""
+
+    report: ConvergenceReport | None = None
+    warm_end: int = 0
+    restart_from: np.ndarray | None = None
+    best_log_prob: float = -math.inf
+
+
+def _write_run_meta(checkpoint: Any, fingerprint: dict[str, Any], start: MAPResult,
+                    restarts: int) -> None:
+    write_meta(checkpoint, {"fingerprint": fingerprint, "restarts": restarts, "start": {
+        "z": start.z, "theta": start.theta, "log_prob": start.log_prob,
+        "covariance": start.covariance, "laplace_ok": start.laplace_ok,
+        "n_evals": start.n_evals, "candidates": start.candidates, "notes": start.notes}})
+
+
+def _attempt_rngs(seed: int, n_ens: int, attempt: int,
+                  seeds: list[np.random.SeedSequence]) -> list[np.random.Generator]:
+    """Each ensemble's generator for an attempt: the run's own streams first, then
+    streams fixed by (seed, attempt), so a resumed restart starts where the
+    uninterrupted one did."""
+    if attempt == 0:
+        return [np.random.default_rng(seeds[e]) for e in range(n_ens)]
+    return [np.random.default_rng(s)
+            for s in np.random.SeedSequence([int(seed), attempt]).spawn(n_ens)]
+
+
+def _ensembles(post: Posterior, settings: SamplerSettings, target: StructuredTarget,
+               start: MAPResult, initial: np.ndarray | None, n_walkers: int,
+               rngs: list[np.random.Generator]) -> tuple[list, list, list]:
+    """The emcee samplers of one attempt (resumed from the checkpoint where it has steps),
+    their move statistics and independence moves."""
+    ndim = post.ndim
+    other = target.other_idx
+    samplers, stats, indeps = [], [], []
+    starts = None
+    for e in range(settings.n_ensembles):
+        backend = (CheckpointBackend(settings.checkpoint, f"ensemble_{e}",
+                                     flush_seconds=settings.flush_seconds)
+                   if settings.checkpoint is not None else emcee.backends.Backend())
+        st = MoveStats()
+        indep = None
+        if settings.moves == "structured":
+            moves, indep = structured_moves(target, st, start.z[other],
+                                            start.covariance[np.ix_(other, other)])
+        else:
+            moves = _emcee_moves(settings.moves)
+        # (a new checkpoint's groups are created here, by emcee)
+        sampler = emcee.EnsembleSampler(n_walkers, ndim, post.log_prob_batch, vectorize=True,
+                                        moves=moves, backend=backend)
+        if isinstance(backend, CheckpointBackend):
+            if backend.iteration > 0:
+                # the moves' counts as of the last flushed step, which the run resumes from
+                restored = MoveStats.from_dict(backend.stored_extra())
+                st.proposed.update(restored.proposed)
+                st.accepted.update(restored.accepted)
+            backend.extra_provider = st.to_dict
+        p0 = None
+        if backend.iteration == 0:
+            if starts is None:
+                starts = _initial_positions(post, start, initial, settings.n_ensembles,
+                                            n_walkers, rngs)
+            p0 = starts[e]
+            sampler.random_state = np.random.RandomState(
+                int(rngs[e].integers(2**31 - 1))).get_state()
+        samplers.append([sampler, p0])
+        stats.append(st)
+        indeps.append(indep)
+    return samplers, stats, indeps
+
+
+def _advance(samplers: list, indeps: list, other: np.ndarray, settings: SamplerSettings,
+             start: MAPResult, bar: Any, *, can_restart: bool) -> _Advance:
+    """Run one attempt's ensembles chunk by chunk: adapt the proposal during warm-up,
+    assess convergence at the checks, and stop early when a walker shows the start was
+    not the mode (``can_restart``)."""
+    ndim = start.z.size
+    warmup = settings.warmup_steps if any(i is not None for i in indeps) else 0
+    adapt_at = set(adaptation_points(warmup))
+    extend_at = extension_points(warmup, settings.max_steps)
+    checks = set(chunk_boundaries(settings.first_chunk, settings.max_steps))
+    boundaries = sorted(checks | adapt_at | set(extend_at))
+    out = _Advance(warm_end=warmup)
+    frozen, last_adapt, last_rate = False, warmup, -math.inf
+    for boundary in boundaries:
+        for pair in samplers:
+            sampler, p0 = pair
+            todo = boundary - sampler.iteration
+            if todo <= 0:
+                continue
+            # continue from the stored last state (positions, log p, random state):
+            # after a resume that is the checkpoint, so the run goes on identically
+            state = p0 if sampler.iteration == 0 else sampler.get_last_sample()
+            for _ in sampler.sample(state, iterations=todo, store=True,
+                                    skip_initial_state_check=settings.moves == "structured"):
+                if bar is not None:
+                    bar.update(1)
+            if isinstance(sampler.backend, CheckpointBackend):
+                sampler.backend.flush()
+        # every decision below is a fixed function of the stored chain: a resumed run
+        # re-fits the same proposals and restarts at the same steps
+        if can_restart:
+            best = max(((float(np.max(lp)), s) for s, _ in samplers
+                        for lp in [s.get_log_prob()[:boundary]]), key=lambda b: b[0])
+            if best[0] > start.log_prob + MAP_SLACK:
+                lp = best[1].get_log_prob()[:boundary]
+                step, walker = np.unravel_index(int(np.argmax(lp)), lp.shape)
+                out.restart_from = best[1].get_chain()[step, walker].copy()
+                out.best_log_prob = best[0]
+                return out
+        refit = boundary in adapt_at
+        if boundary in extend_at and not frozen:
+            rate = min(_move_rate(s.get_chain()[last_adapt:boundary], other)
+                       for s, _ in samplers)
+            # go on while the proposal moves too few walkers and the last re-fit still
+            # helped (a curved posterior no mixture fits well stops here)
+            if rate >= MIN_MOVE_RATE or rate < last_rate + 0.05:
+                frozen = True
+            else:
+                refit, out.warm_end = True, boundary
+            last_rate = rate
+        if refit:
+            last_adapt = boundary
+            # one proposal from the draws of every ensemble (twice the draws for its
+            # shape; each ensemble stays a valid chain of its own once it is frozen, and
+            # they started apart, so R-hat between them keeps its meaning)
+            live = [i for i in indeps if i is not None]
+            if live:
+                pooled = np.concatenate([s.get_chain()[boundary // 2:boundary]
+                                         .reshape(-1, ndim) for s, _ in samplers])
+                live[0].adapt(pooled)
+                for other_move in live[1:]:
+                    other_move.set_proposal(live[0].means, live[0].covariances,
+                                            live[0].weights)
+        if boundary not in checks:
+            continue
+        chains = [s.get_chain()[:boundary] for s, _ in samplers]
+        out.report = assess(chains, rhat_threshold=settings.rhat_threshold,
+                            min_ess=settings.min_ess, tau_factor=settings.tau_factor,
+                            min_burn=out.warm_end)
+        if bar is not None:
+            bar.set_postfix_str(f"R-hat {out.report.rhat_max:.3f}, ESS "
+                                f"{out.report.ess_bulk_min:.0f}, tau {out.report.tau_max:.0f}")
+        if out.report.converged:
+            break
+    return out
+
+
 def sample_posterior(
     post: Posterior,
     settings: SamplerSettings | None = None,
@@ -327,139 +482,75 @@ def sample_posterior(
     checkpoint = settings.checkpoint
     counts0 = post.counts
     meta = None
+    attempt = 0
     if checkpoint is not None:
         meta = read_meta(checkpoint)
         if meta is not None:
-            start = start or MAPResult(**meta["start"])
+            # a run that restarted goes on from the start it restarted from
+            attempt = int(meta.get("restarts", 0))
+            if start is None or attempt > 0:
+                start = MAPResult(**meta["start"])
     if start is None:
         start = find_map(post, seed=np.random.default_rng(seeds[-1]))
-    structure = (LinearStructure.of(post, reference=start.z)
-                 if settings.moves == "structured" else None)
-    target = StructuredTarget(post, structure)
-    n_walkers = settings.walkers(target.n_other if settings.moves == "structured" else ndim,
-                                 ndim)
-    if settings.moves != "structured" and n_walkers < 2 * ndim:
+    structured = settings.moves == "structured"
+    n_other = (StructuredTarget(post, LinearStructure.of(post, reference=start.z)).n_other
+               if structured else ndim)
+    n_walkers = settings.walkers(n_other, ndim)
+    if not structured and n_walkers < 2 * ndim:
         raise ParameterError(f"n_walkers={n_walkers} is too few for {ndim} dimensions with "
                              f"{settings.moves!r} moves (need >= {2 * ndim})")
+    fp = None
     if checkpoint is not None:
         fp = _fingerprint(post, settings, n_walkers, initial)
         if meta is not None:
             check_fingerprint(checkpoint, meta["fingerprint"], fp)
         else:
             checkpoint.parent.mkdir(parents=True, exist_ok=True)
-            write_meta(checkpoint, {"fingerprint": fp, "start": {
-                "z": start.z, "theta": start.theta, "log_prob": start.log_prob,
-                "covariance": start.covariance, "laplace_ok": start.laplace_ok,
-                "n_evals": start.n_evals, "candidates": start.candidates,
-                "notes": start.notes}})
-
-    other = target.other_idx
-    samplers, stats, indeps = [], [], []
-    rngs = [np.random.default_rng(seeds[e]) for e in range(n_ens)]
-    starts = None
-    for e in range(n_ens):
-        backend = (CheckpointBackend(checkpoint, f"ensemble_{e}",
-                                     flush_seconds=settings.flush_seconds)
-                   if checkpoint is not None else emcee.backends.Backend())
-        st = MoveStats()
-        indep = None
-        if settings.moves == "structured":
-            moves, indep = structured_moves(target, st, start.z[other],
-                                            start.covariance[np.ix_(other, other)])
-        else:
-            moves = _emcee_moves(settings.moves)
-        # (a new checkpoint's groups are created here, by emcee)
-        sampler = emcee.EnsembleSampler(n_walkers, ndim, post.log_prob_batch, vectorize=True,
-                                        moves=moves, backend=backend)
-        if isinstance(backend, CheckpointBackend):
-            if backend.iteration > 0:
-                # the moves' counts as of the last flushed step, which the run resumes from
-                restored = MoveStats.from_dict(backend.stored_extra())
-                st.proposed.update(restored.proposed)
-                st.accepted.update(restored.accepted)
-            backend.extra_provider = st.to_dict
-        p0 = None
-        if backend.iteration == 0:
-            if starts is None:
-                starts = _initial_positions(post, start, initial, n_ens, n_walkers, rngs)
-            p0 = starts[e]
-            sampler.random_state = np.random.RandomState(
-                int(rngs[e].integers(2**31 - 1))).get_state()
-        samplers.append([sampler, p0])
-        stats.append(st)
-        indeps.append(indep)
-
-    warmup = settings.warmup_steps if any(i is not None for i in indeps) else 0
-    adapt_at = set(adaptation_points(warmup))
-    extend_at = extension_points(warmup, settings.max_steps)
-    checks = set(chunk_boundaries(settings.first_chunk, settings.max_steps))
-    boundaries = sorted(checks | adapt_at | set(extend_at))
+            _write_run_meta(checkpoint, fp, start, 0)
     bar = None
     if settings.progress:
         from tqdm.auto import tqdm
 
         # a terminal gets a live bar; a log file an update every 10 s, not thousands
         bar = tqdm(total=settings.max_steps * n_ens, desc=f"sampling {post.model.name}",
-                   unit="step", initial=sum(s.iteration for s, _ in samplers),
-                   mininterval=0.2 if sys.stderr.isatty() else 10.0)
-    report = None
-    warm_end, frozen, last_adapt, last_rate = warmup, False, warmup, -math.inf
+                   unit="step", mininterval=0.2 if sys.stderr.isatty() else 10.0)
     try:
-        for boundary in boundaries:
-            for pair in samplers:
-                sampler, p0 = pair
-                todo = boundary - sampler.iteration
-                if todo <= 0:
-                    continue
-                # continue from the stored last state (positions, log p, random state):
-                # after a resume that is the checkpoint, so the run goes on identically
-                state = p0 if sampler.iteration == 0 else sampler.get_last_sample()
-                for _ in sampler.sample(state, iterations=todo, store=True,
-                                        skip_initial_state_check=settings.moves == "structured"):
-                    if bar is not None:
-                        bar.update(1)
-                if isinstance(sampler.backend, CheckpointBackend):
-                    sampler.backend.flush()
-            # every adaptation decision is a fixed function of the stored chain: a
-            # resumed run re-fits the same proposals at the same steps
-            refit = boundary in adapt_at
-            if boundary in extend_at and not frozen:
-                rate = min(_move_rate(s.get_chain()[last_adapt:boundary], other)
-                           for s, _ in samplers)
-                # go on while the proposal moves too few walkers and the last re-fit
-                # still helped (a curved posterior no mixture fits well stops here)
-                if rate >= MIN_MOVE_RATE or rate < last_rate + 0.05:
-                    frozen = True
-                else:
-                    refit, warm_end = True, boundary
-                last_rate = rate
-            if refit:
-                last_adapt = boundary
-                # one proposal from the draws of every ensemble (twice the draws for its
-                # shape; each ensemble stays a valid chain of its own once it is frozen,
-                # and they started apart, so R-hat between them keeps its meaning)
-                live = [i for i in indeps if i is not None]
-                if live:
-                    pooled = np.concatenate([s.get_chain()[boundary // 2:boundary]
-                                             .reshape(-1, ndim) for s, _ in samplers])
-                    live[0].adapt(pooled)
-                    for other_move in live[1:]:
-                        other_move.set_proposal(live[0].means, live[0].covariances,
-                                                live[0].weights)
-            if boundary not in checks:
-                continue
-            chains = [s.get_chain()[:boundary] for s, _ in samplers]
-            report = assess(chains, rhat_threshold=settings.rhat_threshold,
-                            min_ess=settings.min_ess, tau_factor=settings.tau_factor,
-                            min_burn=warm_end)
+        while True:
+            structure = (LinearStructure.of(post, reference=start.z) if structured else None)
+            target = StructuredTarget(post, structure)
+            rngs = _attempt_rngs(settings.seed, n_ens, attempt, seeds)
+            samplers, stats, indeps = _ensembles(
+                post, settings, target, start, initial if attempt == 0 else None,
+                n_walkers, rngs)
             if bar is not None:
-                bar.set_postfix_str(f"R-hat {report.rhat_max:.3f}, ESS "
-                                    f"{report.ess_bulk_min:.0f}, tau {report.tau_max:.0f}")
-            if report.converged:
+                bar.reset(total=settings.max_steps * n_ens)
+                bar.update(sum(s.iteration for s, _ in samplers))
+            run = _advance(samplers, indeps, target.other_idx, settings, start, bar,
+                           can_restart=attempt < MAX_RESTARTS)
+            if run.restart_from is None:
                 break
+            # walkers found higher density than the MAP: it was not the mode. Polish from
+            # the best walker and sample afresh from there (the chains so far started in
+            # a minor mode; their draws are discarded, not mixed in)
+            gain = run.best_log_prob - start.log_prob
+            new = find_map(post, seed=np.random.default_rng(rngs[0].integers(2**31 - 1)),
+                           x0=run.restart_from)
+            attempt += 1
+            start = replace(new, notes=(*start.notes, *new.notes, (
+                f"walkers found a log density {gain:.3g} nats above the MAP search's "
+                f"optimum during sampling: the search had missed the main mode, and "
+                f"sampling restarted from the optimum polished from there "
+                f"(restart {attempt} of at most {MAX_RESTARTS})")))
+            if checkpoint is not None:
+                # chains emptied first, then the new start: a kill between the two redoes
+                # this attempt from its beginning and restarts at the same step again
+                for sampler, _ in samplers:
+                    sampler.backend.reset(n_walkers, ndim)
+                _write_run_meta(checkpoint, fp, start, attempt)
     finally:
         if bar is not None:
             bar.close()
+    report = run.report
     if report is None:  # internal invariant: chunk_boundaries always ends at max_steps
         raise ParameterError("no convergence check was made")
     if not report.converged:
