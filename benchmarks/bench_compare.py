@@ -148,9 +148,10 @@ def stage(cores: int) -> tuple[str, bool]:
         lines.append(f"| {moves} | {secs:.1f} s | {'yes' if c.converged else 'no'} | "
                      f"{c.rhat_max:.3f} | {c.ess_bulk_min:.0f} | {c.n_steps} |")
     if not base_de[2].converged:
-        lines += ["", f"`de` was stopped after {min(wall, DE_SECONDS):.0f} s (the "
-                      "comparison's wall time, at most 5 minutes) without converging; the "
-                      f"structured moves converged the same fit in {base_struct[1]:.1f} s."]
+        lines += ["", f"`de` was given the steps that fit in {min(wall, DE_SECONDS):.0f} s "
+                      "(the comparison's wall time, at most 5 minutes, at the rate of a "
+                      "200-step probe) and did not converge in them; the structured moves "
+                      f"converged the same fit in {base_struct[1]:.1f} s."]
     text = "\n".join(lines)
     ok = len(conv) == len(fits) and len(fits) == len(res.tasks)
     return text, ok

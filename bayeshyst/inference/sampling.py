@@ -493,9 +493,9 @@ def sample_posterior(
     if start is None:
         start = find_map(post, seed=np.random.default_rng(seeds[-1]))
     structured = settings.moves == "structured"
-    n_other = (StructuredTarget(post, LinearStructure.of(post, reference=start.z)).n_other
-               if structured else ndim)
-    n_walkers = settings.walkers(n_other, ndim)
+    structure = LinearStructure.of(post, reference=start.z) if structured else None
+    n_walkers = settings.walkers(StructuredTarget(post, structure).n_other if structured
+                                 else ndim, ndim)
     if not structured and n_walkers < 2 * ndim:
         raise ParameterError(f"n_walkers={n_walkers} is too few for {ndim} dimensions with "
                              f"{settings.moves!r} moves (need >= {2 * ndim})")
@@ -516,7 +516,6 @@ def sample_posterior(
                    unit="step", mininterval=0.2 if sys.stderr.isatty() else 10.0)
     try:
         while True:
-            structure = (LinearStructure.of(post, reference=start.z) if structured else None)
             target = StructuredTarget(post, structure)
             rngs = _attempt_rngs(settings.seed, n_ens, attempt, seeds)
             samplers, stats, indeps = _ensembles(
@@ -536,6 +535,7 @@ def sample_posterior(
             new = find_map(post, seed=np.random.default_rng(rngs[0].integers(2**31 - 1)),
                            x0=run.restart_from)
             attempt += 1
+            structure = LinearStructure.of(post, reference=new.z) if structured else None
             start = replace(new, notes=(*start.notes, *new.notes, (
                 f"walkers found a log density {gain:.3g} nats above the MAP search's "
                 f"optimum during sampling: the search had missed the main mode, and "
