@@ -17,7 +17,7 @@ from tests.synthetic import pi_data
 ROOT = Path(__file__).resolve().parents[1]
 
 REQUIRED = {"model", "converged", "rhat_max", "ess_min", "tau_max", "n_failed_evals", "params",
-            "rmse", "nrmse_percent", "per_frequency", "runtime_s"}
+            "rmse", "nrmse_percent", "per_frequency", "runtime_s", "map_notes"}
 
 
 @pytest.fixture(scope="module")

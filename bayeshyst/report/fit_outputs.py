@@ -91,6 +91,8 @@ def fit_summary(fit: FitResult, *, data_path: str | None = None,
         "linear_block": list(s.linear_block),
         "params": params,
         "map": map_theta,
+        # how the MAP was found: global searches, disagreeing starts, sampler restarts
+        "map_notes": list(s.start.notes),
         "correlations": _correlations(fit),
         "rmse": fit.overall.rmse,
         "nrmse_percent": fit.overall.nrmse_percent,
