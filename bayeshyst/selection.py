@@ -403,9 +403,9 @@ def _tasks(models: tuple[str, ...], keys: list[float | None], lofo: bool) -> lis
 def _worker_init() -> None:
     """Serial kernels in the workers: the pool already uses every core, and a forked
     child must never enter the parent's numba thread pool (it does not exist there)."""
-    from bayeshyst.models import _kernels
+    from bayeshyst.models import serial_kernels_in_this_thread
 
-    _kernels.PARALLEL_MIN_WORK = sys.maxsize
+    serial_kernels_in_this_thread()
 
 
 def _pool_context() -> Any:

@@ -372,14 +372,13 @@ def test_one_sample_at_a_time_equals_one_run(name):
 
 @pytest.mark.parametrize("threads", ["parallel", "serial"])
 @pytest.mark.parametrize("name", sorted(BLOCKS))
-def test_batched_equals_one_by_one(name, threads, monkeypatch):
+def test_batched_equals_one_by_one(name, threads):
     # the batch runs the prange kernel or its serial twin; single runs are serial
-    monkeypatch.setattr(kernels, "PARALLEL_MIN_WORK", 0 if threads == "parallel" else 10**12)
     block = BLOCKS[name]
     thetas = _theta(block, 5, width=5)
     w = np.vstack([REC.y * (1 + 0.1 * i) for i in range(5)])
-    traj = block.apply_batch(w, REC.t, thetas)
-    monkeypatch.undo()
+    with kernels.kernel_parallelism(0 if threads == "parallel" else None):
+        traj = block.apply_batch(w, REC.t, thetas)
     assert not traj.failed.any()
     for i in range(5):
         one = block.apply(w[i], REC.t, {k: v[i] for k, v in thetas.items()})

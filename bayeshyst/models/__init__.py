@@ -17,6 +17,7 @@ from bayeshyst.models import (  # noqa: F401  (importing registers the models)
     pi_variants,
     preisach,
 )
+from bayeshyst.models._kernels import kernel_parallelism, serial_kernels_in_this_thread
 from bayeshyst.models.base import DataScales, HysteresisModel, Trajectory, data_scales
 from bayeshyst.models.maxwell import MaxwellSlip
 from bayeshyst.models.pi import (
@@ -37,8 +38,10 @@ __all__ = [
     "Trajectory",
     "data_scales",
     "get",
+    "kernel_parallelism",
     "model_class",
     "names",
     "play_pi_inverse",
     "register",
+    "serial_kernels_in_this_thread",
 ]

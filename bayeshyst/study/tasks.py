@@ -22,7 +22,6 @@ import json
 import os
 import shutil
 import socket
-import sys
 import tempfile
 from dataclasses import dataclass, fields, replace
 from pathlib import Path
@@ -188,18 +187,16 @@ def execute(task: StudyTask, data: Dataset, work_dir: str | None = None) -> FitO
         A fit that fails (bad data for the model, a failed simulation) is returned
         with ``result.error`` set; it does not raise.
     """
-    from bayeshyst.models import _kernels
+    from bayeshyst.models import kernel_parallelism
 
     where, private, notes = _work_dir(work_dir)
     # one worker per core: a fit's kernels run serially, so that the fits do not fight
     # for the cores (and a study's numbers do not depend on how threads were split)
-    saved = _kernels.PARALLEL_MIN_WORK
-    _kernels.PARALLEL_MIN_WORK = sys.maxsize
     try:
-        result = run_task(data, task.spec, task.settings, task.fit_seed, where)
+        with kernel_parallelism(None):
+            result = run_task(data, task.spec, task.settings, task.fit_seed, where)
         blob = Path(result.netcdf).read_bytes() if result.netcdf else None
     finally:
-        _kernels.PARALLEL_MIN_WORK = saved
         if private:
             shutil.rmtree(where, ignore_errors=True)
     return FitOutcome(task, replace(result, netcdf=None), blob,

@@ -24,10 +24,13 @@ parallel code.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+import contextvars
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from typing import Any
 
-__all__ = ["PARALLEL_MIN_WORK", "batch_kernel", "use_parallel"]
+__all__ = ["PARALLEL_MIN_WORK", "batch_kernel", "kernel_parallelism",
+           "serial_kernels_in_this_thread", "use_parallel"]
 
 #: Work (walkers x samples, or walkers x table entries, times the kernel's ``cost``)
 #: below which a batch runs serially. Starting numba's thread team for one ``prange``
@@ -39,6 +42,46 @@ __all__ = ["PARALLEL_MIN_WORK", "batch_kernel", "use_parallel"]
 #: threads could save at most half of that on two cores and can lose several ms; an
 #: emcee step (32 walkers x a record of 10^3 samples or more) is above it.
 PARALLEL_MIN_WORK = 20_000
+
+# the threshold in force in this thread (and asyncio task): a context variable, not a
+# module global, so a Dask worker's threads or a process pool's initialiser each set
+# their own without racing on a value another fit is reading
+_MIN_WORK: contextvars.ContextVar[int | None] = contextvars.ContextVar(
+    "bayeshyst_parallel_min_work", default=None)
+
+
+@contextmanager
+def kernel_parallelism(min_work: int | None = PARALLEL_MIN_WORK) -> Iterator[None]:
+    """Within the block, in this thread only, run batches of at least ``min_work`` on
+    numba's thread team; ``None`` runs every batch serially.
+
+    Parameters
+    ----------
+    min_work : int or None
+        Walkers x samples (times the kernel's cost) from which a batch goes parallel;
+        None: never (a process or thread pool already uses every core).
+
+    Examples
+    --------
+    >>> with kernel_parallelism(None):   # one fit per core in a pool: serial kernels
+    ...     pass
+    """
+    if min_work is not None and (isinstance(min_work, bool) or not isinstance(min_work, int)
+                                 or min_work < 0):
+        raise ValueError(f"kernel_parallelism: min_work must be a non-negative int or None, "
+                         f"got {min_work!r}")
+    token = _MIN_WORK.set(-1 if min_work is None else min_work)
+    try:
+        yield
+    finally:
+        _MIN_WORK.reset(token)
+
+
+def serial_kernels_in_this_thread() -> None:
+    """Make every batch of this thread serial for the rest of its life (a pool worker's
+    initialiser: the pool already uses every core, and a forked child must never enter
+    the parent's numba thread pool)."""
+    _MIN_WORK.set(-1)
 
 
 def use_parallel(walkers: int, work: int) -> bool:
@@ -55,10 +98,14 @@ def use_parallel(walkers: int, work: int) -> bool:
     Returns
     -------
     bool
-        True for more than one walker and ``work >= PARALLEL_MIN_WORK`` (read at call
-        time, so it can be changed at run time or in tests).
+        True for more than one walker and ``work`` at least the threshold in force:
+        that of the innermost :func:`kernel_parallelism` block of this thread, else
+        :data:`PARALLEL_MIN_WORK`.
     """
-    return walkers > 1 and work >= PARALLEL_MIN_WORK
+    threshold = _MIN_WORK.get()
+    if threshold is None:
+        threshold = PARALLEL_MIN_WORK
+    return walkers > 1 and threshold >= 0 and work >= threshold
 
 
 def batch_kernel(parallel: Callable[..., Any], serial: Callable[..., Any], *,
