@@ -19,22 +19,50 @@ from bayeshyst.models import (  # noqa: F401  (importing registers the models)
 )
 from bayeshyst.models._kernels import kernel_parallelism, serial_kernels_in_this_thread
 from bayeshyst.models.base import DataScales, HysteresisModel, Trajectory, data_scales
+from bayeshyst.models.bouc_wen import (
+    AsymmetricBoucWen,
+    BoucWen,
+    BoucWenOscillator,
+    ModifiedBoucWen,
+)
+from bayeshyst.models.compose import Composite
+from bayeshyst.models.duhem import Duhem, ImprovedDuhem
 from bayeshyst.models.maxwell import MaxwellSlip
+from bayeshyst.models.mrc import MRCElectromechanical
 from bayeshyst.models.pi import (
     PIInverse,
     PrandtlIshlinskii,
     PrandtlIshlinskiiStop,
     play_pi_inverse,
 )
+from bayeshyst.models.pi_variants import (
+    AsymmetricPrandtlIshlinskii,
+    GeneralizedPrandtlIshlinskii,
+    RateDependentPrandtlIshlinskii,
+)
+from bayeshyst.models.preisach import Preisach, PreisachDensity
 from bayeshyst.models.registry import get, model_class, names, register
 
 __all__ = [
+    "AsymmetricBoucWen",
+    "AsymmetricPrandtlIshlinskii",
+    "BoucWen",
+    "BoucWenOscillator",
+    "Composite",
     "DataScales",
+    "Duhem",
+    "GeneralizedPrandtlIshlinskii",
     "HysteresisModel",
+    "ImprovedDuhem",
+    "MRCElectromechanical",
     "MaxwellSlip",
+    "ModifiedBoucWen",
     "PIInverse",
     "PrandtlIshlinskii",
     "PrandtlIshlinskiiStop",
+    "Preisach",
+    "PreisachDensity",
+    "RateDependentPrandtlIshlinskii",
     "Trajectory",
     "data_scales",
     "get",
