@@ -16,6 +16,7 @@ from bayeshyst.data.record import (
     Dataset,
     Record,
     check_fittable,
+    frequency_key,
 )
 from bayeshyst.errors import DataError
 
@@ -169,6 +170,25 @@ def test_dataset_access_grouping_and_selection():
     with pytest.raises(DataError, match="unique record names"):
         ds.concat(make(name="a"))
     assert Dataset(make()).names == ("r",)
+
+
+def test_one_frequency_identity_for_grouping_comparing_and_the_study():
+    # a file's 10 Hz and a computed 10 + 1e-9 Hz are one frequency; 10.001 Hz is another
+    recs = [make(name="file", f=10.0), make(name="computed", f=10.0 + 1e-9),
+            make(name="other", f=10.001)]
+    ds = Dataset(recs, name="s")
+    assert ds.frequencies == (10.0, 10.001)
+    groups = ds.by_frequency()
+    assert list(groups) == [10.0, 10.001] and groups[10.0].names == ("file", "computed")
+    assert recs[0].frequency_hz == recs[1].frequency_hz != recs[2].frequency_hz
+    # the metadata keeps what was given
+    assert recs[1].metadata["frequency_hz"] == 10.0 + 1e-9
+    assert frequency_key(None) is None and frequency_key(123456789.0) == 123457000.0
+    # the study's summary and figures use the very same definition
+    from bayeshyst.report import study_figures
+    from bayeshyst.study import summary
+
+    assert summary.frequency_key is frequency_key is study_figures.frequency_key
 
 
 def test_dataset_str_table():

@@ -26,7 +26,7 @@ from bayeshyst.data.measured import (
     shared_data_root,
 )
 from bayeshyst.data.parsing import Table, read_table, sidecar_path
-from bayeshyst.data.record import DEFAULT_UNITS, MIN_SAMPLES, Dataset, Record
+from bayeshyst.data.record import DEFAULT_UNITS, MIN_SAMPLES, Dataset, Record, frequency_key
 from bayeshyst.data.segment import (
     CycleSplit,
     cycle_labels,
@@ -66,6 +66,7 @@ __all__ = [
     "estimate_frequency",
     "excitation",
     "find_reversals",
+    "frequency_key",
     "hysteresis_only",
     "hysteresis_percent",
     "load",

@@ -25,7 +25,17 @@ import numpy as np
 from bayeshyst.errors import DataError
 
 __all__ = ["DEFAULT_UNITS", "MAGNITUDE_MAX", "MIN_SAMPLES", "RESOLUTION_MIN", "SPAN_MIN",
-           "Dataset", "Record", "check_fittable"]
+           "Dataset", "Record", "check_fittable", "frequency_key"]
+
+def frequency_key(f: float | None) -> float | None:
+    """The identity of an excitation frequency: values that agree to 6 significant
+    digits are one frequency (a file's 10 and a computed 10.000000001 Hz group together).
+
+    Every grouping and comparison of frequencies goes through it, via
+    :attr:`Record.frequency_hz`; ``metadata["frequency_hz"]`` keeps the value as given.
+    """
+    return None if f is None else float(f"{float(f):.6g}")
+
 
 #: Fewest samples a Record may hold. Four is the smallest count that can contain one
 #: rise and one fall of the input (a minimal loop) and still leave two scored samples
@@ -363,8 +373,9 @@ class Record:
 
     @property
     def frequency_hz(self) -> float | None:
-        """Excitation frequency [Hz] from ``metadata["frequency_hz"]``, or None."""
-        return self.metadata.get("frequency_hz")
+        """Excitation frequency [Hz] from ``metadata["frequency_hz"]`` to 6 significant
+        digits (:func:`frequency_key`: the frequency's identity), or None."""
+        return frequency_key(self.metadata.get("frequency_hz"))
 
     @property
     def source(self) -> str | None:

@@ -27,8 +27,9 @@ from matplotlib.lines import Line2D
 from matplotlib.patches import Patch, Rectangle
 from matplotlib.ticker import NullFormatter
 
+from bayeshyst.data.record import frequency_key
 from bayeshyst.plotting import _RED, _figure, _png_path, _save
-from bayeshyst.study.summary import frequency_key, frequency_label
+from bayeshyst.study.summary import frequency_label
 
 __all__ = ["model_colors", "plot_best_model", "plot_scores_vs_frequency"]
 

@@ -24,15 +24,11 @@ from typing import Any
 
 import numpy as np
 
+from bayeshyst.data.record import frequency_key
 from bayeshyst.selection import paired_difference, total_and_se
 
 __all__ = ["DatasetRanking", "FrequencySummary", "ModelAcrossDatasets", "ModelAtDataset",
-           "frequency_key", "frequency_label", "summarise"]
-
-
-def frequency_key(f: float | None) -> float | None:
-    """Frequencies that agree to 6 significant digits are one frequency of the study."""
-    return None if f is None else float(f"{float(f):.6g}")
+           "frequency_label", "summarise"]
 
 
 def frequency_label(f: float | None) -> str:
