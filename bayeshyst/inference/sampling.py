@@ -268,12 +268,25 @@ def _initial_positions(post: Posterior, start: MAPResult, initial: np.ndarray | 
 MAP_SLACK = 1.0
 
 
+def _best_draw(samplers: list, n_steps: int) -> tuple[float, np.ndarray]:
+    """The highest log density among the first ``n_steps`` steps of every ensemble, and
+    the walker position that reached it."""
+    best_lp, where = -math.inf, None
+    for sampler, _ in samplers:
+        lp = sampler.get_log_prob()[:n_steps]
+        step, walker = np.unravel_index(int(np.argmax(lp)), lp.shape)
+        if lp[step, walker] > best_lp:
+            best_lp, where = float(lp[step, walker]), (sampler, step, walker)
+    sampler, step, walker = where
+    return best_lp, sampler.get_chain()[step, walker].copy()
+
+
 def _missed_mode(report: ConvergenceReport, samplers: list, start: MAPResult
                  ) -> ConvergenceReport:
     """Name the likely cause of a run that did not converge when walkers found higher
     density than the MAP: the search missed the main mode, the chains started elsewhere
     and are still migrating (or stuck between modes)."""
-    best = max(float(np.max(s.get_log_prob()[: report.n_steps])) for s, _ in samplers)
+    best, _ = _best_draw(samplers, report.n_steps)
     if not best > start.log_prob + MAP_SLACK:
         return report
     why = (f"walkers reached a log density {best - start.log_prob:.3g} nats above the "
@@ -292,7 +305,6 @@ class _Advance:
     """Where one attempt of :func:`sample_posterior` ended."""
 
     report: ConvergenceReport | None = None
-    warm_end: int = 0
     restart_from: np.ndarray | None = None
     best_log_prob: float = -math.inf
 
@@ -371,8 +383,8 @@ def _advance(samplers: list, indeps: list, other: np.ndarray, settings: SamplerS
     extend_at = extension_points(warmup, settings.max_steps)
     checks = set(chunk_boundaries(settings.first_chunk, settings.max_steps))
     boundaries = sorted(checks | adapt_at | set(extend_at))
-    out = _Advance(warm_end=warmup)
-    frozen, last_adapt, last_rate = False, warmup, -math.inf
+    out = _Advance()
+    warm_end, frozen, last_adapt, last_rate = warmup, False, warmup, -math.inf
     for boundary in boundaries:
         for pair in samplers:
             sampler, p0 = pair
@@ -391,13 +403,9 @@ def _advance(samplers: list, indeps: list, other: np.ndarray, settings: SamplerS
         # every decision below is a fixed function of the stored chain: a resumed run
         # re-fits the same proposals and restarts at the same steps
         if can_restart:
-            best = max(((float(np.max(lp)), s) for s, _ in samplers
-                        for lp in [s.get_log_prob()[:boundary]]), key=lambda b: b[0])
-            if best[0] > start.log_prob + MAP_SLACK:
-                lp = best[1].get_log_prob()[:boundary]
-                step, walker = np.unravel_index(int(np.argmax(lp)), lp.shape)
-                out.restart_from = best[1].get_chain()[step, walker].copy()
-                out.best_log_prob = best[0]
+            best_lp, best_z = _best_draw(samplers, boundary)
+            if best_lp > start.log_prob + MAP_SLACK:
+                out.restart_from, out.best_log_prob = best_z, best_lp
                 return out
         refit = boundary in adapt_at
         if boundary in extend_at and not frozen:
@@ -408,7 +416,7 @@ def _advance(samplers: list, indeps: list, other: np.ndarray, settings: SamplerS
             if rate >= MIN_MOVE_RATE or rate < last_rate + 0.05:
                 frozen = True
             else:
-                refit, out.warm_end = True, boundary
+                refit, warm_end = True, boundary
             last_rate = rate
         if refit:
             last_adapt = boundary
@@ -428,7 +436,7 @@ def _advance(samplers: list, indeps: list, other: np.ndarray, settings: SamplerS
         chains = [s.get_chain()[:boundary] for s, _ in samplers]
         out.report = assess(chains, rhat_threshold=settings.rhat_threshold,
                             min_ess=settings.min_ess, tau_factor=settings.tau_factor,
-                            min_burn=out.warm_end)
+                            min_burn=warm_end)
         if bar is not None:
             bar.set_postfix_str(f"R-hat {out.report.rhat_max:.3f}, ESS "
                                 f"{out.report.ess_bulk_min:.0f}, tau {out.report.tau_max:.0f}")
