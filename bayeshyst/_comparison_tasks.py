@@ -297,17 +297,17 @@ def _refit_bad_cycles(post: Posterior, res: Any, pointwise: np.ndarray, k: np.nd
     n_draws = max(400, settings.n_lofo_draws)
     for j, i in enumerate(todo):
         held = post.holding_out([i])
-        # from the held-out posterior's own MAP (the full-data one its first start): a
-        # cycle PSIS cannot handle is one that moves the posterior by several sd (the
-        # noise scale, when it is the worst-fitted cycle), and walkers started in the old
-        # posterior feed the warm-up's proposal fit draws still in transit (PI + output
-        # map on the bundled record without a 200 Hz cycle: sigma 10 sd lower; 3 000
-        # steps unconverged from the full-data MAP or ensembles, 250 from its own)
+        # from the held-out posterior's own MAP: a cycle PSIS cannot handle is one that
+        # moves the posterior by several sd (the noise scale, when it is the worst-fitted
+        # cycle), and walkers started in the old posterior feed the warm-up's proposal
+        # fit draws still in transit (PI + output map on the bundled record without a
+        # 200 Hz cycle: sigma 10 sd lower; 3 000 steps unconverged from the full-data MAP
+        # or ensembles, 250 from its own). That MAP is found by least squares from the
+        # full-data one (searched globally already; one cycle moves the optimum locally)
+        # and a small screen, without a global search (15 of the 18 s of each refit of a
+        # 10 kHz PI + second-order fit); a mode the walkers find above it still restarts
+        # the run
         sampler = settings.sampler.replace(seed=seed + 1 + j, checkpoint=None, progress=False)
-        # the full-data MAP was searched globally and one cycle moves the optimum
-        # locally: least squares from it and a small screen, no global search (which
-        # cost 15 of the 18 s of each refit of a 10 kHz PI + second-order fit); a mode
-        # the walkers find above it still restarts the run
         start = find_map(held, seed=np.random.default_rng(sampler.seed), x0=res.start.z,
                          n_screen=32, global_search=False)
         r = sample_posterior(held, sampler, start=start)
