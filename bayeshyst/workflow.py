@@ -17,7 +17,7 @@ do it by hand:
 
 Every stage samples with the same :class:`~bayeshyst.inference.settings.SamplerSettings`
 (``ReportSettings.sampler``). Each fit checkpoints under ``out_dir/compare/checkpoints``,
-named by what it fits (:func:`~bayeshyst._comparison_tasks.fit_identity`): the
+named by what it fits (:func:`~bayeshyst.selection.tasks.fit_identity`): the
 diagnosis' base fit *is* the comparison's joint fit of the chosen model and is read
 back, not sampled again, and an interrupted report resumes where it stopped. Writing the files
 (HTML, ``summary.json``, netCDF) is :func:`bayeshyst.report.report_outputs.write_report_outputs`.
@@ -32,7 +32,6 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
-from bayeshyst._comparison_tasks import GP_MODELS
 from bayeshyst.data.record import Dataset, Record
 from bayeshyst.diagnosis import DiagnosisResult, diagnose
 from bayeshyst.diagnosis.loop import DiagnosisFit
@@ -42,6 +41,7 @@ from bayeshyst.inference.settings import SamplerSettings
 from bayeshyst.inverse.compensate import CompensationResult, compensate
 from bayeshyst.likelihoods import get_likelihood
 from bayeshyst.selection import ComparisonResult, check_models, compare_models
+from bayeshyst.selection.tasks import GP_MODELS
 
 __all__ = ["DEFAULT_MODELS", "DEMO_DEFAULT", "DEMO_QUICK", "DemoPlan", "ReportResult",
            "ReportSettings", "bundled_data", "choose_model", "fit_result", "run_report"]

@@ -198,9 +198,9 @@ def test_report_samples_the_base_models_joint_posterior_once(
     comparison's checkpoint, not sampled a second time."""
     import emcee
 
-    from bayeshyst._comparison_tasks import fit_sampler
     from bayeshyst.inference.posterior import Posterior
     from bayeshyst.inference.settings import SamplerSettings
+    from bayeshyst.selection.tasks import fit_sampler
     from bayeshyst.workflow import ReportSettings, run_report
 
     fresh: list[tuple[str, int, str]] = []  # (model, records, held out) per new ensemble

@@ -169,7 +169,7 @@ def test_checkpoint_of_another_run_is_refused(tmp_path):
 
 
 def test_fit_sampler_names_a_fit_by_what_it_is_and_its_seed(tmp_path):
-    from bayeshyst._comparison_tasks import fit_identity, fit_sampler
+    from bayeshyst.selection.tasks import fit_identity, fit_sampler
 
     model, rec, _ = pi_data(n_ops=2, n=600, warmup=100)
     base = SamplerSettings(max_steps=200)

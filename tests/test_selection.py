@@ -115,7 +115,7 @@ def _timed_task(data, spec, settings, seed, out_dir):
     """Stands in for run_task in the pool's workers: notes when it ran."""
     import time
 
-    from bayeshyst._comparison_tasks import TaskResult
+    from bayeshyst.selection.tasks import TaskResult
 
     t0 = time.time()
     time.sleep(0.3)
@@ -126,8 +126,8 @@ def _timed_task(data, spec, settings, seed, out_dir):
 def test_tasks_fitting_one_posterior_do_not_run_at_once(monkeypatch, tmp_path):
     # with two frequencies, leaving one out fits the other's records: the same posterior,
     # the same checkpoint file, which two workers must not write at the same time
-    import bayeshyst.selection as sel
-    from bayeshyst._comparison_tasks import CompareSettings
+    import bayeshyst.selection.compare as sel
+    from bayeshyst.selection.tasks import CompareSettings
 
     monkeypatch.setattr(sel, "run_task", _timed_task)
     data = _hammerstein_data(freqs=(2.0, 20.0), cycles=3, per_cycle=60)
@@ -200,7 +200,7 @@ def test_single_frequency_and_unknown_frequency_groups():
 
 
 def test_a_failing_fit_is_recorded_and_ranked_last(monkeypatch):
-    import bayeshyst._comparison_tasks as tasks
+    import bayeshyst.selection.tasks as tasks
     from bayeshyst.errors import SimulationError
 
     real = tasks._run_parametric

@@ -18,13 +18,13 @@ import pytest
 from scipy import optimize, stats
 
 import bayeshyst.models as M
-from bayeshyst._comparison_tasks import TaskSpec, heldout_log_density, task_seed
 from bayeshyst.data import Dataset, Record
 from bayeshyst.errors import ModelError, ParameterError
 from bayeshyst.inference.conjugate import conjugate_posterior
 from bayeshyst.inference.posterior import Posterior
 from bayeshyst.models.base import DataScales
 from bayeshyst.selection import check_models, paired_difference, stacking_weights
+from bayeshyst.selection.tasks import TaskSpec, heldout_log_density, task_seed
 
 
 def _objective(w, lpd):

@@ -20,13 +20,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from bayeshyst._comparison_tasks import CompareSettings, TaskSpec, derived_seed, run_task
 from bayeshyst.cli import main
 from bayeshyst.data import load
 from bayeshyst.data.io import write_csv
 from bayeshyst.data.record import Dataset
 from bayeshyst.errors import ModelError, ParameterError
 from bayeshyst.inference.settings import SamplerSettings
+from bayeshyst.selection.tasks import CompareSettings, TaskSpec, derived_seed, run_task
 from bayeshyst.study import plan_study, read_study, run_study
 from bayeshyst.study.rows import TABLE_COLUMNS, VOLATILE_COLUMNS
 from bayeshyst.workflow import bundled_data

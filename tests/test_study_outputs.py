@@ -21,7 +21,6 @@ from typing import Any
 import numpy as np
 import pytest
 
-from bayeshyst._comparison_tasks import CompareSettings
 from bayeshyst.inference.settings import SamplerSettings
 from bayeshyst.report.study_figures import (
     _build_best_model,
@@ -32,6 +31,7 @@ from bayeshyst.report.study_figures import (
 )
 from bayeshyst.report.study_html import SECTIONS, study_html
 from bayeshyst.report.study_outputs import write_study_outputs
+from bayeshyst.selection.tasks import CompareSettings
 from bayeshyst.study.rows import TABLE_COLUMNS, failed_row
 from bayeshyst.study.run import StudyResult
 from bayeshyst.study.spec import DatasetSpec, Study

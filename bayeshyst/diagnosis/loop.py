@@ -25,7 +25,6 @@ from typing import Any
 
 import numpy as np
 
-from bayeshyst._comparison_tasks import CompareSettings, fit_sampler, loo_scores
 from bayeshyst.data.record import Dataset, Record
 from bayeshyst.diagnosis.effects import EFFECTS, get_effect
 from bayeshyst.diagnosis.residual import (
@@ -44,6 +43,7 @@ from bayeshyst.likelihoods import get_likelihood
 from bayeshyst.models import get as get_model
 from bayeshyst.models.base import HysteresisModel
 from bayeshyst.selection import paired_difference
+from bayeshyst.selection.tasks import CompareSettings, fit_sampler, loo_scores
 
 __all__ = ["DiagnosisFit", "DiagnosisResult", "DiagnosisSettings", "DiagnosisStep", "diagnose"]
 
@@ -413,7 +413,7 @@ def diagnose(
     sampler : SamplerSettings, optional
         How every fit is sampled (:func:`~bayeshyst.inference.sampling.sample_posterior`);
         each fit's seed derives from ``sampler.seed`` and what the fit is
-        (:func:`~bayeshyst._comparison_tasks.fit_sampler`): same seed, same result.
+        (:func:`~bayeshyst.selection.tasks.fit_sampler`): same seed, same result.
     n_draws : int
         Posterior draws averaged for predictions and residuals.
     max_refits : int

@@ -47,9 +47,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from bayeshyst._comparison_tasks import CompareSettings
 from bayeshyst.errors import DataError, ModelError, ParameterError
 from bayeshyst.inference.settings import MOVES, SamplerSettings
+from bayeshyst.selection.tasks import CompareSettings
 
 __all__ = ["MEASURED_LOADERS", "DatasetSpec", "Study", "load_dataset", "read_study"]
 

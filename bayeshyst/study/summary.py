@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 
 from bayeshyst.data.record import frequency_key
-from bayeshyst.selection import paired_difference, total_and_se
+from bayeshyst.selection.ranking import rank_by_elpd
 
 __all__ = ["DatasetRanking", "FrequencySummary", "ModelAcrossDatasets", "ModelAtDataset",
            "frequency_label", "summarise"]
@@ -186,18 +186,16 @@ def summarise(rows: Sequence[Mapping[str, Any]], pointwise: Mapping[str, np.ndar
         if len(sizes) > 1:  # cannot happen for one dataset's records; refuse to pair
             failed += list(ok)
             ok = {}
-        top = max(ok, key=lambda m: (float(np.sum(ok[m][0])), -models.index(m)), default=None)
         ranked = []
-        for m, (pw, good) in ok.items():
-            elpd, se = total_and_se(pw)
-            d, dse = (0.0, 0.0) if m == top else paired_difference(pw, ok[top][0])
+        for rk in rank_by_elpd({m: pw for m, (pw, _) in ok.items()}):
+            good = ok[rk.model][1]
             totals = [float(np.sum(pointwise[r["task"]])) for r in good]
             nrmse = [_nan(r["nrmse_percent"]) for r in good]
             ranked.append(ModelAtDataset(
-                m, elpd, se, d, dse, float(np.nanmean(nrmse)) if np.any(np.isfinite(nrmse))
-                else math.nan, float(np.std(totals, ddof=1)) if len(totals) > 1 else math.nan,
+                rk.model, rk.elpd, rk.se, rk.delta_elpd, rk.delta_se,
+                float(np.nanmean(nrmse)) if np.any(np.isfinite(nrmse)) else math.nan,
+                float(np.std(totals, ddof=1)) if len(totals) > 1 else math.nan,
                 len(good), all(bool(r["converged"]) for r in good)))
-        ranked.sort(key=lambda s: (-s.elpd_loo, models.index(s.model)))
         rankings.append(DatasetRanking(key[0], key[1], key[2], tuple(ranked), tuple(failed)))
         per_cell[key] = {s.model: (ok[s.model][0], s) for s in ranked}
 
@@ -216,21 +214,17 @@ def summarise(rows: Sequence[Mapping[str, Any]], pointwise: Mapping[str, np.ndar
             summaries.append(FrequencySummary(lik, f, (), (), incomplete))
             continue
         pooled = {m: np.concatenate([per_cell[k][m][0] for k in complete]) for m in models}
-        best_per = [max(models, key=lambda m, k=k: (per_cell[k][m][1].elpd_loo,
-                                                    -models.index(m))) for k in complete]
-        top = max(models, key=lambda m: (float(np.sum(pooled[m])), -models.index(m)))
+        best_per = [next(iter(per_cell[k])) for k in complete]  # each cell's ranking
         rows_m = []
-        for m in models:
-            elpd, se = total_and_se(pooled[m])
-            d, dse = (0.0, 0.0) if m == top else paired_difference(pooled[m], pooled[top])
+        for rk in rank_by_elpd(pooled):
+            m = rk.model
             nr = np.array([per_cell[k][m][1].nrmse_percent for k in complete])
             fin = nr[np.isfinite(nr)]
             rows_m.append(ModelAcrossDatasets(
-                m, len(complete), best_per.count(m), elpd, se, d, dse,
-                float(fin.mean()) if fin.size else math.nan,
+                m, len(complete), best_per.count(m), rk.elpd, rk.se, rk.delta_elpd,
+                rk.delta_se, float(fin.mean()) if fin.size else math.nan,
                 float(fin.max()) if fin.size else math.nan,
                 float(np.mean([per_cell[k][m][1].converged for k in complete]))))
-        rows_m.sort(key=lambda s: (-s.elpd_loo, models.index(s.model)))
         summaries.append(FrequencySummary(lik, f, tuple(rows_m), tuple(k[1] for k in complete),
                                           incomplete))
     return tuple(rankings), tuple(summaries)

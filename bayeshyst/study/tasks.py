@@ -29,7 +29,8 @@ from typing import Any
 
 import numpy as np
 
-from bayeshyst._comparison_tasks import (
+from bayeshyst.data.record import Dataset
+from bayeshyst.selection.tasks import (
     CompareSettings,
     TaskResult,
     TaskSpec,
@@ -37,7 +38,6 @@ from bayeshyst._comparison_tasks import (
     run_task,
     slug,
 )
-from bayeshyst.data.record import Dataset
 
 __all__ = ["TASK_FORMAT", "FitOutcome", "StudyTask", "data_digest", "execute",
            "settings_fingerprint", "slug"]

@@ -35,10 +35,14 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from scipy.optimize import minimize
-from scipy.special import softmax
 
-from bayeshyst._comparison_tasks import (
+from bayeshyst.data.record import Dataset, Record
+from bayeshyst.errors import DataError, ModelError, ParameterError
+from bayeshyst.inference.settings import SamplerSettings
+from bayeshyst.likelihoods import get_likelihood
+from bayeshyst.models import get as get_model
+from bayeshyst.selection.ranking import paired_difference, rank_by_elpd, total_and_se
+from bayeshyst.selection.tasks import (
     GP_MODELS,
     CompareSettings,
     TaskResult,
@@ -47,11 +51,6 @@ from bayeshyst._comparison_tasks import (
     run_task,
     split_data,
 )
-from bayeshyst.data.record import Dataset, Record
-from bayeshyst.errors import DataError, ModelError, ParameterError
-from bayeshyst.inference.settings import SamplerSettings
-from bayeshyst.likelihoods import get_likelihood
-from bayeshyst.models import get as get_model
 
 __all__ = [
     "ComparisonResult",
@@ -59,71 +58,8 @@ __all__ = [
     "ModelScore",
     "check_models",
     "compare_models",
-    "paired_difference",
     "split_top_level",
-    "stacking_weights",
-    "total_and_se",
 ]
-
-
-# ------------------------------------------------------------------------ statistics
-def stacking_weights(pointwise: np.ndarray) -> np.ndarray:
-    """Stacking weights of predictive distributions (Yao, Vehtari, Simpson & Gelman 2018).
-
-    Maximises ``sum_i log sum_k w_k exp(lpd[i, k])`` over the simplex.
-
-    Parameters
-    ----------
-    pointwise : ndarray, shape (n_units, K)
-        Leave-one-out log predictive density of each unit under each model.
-
-    Returns
-    -------
-    ndarray, shape (K,)
-        Non-negative weights summing to 1.
-    """
-    lpd = np.asarray(pointwise, dtype=float)
-    if lpd.ndim != 2 or lpd.shape[1] == 0:
-        raise ParameterError(f"pointwise must be (n_units, K >= 1), got shape {lpd.shape}")
-    k = lpd.shape[1]
-    if k == 1:
-        return np.ones(1)
-    if not np.all(np.isfinite(lpd)):
-        raise ParameterError("pointwise log densities must be finite for stacking")
-    # the objective is invariant to a per-unit shift; subtracting the row max keeps the
-    # exponentials in range for elpd values of thousands (long cycles)
-    dens = np.exp(lpd - lpd.max(axis=1, keepdims=True))
-
-    def objective(a: np.ndarray) -> tuple[float, np.ndarray]:
-        w = softmax(np.append(a, 0.0))
-        mix = dens @ w
-        val = -np.sum(np.log(mix))
-        g_w = -(dens / mix[:, None]).sum(axis=0)
-        # d w / d a_j = w_j (delta - w); the last logit is pinned at 0
-        grad = w[:-1] * (g_w[:-1] - g_w @ w)
-        return float(val), grad
-
-    best = None
-    for a0 in (np.zeros(k - 1), np.log(np.maximum(dens.mean(axis=0), 1e-300))[:-1]
-               - math.log(max(dens.mean(axis=0)[-1], 1e-300))):
-        r = minimize(objective, a0, jac=True, method="L-BFGS-B",
-                     options={"gtol": 1e-12, "ftol": 1e-15, "maxiter": 10_000})
-        if best is None or r.fun < best.fun:
-            best = r
-    w = softmax(np.append(best.x, 0.0))
-    return w / w.sum()
-
-
-def total_and_se(pw: np.ndarray) -> tuple[float, float]:
-    """``sum(pw)`` and its standard error ``sqrt(n var(pw))`` (NaN se for one unit)."""
-    if pw.size == 0:
-        return math.nan, math.nan
-    return float(np.sum(pw)), float(math.sqrt(pw.size * np.var(pw))) if pw.size > 1 else math.nan
-
-
-def paired_difference(a: np.ndarray, b: np.ndarray) -> tuple[float, float]:
-    """``sum(a - b)`` and its standard error ``sqrt(n var(a - b))`` over paired units."""
-    return total_and_se(np.asarray(a, dtype=float) - np.asarray(b, dtype=float))
 
 
 # --------------------------------------------------------------------------- results
@@ -535,14 +471,11 @@ def _assemble(models: tuple[str, ...], freq: float | None, joint: bool,
     for r in pre:
         if r["pw"] is not None and not any(r is o for o in ok):
             r["error"] = "non-finite predictive density (failed simulations)"
-    if ok:
-        sizes = {r["pw"].size for r in ok}
-        if len(sizes) != 1:
-            raise ModelError(f"models scored different numbers of cycles at {freq}: {sizes}")
-        weights = stacking_weights(np.column_stack([r["pw"] for r in ok]))
-        for r, w in zip(ok, weights, strict=True):
-            r["weight"] = float(w)
-        top = max(ok, key=lambda r: float(np.sum(r["pw"])))
+    try:
+        ranked = {x.model: x for x in rank_by_elpd({r["model"]: r["pw"] for r in ok},
+                                                   stacking=True)}
+    except ModelError as exc:
+        raise ModelError(f"at {freq}: {exc}") from None
     scores = []
     for r in pre:
         m = r["model"]
@@ -562,8 +495,7 @@ def _assemble(models: tuple[str, ...], freq: float | None, joint: bool,
                 error=r.get("error") or "failed"))
             continue
         sel = r["sel"]
-        elpd, se = total_and_se(r["pw"])
-        d, dse = (0.0, 0.0) if r is top else paired_difference(r["pw"], top["pw"])
+        rk = ranked[m]
         wa = (total_and_se(t.waic_pointwise[sel]) if t.waic_pointwise is not None
               else (math.nan, math.nan))
         k = t.pareto_k[sel] if t.pareto_k is not None else np.zeros(0)
@@ -571,17 +503,16 @@ def _assemble(models: tuple[str, ...], freq: float | None, joint: bool,
         nrmse, mx = _nrmse(t, freq, joint)
         conv = t.converged and all(x.converged for x in lofo.get(m, []) if x.ok)
         scores.append(ModelScore(
-            model=m, elpd_loo=elpd, se=se, p_loo=t.p_loo, delta_elpd=d, delta_se=dse,
-            weight=r["weight"], elpd_waic=wa[0], waic_se=wa[1], elpd_lofo=lofo_elpd,
-            lofo_se=lofo_se, lofo_nrmse_percent=r.get("lofo_nrmse", math.nan),
+            model=m, elpd_loo=rk.elpd, se=rk.se, p_loo=t.p_loo, delta_elpd=rk.delta_elpd,
+            delta_se=rk.delta_se, weight=rk.weight, elpd_waic=wa[0], waic_se=wa[1],
+            elpd_lofo=lofo_elpd, lofo_se=lofo_se, lofo_nrmse_percent=r.get("lofo_nrmse", math.nan),
             elpd_joint=r.get("elpd_joint", math.nan), bic=t.bic, nrmse_percent=nrmse,
             max_error_percent=mx, n_params=t.n_params, converged=conv, max_pareto_k=kmax,
             n_refits=t.n_refits, n_cycles=int(sel.sum()), warnings=tuple(warns)))
 
-    def rank(s: ModelScore) -> tuple[int, float]:
-        return (1, 0.0) if s.error else (0, -s.elpd_loo)
-
-    scores.sort(key=rank)
+    # the ranking's order; failed fits last, in the user's order
+    place = {name: i for i, name in enumerate(ranked)}
+    scores.sort(key=lambda s: place.get(s.model, len(place)))
     best = scores[0].model if scores and not scores[0].error else None
     lofo_ok = [s for s in scores if math.isfinite(s.elpd_lofo)]
     best_lofo = max(lofo_ok, key=lambda s: s.elpd_lofo).model if lofo_ok else None
