@@ -4,7 +4,9 @@
 - the paired elpd difference and its se vs ``arviz.compare``;
 - the held-out (leave-one-frequency-out) predictive density vs the analytic Gaussian
   predictive of a linear model under its conjugate posterior;
-- ``Posterior.holding_out`` vs the per-cycle log-likelihoods.
+- ``Posterior.holding_out`` vs the per-cycle log-likelihoods;
+- the one ranking (``rank_by_elpd``) vs sums, variances and differences by hand, and the
+  study summary's ranking vs the comparison's on the same cycles.
 """
 
 from __future__ import annotations
@@ -23,7 +25,12 @@ from bayeshyst.errors import ModelError, ParameterError
 from bayeshyst.inference.conjugate import conjugate_posterior
 from bayeshyst.inference.posterior import Posterior
 from bayeshyst.models.base import DataScales
-from bayeshyst.selection import check_models, paired_difference, stacking_weights
+from bayeshyst.selection import (
+    check_models,
+    paired_difference,
+    rank_by_elpd,
+    stacking_weights,
+)
 from bayeshyst.selection.tasks import TaskSpec, heldout_log_density, task_seed
 
 
@@ -166,3 +173,45 @@ def test_check_models_messages():
         check_models("pi_plya")
     with pytest.raises(ModelError, match="non-empty"):
         check_models("pi_play,,bouc_wen")
+
+
+def test_rank_by_elpd_by_hand():
+    """Totals, se = sqrt(n var), paired differences to the best, written out by hand;
+    a tie keeps the caller's order; different cycle counts are refused."""
+    a = np.array([-1.0, -2.0, -0.5, -1.5])
+    b = np.array([-0.5, -1.0, -1.0, -1.0])  # total -3.5, the best
+    c = a.copy()                             # ties with a
+    ranked = rank_by_elpd({"a": a, "b": b, "c": c}, stacking=True)
+    assert [r.model for r in ranked] == ["b", "a", "c"]
+    top, second = ranked[0], ranked[1]
+    assert top.elpd == pytest.approx(-3.5) and top.delta_elpd == 0.0 and top.delta_se == 0.0
+    assert top.se == pytest.approx(math.sqrt(4 * np.var(b)))
+    diff = a - b
+    assert second.elpd == pytest.approx(-5.0)
+    assert second.delta_elpd == pytest.approx(diff.sum())
+    assert second.delta_se == pytest.approx(math.sqrt(4 * np.var(diff)))
+    assert sum(r.weight for r in ranked) == pytest.approx(1.0)
+    assert [r.model for r in rank_by_elpd({"c": c, "a": a})] == ["c", "a"]
+    with pytest.raises(ModelError, match="different numbers of cycles"):
+        rank_by_elpd({"a": a, "short": b[:3]})
+    assert rank_by_elpd({}) == ()
+
+
+def test_study_summary_ranks_like_the_comparison():
+    """One dataset, one frequency: the study's ranking (elpd, Δelpd, se) is the
+    comparison's ranking of the same pointwise elpd."""
+    from bayeshyst.study.summary import summarise
+
+    rng = np.random.default_rng(3)
+    pw = {m: rng.normal(mu, 1.0, 12) for m, mu in (("m1", -2.0), ("m2", -1.0), ("m3", -1.5))}
+    rows = [{"likelihood": "gaussian", "dataset": "d", "frequency_hz": 5.0, "n_records": 1,
+             "model": m, "status": "ok", "task": m, "nrmse_percent": 1.0, "converged": True}
+            for m in pw]
+    rankings, summaries = summarise(rows, pw, list(pw))
+    expected = rank_by_elpd(pw)
+    got = rankings[0].ranking
+    assert [g.model for g in got] == [e.model for e in expected] == ["m2", "m3", "m1"]
+    for g, e in zip(got, expected, strict=True):
+        assert (g.elpd_loo, g.se, g.delta_elpd, g.delta_se) == pytest.approx(
+            (e.elpd, e.se, e.delta_elpd, e.delta_se))
+    assert [m.model for m in summaries[0].models] == ["m2", "m3", "m1"]
