@@ -32,10 +32,9 @@ import xarray as xr
 
 from bayeshyst.errors import ParameterError
 from bayeshyst.files import atomic_path
-from bayeshyst.inference.convergence import hdi
 from bayeshyst.inference.linear import LinearStructure
 from bayeshyst.inference.posterior import NOISE, Posterior
-from bayeshyst.inference.sampling import ParamSummary, SamplingResult
+from bayeshyst.inference.sampling import ParamSummary, SamplingResult, summarise_draws
 from bayeshyst.params import ParamSpace
 
 __all__ = [
@@ -426,18 +425,11 @@ def posterior_summary(idata: az.InferenceData, prob: float = 0.9) -> list[ParamS
         raise ParameterError("idata has no posterior group (build it with to_inference_data)")
     if not 0.0 < prob < 1.0:
         raise ParameterError(f"prob must be in (0, 1), got {prob!r}")
-    out = []
-    for name, var in idata.posterior.data_vars.items():
-        x = np.asarray(var.values, dtype=float)
-        x = x.reshape(x.shape[0] * x.shape[1], -1)
-        extra = var.shape[2:]
-        for j in range(x.shape[1]):
-            label = str(name) if not extra else f"{name}[{j}]"
-            lo, hi = hdi(x[:, j], prob)
-            out.append(ParamSummary(label, str(var.attrs.get("unit", "")),
-                                    float(np.mean(x[:, j])), float(np.std(x[:, j], ddof=1)),
-                                    lo, hi, prob))
-    return out
+    post = idata.posterior
+    draws = {str(name): np.asarray(var.values, dtype=float).reshape(-1, *var.shape[2:])
+             for name, var in post.data_vars.items()}
+    units = {str(name): str(var.attrs.get("unit", "")) for name, var in post.data_vars.items()}
+    return summarise_draws(draws, units, prob)
 
 
 def sampling_report(idata: az.InferenceData) -> dict[str, Any]:

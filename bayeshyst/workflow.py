@@ -44,7 +44,7 @@ from bayeshyst.selection import ComparisonResult, check_models, compare_models
 from bayeshyst.selection.tasks import GP_MODELS
 
 __all__ = ["DEFAULT_MODELS", "DEMO_DEFAULT", "DEMO_QUICK", "DemoPlan", "ReportResult",
-           "ReportSettings", "bundled_data", "choose_model", "fit_result", "run_report"]
+           "ReportSettings", "bundled_data", "choose_model", "run_report"]
 
 #: Models compared when the user names none: the two classic phenomenological families,
 #: a rate-dependent PI, and the Gaussian-process peer.
@@ -154,7 +154,7 @@ class ReportResult:
     @property
     def final_fit(self) -> FitResult | None:
         """The posterior the feedforward was designed from."""
-        return None if self.diagnosis is None else fit_result(self.diagnosis.final)
+        return None if self.diagnosis is None else self.diagnosis.final.fit
 
     def __str__(self) -> str:
         parts = [str(self.comparison)]
@@ -169,12 +169,6 @@ class ReportResult:
         parts.append(f"total {total:.1f} s (" + ", ".join(
             f"{k} {v:.1f} s" for k, v in self.runtime_s.items()) + ")")
         return "\n\n".join(parts)
-
-
-def fit_result(fit: DiagnosisFit) -> FitResult:
-    """A diagnosis fit as the :class:`FitResult` the compensation and the fit writers take."""
-    return FitResult(fit.posterior, fit.sampling, fit.overall, list(fit.per_frequency),
-                     list(fit.analysis.mean_prediction))
 
 
 def choose_model(comparison: ComparisonResult) -> tuple[str | None, list[str]]:
@@ -281,7 +275,7 @@ def run_report(
         final = diagnosis.final
         _stage(progress, f"3/3 designing feedforward with {final.label}")
         t0 = time.perf_counter()
-        compensation = compensate(data, final.model, fit=fit_result(final),
+        compensation = compensate(data, final.model, fit=final.fit,
                                   n_design_draws=s.design_draws,
                                   robust_quantile=s.robust_quantile, sampler=sampler)
         times["compensate"] = time.perf_counter() - t0

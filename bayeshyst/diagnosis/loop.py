@@ -34,7 +34,7 @@ from bayeshyst.diagnosis.residual import (
     best_point,
 )
 from bayeshyst.errors import DataError, ParameterError
-from bayeshyst.inference.fit import TrackingError, errors_by_frequency
+from bayeshyst.inference.fit import FitResult, TrackingError, errors_by_frequency
 from bayeshyst.inference.optimize import find_map
 from bayeshyst.inference.posterior import Posterior
 from bayeshyst.inference.sampling import ParamSummary, SamplingResult, sample_posterior
@@ -78,41 +78,83 @@ class DiagnosisSettings:
 
 @dataclass(frozen=True)
 class DiagnosisFit:
-    """One fitted model of the loop.
+    """One fitted model of the loop: the fit record and its residual analysis.
 
     Attributes
     ----------
     label : str
         Spec string (``"pi_play+creep"``) and likelihood (``" with likelihood ar1"``).
-    model : HysteresisModel
-    likelihood : str
-    posterior : Posterior
-    sampling : SamplingResult
-    overall : TrackingError
-    per_frequency : list of TrackingError
-    pointwise_elpd : ndarray, shape (n_cycles,)
-        Cycle-wise PSIS-LOO elpd (exact where refitted).
+    fit : FitResult
+        The fit, as :func:`~bayeshyst.inference.fit.fit_model` returns one, with its
+        cycle-wise elpd, warnings and InferenceData; the compensation and the writers
+        take it as it is.
     analysis : ResidualAnalysis
         Residual and every effect's test on it.
-    warnings : tuple of str
-    idata : arviz.InferenceData
+
+    The fit's fields read through (``posterior``, ``sampling``, ``model``,
+    ``likelihood``, ``overall``, ``per_frequency``, ``pointwise_elpd``, ``warnings``,
+    ``idata``, ``elpd``, ``converged``).
     """
 
     label: str
-    model: HysteresisModel
-    likelihood: str
-    posterior: Posterior
-    sampling: SamplingResult
-    overall: TrackingError
-    per_frequency: list[TrackingError]
-    pointwise_elpd: np.ndarray
+    fit: FitResult
     analysis: ResidualAnalysis
-    warnings: tuple[str, ...]
-    idata: Any = field(repr=False, default=None)
+
+    @property
+    def model(self) -> HysteresisModel:
+        """The fitted model."""
+        return self.fit.model
+
+    @property
+    def likelihood(self) -> str:
+        """The likelihood's name."""
+        return self.fit.likelihood
+
+    @property
+    def posterior(self) -> Posterior:
+        """The fitted posterior."""
+        return self.fit.posterior
+
+    @property
+    def sampling(self) -> SamplingResult:
+        """Its samples."""
+        return self.fit.sampling
+
+    @property
+    def overall(self) -> TrackingError:
+        """Tracking error of the posterior-mean prediction over all scored samples."""
+        return self.fit.overall
+
+    @property
+    def per_frequency(self) -> list[TrackingError]:
+        """The same per excitation frequency."""
+        return self.fit.per_frequency
+
+    @property
+    def pointwise_elpd(self) -> np.ndarray | None:
+        """Cycle-wise PSIS-LOO elpd (exact where refitted), shape (n_cycles,); a
+        diagnosis always scores its fits."""
+        return self.fit.pointwise_elpd
+
+    @property
+    def warnings(self) -> tuple[str, ...]:
+        """What the fit noticed."""
+        return self.fit.warnings
+
+    @property
+    def idata(self) -> Any:
+        """The thinned posterior (arviz.InferenceData) behind the elpd."""
+        return self.fit.idata
 
     @property
     def elpd(self) -> float:
-        return float(np.sum(self.pointwise_elpd))
+        """Summed cycle-wise elpd."""
+        return self.fit.elpd
+
+    @property
+    def converged(self) -> bool:
+        """Whether the sampler converged."""
+        return self.fit.converged
 
 
 def _te(e: TrackingError | None) -> dict[str, Any] | None:
@@ -345,8 +387,9 @@ def _fit(data: Dataset, model: HysteresisModel, likelihood: str, label: str,
     analysis = analyse_residual(post, res, draws, effects=st.effects, alpha=st.alpha,
                                 max_ar_order=st.max_ar_order)
     overall, per = errors_by_frequency(data, analysis.mean_prediction)
-    return DiagnosisFit(label, model, likelihood, post, res, overall, list(per),
-                        scores.pointwise, analysis, tuple(notes), scores.idata)
+    fit = FitResult(post, res, overall, list(per), list(analysis.mean_prediction),
+                    pointwise_elpd=scores.pointwise, warnings=tuple(notes), idata=scores.idata)
+    return DiagnosisFit(label, fit, analysis)
 
 
 def _added(fit: DiagnosisFit, before: DiagnosisFit) -> tuple[ParamSummary, ...]:

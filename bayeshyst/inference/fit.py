@@ -8,7 +8,8 @@ the measurement — overall and per excitation frequency, as users report it.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -112,7 +113,11 @@ def tracking_errors(
 
 @dataclass(frozen=True)
 class FitResult:
-    """A fitted posterior with its tracking errors.
+    """A fitted posterior with its tracking errors: the one fit record.
+
+    :func:`fit_model` returns it; a diagnosis fit (:class:`~bayeshyst.diagnosis.DiagnosisFit`)
+    holds one with its residual analysis; the compensation designs from one; the writers
+    write one. What a caller scored or saved on top of sampling travels with it.
 
     Attributes
     ----------
@@ -121,8 +126,14 @@ class FitResult:
     overall : TrackingError
         Of the posterior-mean prediction over all scored samples.
     per_frequency : list of TrackingError
-    mean_prediction : list of ndarray
-        Posterior-mean noise-free prediction per record (full records).
+    mean_prediction : list of ndarray, each shape (N_record,)
+        Posterior-mean noise-free prediction per record (full records, output units).
+    pointwise_elpd : ndarray, shape (n_cycles,), optional
+        Cycle-wise leave-one-cycle-out elpd (nats), when the fit was scored.
+    warnings : tuple of str
+        What the fitting code noticed (non-convergence, failed simulations, LOO notes).
+    idata : arviz.InferenceData, optional
+        The thinned posterior with its log-likelihood, when one was built.
     """
 
     posterior: Posterior
@@ -130,15 +141,34 @@ class FitResult:
     overall: TrackingError
     per_frequency: list[TrackingError]
     mean_prediction: list[np.ndarray]
+    pointwise_elpd: np.ndarray | None = field(default=None, repr=False)
+    warnings: tuple[str, ...] = ()
+    idata: Any = field(default=None, repr=False)
+
+    @property
+    def model(self) -> HysteresisModel:
+        """The fitted model."""
+        return self.posterior.model
+
+    @property
+    def likelihood(self) -> str:
+        """The likelihood's name (``"gaussian"``, ``"ar1"``, ...)."""
+        return self.posterior.likelihood.name
 
     @property
     def converged(self) -> bool:
         """Whether the sampler's convergence criteria all held."""
         return self.sampling.converged
 
+    @property
+    def elpd(self) -> float:
+        """Summed cycle-wise elpd (NaN when the fit was not scored)."""
+        return math.nan if self.pointwise_elpd is None else float(np.sum(self.pointwise_elpd))
+
     def __str__(self) -> str:
         lines = [str(self.sampling), "tracking error of the posterior mean:", str(self.overall)]
         lines += [str(e) for e in self.per_frequency if e.frequency_hz is not None]
+        lines += [f"warning: {w}" for w in self.warnings]
         return "\n".join(lines)
 
 

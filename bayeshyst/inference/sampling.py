@@ -25,6 +25,7 @@ import hashlib
 import math
 import sys
 import time
+from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 from typing import Any
 
@@ -48,7 +49,7 @@ from bayeshyst.params import ParamSpace
 
 __all__ = [
     "MIN_MOVE_RATE", "ParamSummary", "SamplingResult", "adaptation_points", "chunk_boundaries",
-    "extension_points", "sample_posterior",
+    "extension_points", "sample_posterior", "summarise_draws",
 ]
 
 
@@ -70,6 +71,43 @@ class ParamSummary:
     def __str__(self) -> str:
         return (f"{self.label:<22} {self.mean:>12.5g} {self.sd:>11.4g}  "
                 f"[{self.hdi_lo:.5g}, {self.hdi_hi:.5g}] {self.unit}")
+
+
+def summarise_draws(draws: Mapping[str, np.ndarray], units: Mapping[str, str],
+                    prob: float = 0.9) -> list[ParamSummary]:
+    """One :class:`ParamSummary` per scalar element of every parameter's draws.
+
+    The one place posterior summaries are computed: :meth:`SamplingResult.summary` (full
+    chains) and :func:`bayeshyst.diagnostics.posterior_summary` (a saved posterior's
+    thinned draws) both call it.
+
+    Parameters
+    ----------
+    draws : mapping of str to ndarray, each shape (n_draws, *shape)
+        Draws of each parameter in physical units.
+    units : mapping of str to str
+        Unit of each parameter (missing: dimensionless, ``""``).
+    prob : float
+        Mass of the highest-density interval, in (0, 1).
+
+    Returns
+    -------
+    list of ParamSummary
+        In the order of ``draws``; vector and matrix parameters give one row per
+        element, labelled ``name[i]`` / ``name[i,j]`` (as :meth:`Param.labels`).
+    """
+    out = []
+    for name, values in draws.items():
+        x = np.asarray(values, dtype=float)
+        shape = x.shape[1:]
+        flat = x.reshape(x.shape[0], -1)
+        labels = ([name] if not shape else
+                  [f"{name}[{','.join(map(str, idx))}]" for idx in np.ndindex(*shape)])
+        for j, label in enumerate(labels):
+            lo, hi = hdi(flat[:, j], prob)
+            out.append(ParamSummary(label, units.get(name, ""), float(np.mean(flat[:, j])),
+                                    float(np.std(flat[:, j], ddof=1)), lo, hi, prob))
+    return out
 
 
 @dataclass(frozen=True)
@@ -148,14 +186,8 @@ class SamplingResult:
     def summary(self, prob: float = 0.9) -> list[ParamSummary]:
         """Mean, sd and ``prob`` HDI of every free scalar element, in physical units."""
         theta = self.theta()
-        out = []
-        for p in self.space.params:
-            x = np.asarray(theta[p.name]).reshape(theta[p.name].shape[0], -1)
-            for j, label in enumerate(p.labels()):
-                lo, hi = hdi(x[:, j], prob)
-                out.append(ParamSummary(label, p.unit, float(np.mean(x[:, j])),
-                                        float(np.std(x[:, j], ddof=1)), lo, hi, prob))
-        return out
+        return summarise_draws({p.name: theta[p.name] for p in self.space.params},
+                               {p.name: p.unit for p in self.space.params}, prob)
 
     def __str__(self) -> str:
         moves = ", ".join(f"{k} {v:.2f}" for k, v in sorted(self.move_acceptance.items()))
