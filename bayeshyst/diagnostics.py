@@ -433,11 +433,14 @@ def posterior_summary(idata: az.InferenceData, prob: float = 0.9) -> list[ParamS
 
 
 def sampling_report(idata: az.InferenceData) -> dict[str, Any]:
-    """The sampler's convergence report and counts saved with a posterior: ``converged``
-    (bool), ``convergence_reasons`` (list), ``rhat_max``, ``ess_bulk_min``,
-    ``ess_tail_min``, ``tau_max``, ``n_steps``, ``evaluations``, ``failed_simulations``,
-    ``runtime_s``, ``model``, ``likelihood``, ``move_acceptance`` (dict; judged on the
-    full chains, not the saved draws). Missing entries are ``None``."""
+    """The sampler's convergence report and counts saved with a posterior.
+
+    Keys: ``converged`` (bool), ``convergence_reasons`` (list), ``rhat_max``,
+    ``ess_bulk_min``, ``ess_tail_min``, ``tau_max``, ``n_steps``, ``evaluations``,
+    ``failed_simulations``, ``runtime_s``, ``model``, ``likelihood``, ``move_acceptance``
+    (dict; judged on the full chains, not the saved draws). Missing entries are
+    ``None``.
+    """
     stats = getattr(idata, "sample_stats", None)
     attrs = dict(stats.attrs) if stats is not None else {}
 

@@ -76,8 +76,24 @@ class Likelihood(ABC):
     @abstractmethod
     def sample(self, theta: Mapping[str, np.ndarray], n: int,
                rng: np.random.Generator) -> np.ndarray:
-        """Noise draws ``(W, n)`` for the noise parameters ``theta`` (each ``(W,)``):
-        what the posterior predictive adds to a simulated output."""
+        """Noise draws for the noise parameters ``theta``.
+
+        They are what the posterior predictive adds to a simulated output.
+
+        Parameters
+        ----------
+        theta : mapping
+            Noise parameters, each of shape ``(W,)``.
+        n : int
+            Number of samples per draw.
+        rng : numpy.random.Generator
+            Source of randomness.
+
+        Returns
+        -------
+        ndarray, shape (W, n)
+            Noise in the output unit.
+        """
 
     def __str__(self) -> str:
         return self.name
@@ -94,15 +110,35 @@ class Gaussian(Likelihood):
     name: ClassVar[str] = "gaussian"
 
     def param_space(self, data: Any = None) -> ParamSpace:
+        """Noise parameter ``sigma`` (output unit), log-normal prior around 1 % of the span.
+
+        Parameters
+        ----------
+        data : Record, Dataset or None
+            Data whose output span and ``y`` unit set the prior (``None``: median 0.01 um).
+
+        Returns
+        -------
+        ParamSpace
+            The single free parameter ``sigma``.
+        """
         scale, unit = _noise_scale(data)
         return ParamSpace((Param("sigma", LogNormal.from_median(scale, 1.5), unit=unit,
                                  description="noise standard deviation"),))
 
     def pointwise(self, resid: np.ndarray, theta: Mapping[str, np.ndarray]) -> np.ndarray:
+        """Per-sample Gaussian log-densities ``log N(e_k; 0, sigma^2)``, shape ``(W, N)``.
+
+        See :meth:`Likelihood.pointwise` for the arguments.
+        """
         sigma = np.asarray(theta["sigma"], dtype=float)[:, None]
         return -0.5 * (resid / sigma) ** 2 - np.log(sigma) - 0.5 * _LOG_2PI
 
     def sample(self, theta, n, rng):
+        """Independent ``N(0, sigma^2)`` noise draws, shape ``(W, n)``.
+
+        See :meth:`Likelihood.sample` for the arguments.
+        """
         sigma = np.asarray(theta["sigma"], dtype=float)[:, None]
         return sigma * rng.standard_normal((sigma.shape[0], int(n)))
 
@@ -119,6 +155,20 @@ class StudentT(Likelihood):
     name: ClassVar[str] = "student_t"
 
     def param_space(self, data: Any = None) -> ParamSpace:
+        """Noise parameters ``sigma`` (output unit) and ``nu`` (degrees of freedom).
+
+        Parameters
+        ----------
+        data : Record, Dataset or None
+            Data whose output span and ``y`` unit set the ``sigma`` prior (``None``: median
+            0.01 um).
+
+        Returns
+        -------
+        ParamSpace
+            Free parameters ``sigma`` (log-normal, median 1 % of the span, spread 1.5) and
+            ``nu`` (log-normal, median 5, spread 1).
+        """
         scale, unit = _noise_scale(data)
         return ParamSpace((
             Param("sigma", LogNormal.from_median(scale, 1.5), unit=unit,
@@ -128,6 +178,10 @@ class StudentT(Likelihood):
         ))
 
     def pointwise(self, resid: np.ndarray, theta: Mapping[str, np.ndarray]) -> np.ndarray:
+        """Per-sample Student-t log-densities of scale ``sigma`` and ``nu`` dof, shape ``(W, N)``.
+
+        See :meth:`Likelihood.pointwise` for the arguments.
+        """
         sigma = np.asarray(theta["sigma"], dtype=float)[:, None]
         nu = np.asarray(theta["nu"], dtype=float)[:, None]
         const = (special.gammaln(0.5 * (nu + 1.0)) - special.gammaln(0.5 * nu)
@@ -135,6 +189,10 @@ class StudentT(Likelihood):
         return const - 0.5 * (nu + 1.0) * np.log1p((resid / sigma) ** 2 / nu)
 
     def sample(self, theta, n, rng):
+        """Independent Student-t noise draws (scale ``sigma``, ``nu`` dof), shape ``(W, n)``.
+
+        See :meth:`Likelihood.sample` for the arguments.
+        """
         sigma = np.asarray(theta["sigma"], dtype=float)[:, None]
         nu = np.asarray(theta["nu"], dtype=float)[:, None]
         return sigma * rng.standard_t(nu, size=(sigma.shape[0], int(n)))
@@ -157,6 +215,20 @@ class AR1(Likelihood):
     name: ClassVar[str] = "ar1"
 
     def param_space(self, data: Any = None) -> ParamSpace:
+        """Noise parameters ``sigma`` (marginal sd, output unit) and ``phi`` (lag-1 correlation).
+
+        Parameters
+        ----------
+        data : Record, Dataset or None
+            Data whose output span and ``y`` unit set the ``sigma`` prior (``None``: median
+            0.01 um).
+
+        Returns
+        -------
+        ParamSpace
+            Free parameters ``sigma`` (log-normal, median 1 % of the span, spread 1.5) and
+            ``phi`` (uniform on (-0.99, 0.999)).
+        """
         scale, unit = _noise_scale(data)
         return ParamSpace((
             Param("sigma", LogNormal.from_median(scale, 1.5), unit=unit,
@@ -166,6 +238,12 @@ class AR1(Likelihood):
         ))
 
     def pointwise(self, resid: np.ndarray, theta: Mapping[str, np.ndarray]) -> np.ndarray:
+        """Per-sample AR(1) log-density terms, shape ``(W, N)``.
+
+        The first sample is scored under the marginal ``N(0, sigma^2)``, each later one under
+        the conditional ``N(phi e_{k-1}, sigma^2 (1 - phi^2))``. See
+        :meth:`Likelihood.pointwise` for the arguments.
+        """
         sigma = np.asarray(theta["sigma"], dtype=float)[:, None]
         phi = np.asarray(theta["phi"], dtype=float)[:, None]
         out = np.empty_like(resid)
@@ -176,6 +254,12 @@ class AR1(Likelihood):
         return out
 
     def sample(self, theta, n, rng):
+        """Stationary AR(1) noise draws, shape ``(W, n)``.
+
+        The first sample is drawn from the marginal ``N(0, sigma^2)``, later ones by the
+        recursion with innovations of sd ``sigma sqrt(1 - phi^2)``. See
+        :meth:`Likelihood.sample` for the arguments.
+        """
         sigma = np.asarray(theta["sigma"], dtype=float)
         phi = np.asarray(theta["phi"], dtype=float)
         w = sigma.shape[0]

@@ -84,12 +84,15 @@ class Identity(Transform):
     """``x = z`` for parameters supported on the whole real line."""
 
     def forward(self, x: np.ndarray) -> np.ndarray:
+        """``z = x``, as a float array."""
         return np.asarray(x, dtype=float)
 
     def inverse(self, z: np.ndarray) -> np.ndarray:
+        """``x = z``, as a float array."""
         return np.asarray(z, dtype=float)
 
     def log_jacobian(self, z: np.ndarray) -> np.ndarray:
+        """Zeros shaped like ``z``: the identity has ``dx/dz = 1``."""
         return np.zeros_like(np.asarray(z, dtype=float))
 
 
@@ -106,14 +109,17 @@ class LogTransform(Transform):
     lower: float = 0.0
 
     def forward(self, x: np.ndarray) -> np.ndarray:
+        """``z = log(x - lower)``; ``-inf`` at ``x = lower`` (no divide warning)."""
         with np.errstate(divide="ignore"):
             return np.log(np.asarray(x, dtype=float) - self.lower)
 
     def inverse(self, z: np.ndarray) -> np.ndarray:
+        """``x = lower + exp(z)``; overflow to ``inf`` is silent."""
         with np.errstate(over="ignore"):
             return self.lower + np.exp(np.asarray(z, dtype=float))
 
     def log_jacobian(self, z: np.ndarray) -> np.ndarray:
+        """``log |dx/dz| = z``, as a float array."""
         return np.asarray(z, dtype=float)
 
 
@@ -124,14 +130,17 @@ class UpperLogTransform(Transform):
     upper: float = 0.0
 
     def forward(self, x: np.ndarray) -> np.ndarray:
+        """``z = log(upper - x)``; ``-inf`` at ``x = upper`` (no divide warning)."""
         with np.errstate(divide="ignore"):
             return np.log(self.upper - np.asarray(x, dtype=float))
 
     def inverse(self, z: np.ndarray) -> np.ndarray:
+        """``x = upper - exp(z)``; overflow to ``-inf`` is silent."""
         with np.errstate(over="ignore"):
             return self.upper - np.exp(np.asarray(z, dtype=float))
 
     def log_jacobian(self, z: np.ndarray) -> np.ndarray:
+        """``log |dx/dz| = z``, as a float array."""
         return np.asarray(z, dtype=float)
 
 
@@ -157,14 +166,20 @@ class LogitTransform(Transform):
             )
 
     def forward(self, x: np.ndarray) -> np.ndarray:
+        """``z = logit((x - lower) / (upper - lower))``; ``-inf`` / ``inf`` at the bounds."""
         p = (np.asarray(x, dtype=float) - self.lower) / (self.upper - self.lower)
         with np.errstate(divide="ignore"):
             return special.logit(p)
 
     def inverse(self, z: np.ndarray) -> np.ndarray:
+        """``x = lower + (upper - lower) * expit(z)``."""
         return self.lower + (self.upper - self.lower) * special.expit(np.asarray(z, dtype=float))
 
     def log_jacobian(self, z: np.ndarray) -> np.ndarray:
+        """``log(upper - lower) + log expit(z) + log expit(-z)``.
+
+        Written with ``log_expit`` so that it stays finite for ``|z|`` in the hundreds.
+        """
         z = np.asarray(z, dtype=float)
         # log(sigmoid(z) * sigmoid(-z)), written with log_expit so that it stays finite
         # for |z| in the hundreds instead of underflowing to log(0).
@@ -249,19 +264,24 @@ class Uniform(Prior):
 
     @property
     def support(self) -> tuple[float, float]:
+        """``(lower, upper)``."""
         return (float(self.lower), float(self.upper))
 
     def logpdf(self, x: np.ndarray) -> np.ndarray:
+        """Elementwise log density ``-log(upper - lower)``; ``-inf`` outside the bounds."""
         x = np.asarray(x, dtype=float)
         return self._mask(x, np.full_like(x, -math.log(self.upper - self.lower)))
 
     def cdf(self, x: np.ndarray) -> np.ndarray:
+        """Elementwise CDF ``(x - lower) / (upper - lower)``, clipped to ``[0, 1]``."""
         return np.clip((np.asarray(x, dtype=float) - self.lower) / (self.upper - self.lower), 0, 1)
 
     def sample(self, rng: np.random.Generator, shape: tuple[int, ...]) -> np.ndarray:
+        """Uniform draws on ``[lower, upper)`` of the given shape."""
         return rng.uniform(self.lower, self.upper, size=shape)
 
     def scale(self) -> float:
+        """Standard deviation of the uniform, ``(upper - lower) / sqrt(12)``."""
         return (self.upper - self.lower) / math.sqrt(12.0)
 
 
@@ -279,19 +299,24 @@ class Normal(Prior):
 
     @property
     def support(self) -> tuple[float, float]:
+        """``(-inf, inf)``."""
         return (-math.inf, math.inf)
 
     def logpdf(self, x: np.ndarray) -> np.ndarray:
+        """Elementwise normal log density."""
         zs = (np.asarray(x, dtype=float) - self.mu) / self.sigma
         return -0.5 * zs**2 - math.log(self.sigma) - _LOG_SQRT_2PI
 
     def cdf(self, x: np.ndarray) -> np.ndarray:
+        """Elementwise CDF ``ndtr((x - mu) / sigma)``."""
         return special.ndtr((np.asarray(x, dtype=float) - self.mu) / self.sigma)
 
     def sample(self, rng: np.random.Generator, shape: tuple[int, ...]) -> np.ndarray:
+        """Normal draws of the given shape."""
         return rng.normal(self.mu, self.sigma, size=shape)
 
     def scale(self) -> float:
+        """``sigma``."""
         return float(self.sigma)
 
 
@@ -315,9 +340,11 @@ class LogNormal(Prior):
 
     @property
     def support(self) -> tuple[float, float]:
+        """``(0, inf)``."""
         return (0.0, math.inf)
 
     def logpdf(self, x: np.ndarray) -> np.ndarray:
+        """Elementwise log-normal log density; ``-inf`` for ``x <= 0``."""
         x = np.asarray(x, dtype=float)
         with np.errstate(divide="ignore", invalid="ignore"):
             lx = np.log(np.where(x > 0, x, 1.0))
@@ -325,18 +352,21 @@ class LogNormal(Prior):
         return np.where(x > 0, val - _LOG_SQRT_2PI, -np.inf)
 
     def cdf(self, x: np.ndarray) -> np.ndarray:
+        """Elementwise CDF ``ndtr((log(x) - mu) / sigma)``; 0 for ``x <= 0``."""
         x = np.asarray(x, dtype=float)
         with np.errstate(divide="ignore"):
             return np.where(x > 0, special.ndtr((np.log(np.maximum(x, 1e-300)) - self.mu)
                                                 / self.sigma), 0.0)
 
     def sample(self, rng: np.random.Generator, shape: tuple[int, ...]) -> np.ndarray:
+        """Log-normal draws of the given shape."""
         return rng.lognormal(self.mu, self.sigma, size=shape)
 
     def __str__(self) -> str:
         return f"LogNormal(median={math.exp(self.mu):.4g}, sigma={self.sigma:.4g})"
 
     def scale(self) -> float:
+        """``exp(mu) * sigma``: the median times the log-scale spread."""
         return float(math.exp(self.mu) * self.sigma)
 
 
@@ -351,21 +381,26 @@ class HalfNormal(Prior):
 
     @property
     def support(self) -> tuple[float, float]:
+        """``(0, inf)``."""
         return (0.0, math.inf)
 
     def logpdf(self, x: np.ndarray) -> np.ndarray:
+        """Elementwise half-normal log density; ``-inf`` for ``x < 0``."""
         x = np.asarray(x, dtype=float)
         val = -0.5 * (x / self.sigma) ** 2 - math.log(self.sigma) - _LOG_SQRT_2PI + math.log(2)
         return np.where(x >= 0, val, -np.inf)
 
     def cdf(self, x: np.ndarray) -> np.ndarray:
+        """Elementwise CDF ``erf(x / (sigma * sqrt(2)))``; 0 for ``x <= 0``."""
         x = np.asarray(x, dtype=float)
         return np.where(x > 0, special.erf(x / (self.sigma * math.sqrt(2.0))), 0.0)
 
     def sample(self, rng: np.random.Generator, shape: tuple[int, ...]) -> np.ndarray:
+        """Half-normal draws ``|Normal(0, sigma)|`` of the given shape."""
         return np.abs(rng.normal(0.0, self.sigma, size=shape))
 
     def scale(self) -> float:
+        """``sigma``."""
         return float(self.sigma)
 
 
@@ -403,20 +438,27 @@ class TruncatedNormal(Prior):
 
     @property
     def support(self) -> tuple[float, float]:
+        """``(lower, upper)`` (either may be infinite)."""
         return (float(self.lower), float(self.upper))
 
     def logpdf(self, x: np.ndarray) -> np.ndarray:
+        """Elementwise log density of the truncated normal; ``-inf`` outside the bounds.
+
+        The normal log density minus the log of the normal's mass on ``[lower, upper]``.
+        """
         x = np.asarray(x, dtype=float)
         zs = (x - self.mu) / self.sigma
         val = -0.5 * zs**2 - math.log(self.sigma) - _LOG_SQRT_2PI - self._log_mass()
         return self._mask(x, val)
 
     def cdf(self, x: np.ndarray) -> np.ndarray:
+        """Elementwise CDF of the truncated normal: 0 below ``lower``, 1 above ``upper``."""
         a, b = self._std_bounds()
         zs = np.clip((np.asarray(x, dtype=float) - self.mu) / self.sigma, a, b)
         return (special.ndtr(zs) - special.ndtr(a)) / math.exp(self._log_mass())
 
     def sample(self, rng: np.random.Generator, shape: tuple[int, ...]) -> np.ndarray:
+        """Inverse-CDF draws of the given shape, inside ``[lower, upper]``."""
         a, b = self._std_bounds()
         lo, hi = special.ndtr(a), special.ndtr(b)
         p = rng.uniform(lo, hi, size=shape)
@@ -424,6 +466,7 @@ class TruncatedNormal(Prior):
         return np.clip(self.mu + self.sigma * special.ndtri(p), self.lower, self.upper)
 
     def scale(self) -> float:
+        """``sigma``, capped at ``(upper - lower) / sqrt(12)`` when both bounds are finite."""
         width = self.upper - self.lower
         return float(min(self.sigma, width / math.sqrt(12.0)) if math.isfinite(width)
                      else self.sigma)

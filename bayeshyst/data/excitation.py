@@ -1,5 +1,6 @@
-"""Excitation signals for piezo actuators: sines, triangles, decaying sines, steps,
-multisines, and their concatenation with a smooth start.
+"""Excitation signals for piezo actuators, and their concatenation with a smooth start.
+
+The signals are sines, triangles, decaying sines, steps and multisines.
 
 Every generator is a pure function that returns ``(t, u)``: sample times ``t`` [s]
 starting at 0 and the drive voltage ``u`` [V], both float64 arrays of shape (n,),

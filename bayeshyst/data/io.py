@@ -230,7 +230,7 @@ def read_csv(
     name: str | None = None,
     fittable: bool = True,
 ) -> Dataset:
-    """Read a delimited text file with header ``t,u,y[,segment][,frequency_hz]``.
+    r"""Read a delimited text file with header ``t,u,y[,segment][,frequency_hz]``.
 
     Parameters
     ----------
@@ -240,7 +240,7 @@ def read_csv(
         Role -> column name in the file, e.g. ``{"t": "time", "u": "volt", "y": "disp"}``.
         Roles: ``t``, ``u``, ``y``, ``segment``, ``frequency_hz``, ``record``.
     delimiter : str, optional
-        ``","``, ``";"``, ``"\\t"`` or ``" "`` (whitespace); detected when None.
+        ``","``, ``";"``, ``"\t"`` or ``" "`` (whitespace); detected when None.
     warmup : int, optional
         Warm-up samples of every resulting Record. None: the sidecar's value, else 0.
     metadata : mapping, optional

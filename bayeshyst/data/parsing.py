@@ -189,7 +189,7 @@ class Table:
 def read_table(
     path: str | os.PathLike[str], *, delimiter: str | None = None, header: bool = True
 ) -> Table:
-    """Split a delimited UTF-8 text file into cells, keeping every row's file line.
+    r"""Split a delimited UTF-8 text file into cells, keeping every row's file line.
 
     Blank lines and lines starting with ``#`` are skipped (they still count for line
     numbers). Every data row must have as many fields as the header (or, without a
@@ -200,7 +200,7 @@ def read_table(
     path : path-like
         The file.
     delimiter : str, optional
-        ``","``, ``";"``, ``"\\t"``, or ``" "`` (runs of whitespace). Detected from the
+        ``","``, ``";"``, ``"\t"``, or ``" "`` (runs of whitespace). Detected from the
         first line when None, in the order ``,`` ``;`` tab whitespace.
     header : bool, default True
         Whether the first non-comment line holds column names.

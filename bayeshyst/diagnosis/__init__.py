@@ -1,5 +1,6 @@
-"""Close the loop on measured data: residual → missing effect → augmented model → error
-before and after.
+"""Close the loop on measured data, from the residual to the augmented model's error.
+
+The chain is residual → missing effect → augmented model → error before and after.
 
 - :mod:`~bayeshyst.diagnosis.stats`: score (LM) tests with AR(p)-whitened regressions,
   Breusch–Godfrey, Holm;

@@ -1,5 +1,4 @@
-"""Candidate physical effects: each with its score regressors, its augmentation and its
-physical reading.
+"""Candidate physical effects, each with its score regressors, augmentation and physical reading.
 
 Every effect is tested by the *score* of the block that would add it: the regressors
 are the derivatives of the augmented model's output with respect to the block's
@@ -128,14 +127,26 @@ class Effect(ABC):
         """(augmented model, likelihood, spec suffix) given the test's coefficients."""
 
     def initial(self, coef: np.ndarray, estimates: Mapping[str, float]) -> dict[str, Any]:
-        """The added parameters at the test's estimate (``"creep.c"``, ``"noise.phi"``):
-        a warm start for the augmented fit (the score coefficients of a block that is
-        linear in its parameters *are* those parameters to first order)."""
+        """The added parameters at the test's estimate: a warm start for the augmented fit.
+
+        Keys are full parameter names (``"creep.c"``, ``"noise.phi"``). The score
+        coefficients of a block that is linear in its parameters *are* those parameters to
+        first order.
+
+        Parameters
+        ----------
+        coef : ndarray, shape (k,)
+            The test's coefficients.
+        estimates : mapping of str to float
+            The test's physical reading (from :meth:`interpret`).
+        """
         return {}
 
     def interpret(self, coef: np.ndarray, cov: np.ndarray, data: Any) -> dict[str, float]:
-        """Physical reading of the test's coefficients ``coef`` (k,) with covariance
-        ``cov`` (k, k) (rough, first-order)."""
+        """Physical reading of the test's coefficients (rough, first-order).
+
+        ``coef`` (k,) are the coefficients and ``cov`` (k, k) their covariance.
+        """
         return {}
 
 
@@ -185,15 +196,23 @@ class CreepEffect(_BlockEffect):
     n_terms: ClassVar[int] = 3
 
     def block(self, data):
+        """The :class:`~bayeshyst.models.blocks.Creep` block with ``n_terms`` log-spaced lags."""
         return Creep(n_terms=self.n_terms)
 
     def unit_thetas(self, block, data):
+        """One regressor per lag: unit gains ``c = eye(n_terms)``, divisor 1 (exactly linear)."""
         return {"c": np.eye(self.n_terms)}, 1.0
 
     def initial(self, coef, estimates):
+        """``creep.c`` at the score coefficients (the gain of each lag)."""
         return {"creep.c": np.asarray(coef, float)}
 
     def interpret(self, coef, cov, data):
+        """Creep per decade of time, ``creep_per_decade_percent`` (%, rough).
+
+        The sum of the lag gains spread over the decades the lags span plus the one the
+        slowest lag takes to settle.
+        """
         # y = w + sum c_j (x_j - w): the step response climbs by sum(c) over the decades
         # the lags span plus the one the slowest lag takes to settle (rough)
         tau = Creep(n_terms=self.n_terms).time_constants(data)
@@ -202,8 +221,11 @@ class CreepEffect(_BlockEffect):
 
 
 class DriftEffect(_BlockEffect):
-    """Drift: a slow change of offset and gain over the record, unrelated to the input
-    (thermal). Regressors ``s w`` and ``s`` of :class:`~bayeshyst.models.blocks.Drift`."""
+    """Drift: a slow change of offset and gain over the record, unrelated to the input.
+
+    Typically thermal. Regressors ``s w`` and ``s`` of
+    :class:`~bayeshyst.models.blocks.Drift`.
+    """
 
     name = "drift"
     description = "offset and gain change slowly over the record, unrelated to the input"
@@ -211,24 +233,33 @@ class DriftEffect(_BlockEffect):
     provided_by = ("drift",)
 
     def block(self, data):
+        """The :class:`~bayeshyst.models.blocks.Drift` block of order 1."""
         return Drift(order=1)
 
     def unit_thetas(self, block, data):
+        """Two regressors: unit gain drift ``g`` and unit offset drift ``d``, divisor 1."""
         return {"g": np.array([[1.0], [0.0]]), "d": np.array([[0.0], [1.0]])}, 1.0
 
     def initial(self, coef, estimates):
+        """``drift.g`` and ``drift.d`` at the score coefficients."""
         return {"drift.g": np.asarray(coef[:1], float), "drift.d": np.asarray(coef[1:], float)}
 
     def interpret(self, coef, cov, data):
+        """Drift rates over the record duration ``T``.
+
+        ``gain_drift_percent_per_s`` (% per s) and ``offset_drift_per_s`` (output unit per s).
+        """
         ts = time_scales(data)
         return {"gain_drift_percent_per_s": float(100.0 * coef[0] / ts.duration),
                 "offset_drift_per_s": float(coef[1] / ts.duration)}
 
 
 class Asymmetry(_BlockEffect):
-    """Asymmetry: the two halves of the stroke bend differently (an even term in the
-    output), beyond what the model's own asymmetry can do. Regressor ``h x^2`` of
-    :class:`~bayeshyst.models.blocks.AsymmetricOutput`."""
+    """Asymmetry: the two halves of the stroke bend differently (an even output term).
+
+    The bending goes beyond what the model's own asymmetry can do. Regressor ``h x^2`` of
+    :class:`~bayeshyst.models.blocks.AsymmetricOutput`.
+    """
 
     name = "asymmetry"
     description = "the loop bends differently in the two halves of the stroke"
@@ -237,28 +268,39 @@ class Asymmetry(_BlockEffect):
     _h: ClassVar[float] = 0.01  # a2 for the finite difference: exact (linear in a2)
 
     def block(self, data):
+        """The :class:`~bayeshyst.models.blocks.AsymmetricOutput` block of order 2."""
         return AsymmetricOutput(order=2)
 
     def unit_thetas(self, block, data):
+        """One regressor: ``a2 = 0.01`` divided by 0.01 (exact: the block is linear in ``a2``)."""
         return {"a2": np.array([self._h])}, self._h
 
     def spec(self, blk):
+        """``asym_output(order=2)``: the spec names the order."""
         return "asym_output(order=2)"
 
     def evidence_axis(self, rec):
+        """Normalised model output ``x = (w - c) / h`` (N,).
+
+        ``c`` and ``h`` are the centre and the half-span of ``w``.
+        """
         lo, hi = float(np.min(rec.w)), float(np.max(rec.w))
         return (rec.w - 0.5 * (lo + hi)) / max(0.5 * (hi - lo), 1e-300)
 
     def initial(self, coef, estimates):
+        """``asym_output.a2`` at the score coefficient."""
         return {"asym_output.a2": float(coef[0])}
 
     def interpret(self, coef, cov, data):
+        """The quadratic output coefficient ``a2``."""
         return {"a2": float(coef[0])}
 
 
 class DelayEffect(_BlockEffect):
     """Delay: the sensor (or the amplifier) lags the drive by a constant time.
-    Regressor ``dy/dd`` at ``d = 0``: minus the backward difference of ``w``."""
+
+    Regressor ``dy/dd`` at ``d = 0``: minus the backward difference of ``w``.
+    """
 
     name = "delay"
     description = "the measured output lags the drive by a constant time"
@@ -266,18 +308,42 @@ class DelayEffect(_BlockEffect):
     provided_by = ("delay",)
 
     def block(self, data, d_max: float | None = None):
+        """The :class:`~bayeshyst.models.blocks.Delay` block with room for three times ``d_max``.
+
+        Parameters
+        ----------
+        data : Record or Dataset
+            Data whose sample interval ``dt`` (s) sizes the history.
+        d_max : float or None
+            Expected delay (s): the history holds ``max(10, ceil(3 d_max / dt))`` samples;
+            10 samples when ``None``.
+
+        Returns
+        -------
+        Delay
+        """
         dt = time_scales(data).dt
         n = 10 if d_max is None else max(10, math.ceil(3.0 * d_max / dt))
         return Delay(max_delay_samples=n)
 
     def unit_thetas(self, block, data):
+        """One regressor: ``d = dt / 4``, divided by itself.
+
+        The block is exactly linear in ``d`` inside the first sample interval.
+        """
         h = 0.25 * time_scales(data).dt  # inside the first interval: exactly linear
         return {"d": np.array([h])}, h
 
     def evidence_axis(self, rec):
+        """Rate of the model output ``dw/dt`` (N,) (output unit per s)."""
         return np.gradient(rec.w, rec.t)
 
     def augment(self, model, likelihood, coef, data):
+        """Append a delay block sized to cover three times the estimated delay ``|coef[0]|``.
+
+        Returns the composite, the unchanged likelihood and the spec suffix
+        ``+delay(max_delay_samples=n)``.
+        """
         # y ~ w + d * (-dw/dt): the coefficient estimates the delay; size the block's
         # history (and its prior) to cover three times it
         blk = self.block(data, d_max=abs(float(coef[0])) if coef.size else None)
@@ -285,17 +351,22 @@ class DelayEffect(_BlockEffect):
                 f"+delay(max_delay_samples={blk.max_delay_samples})")
 
     def initial(self, coef, estimates):
+        """``delay.d`` at the score coefficient (s)."""
         return {"delay.d": float(coef[0])}
 
     def interpret(self, coef, cov, data):
+        """The delay ``delay_s`` (s): the score coefficient of ``-dw/dt``."""
         return {"delay_s": float(coef[0])}
 
 
 
 class RateDependence(Effect):
-    """Rate dependence: the loop changes with the speed of the drive — linear dynamics
-    after the hysteresis (mass, stiffness, damping: the Hammerstein structure of review
-    Eq. 56–57). Regressors ``dw/dt`` and ``d2w/dt2``; augmentation ``+second_order``."""
+    """Rate dependence: the loop changes with the speed of the drive.
+
+    The cause is linear dynamics after the hysteresis (mass, stiffness, damping: the
+    Hammerstein structure of review Eq. 56–57). Regressors ``dw/dt`` and ``d2w/dt2``;
+    augmentation ``+second_order``.
+    """
 
     name = "rate_dependence"
     description = "the loop changes with the speed of the drive (dynamics after the hysteresis)"
@@ -303,22 +374,42 @@ class RateDependence(Effect):
     provided_by = ("second_order", "arx")
 
     def regressors(self, rec, data):
+        """``dw/dt`` and ``d2w/dt2`` (N, 2) by finite differences over the record's times."""
         d1 = np.gradient(rec.w, rec.t)
         return np.column_stack([d1, np.gradient(d1, rec.t)])
 
     def evidence_axis(self, rec):
+        """Rate of the model output ``dw/dt`` (N,) (output unit per s)."""
         return np.gradient(rec.w, rec.t)
 
     def augment(self, model, likelihood, coef, data):
+        """Append :class:`~bayeshyst.models.blocks.SecondOrder` (suffix ``+second_order``).
+
+        The likelihood is unchanged.
+        """
         return Composite(model, (SecondOrder(),)), likelihood, "+second_order"
 
     def initial(self, coef, estimates):
+        """``second_order.f_n`` and ``second_order.zeta`` from the test's estimates.
+
+        Empty without a natural frequency estimate; the damping ratio defaults to 0.3 and is
+        kept at least 1e-3.
+        """
         if "natural_frequency_hz" not in estimates:
             return {}
         return {"second_order.f_n": estimates["natural_frequency_hz"],
                 "second_order.zeta": max(estimates.get("damping_ratio", 0.3), 1e-3)}
 
     def interpret(self, coef, cov, data):
+        """Time constant, curvature z-score and, for a rising gain, the resonance.
+
+        From ``G(s) ~ 1 - (2 zeta / wn) s - ((1 - 4 zeta^2) / wn^2) s^2`` (``zeta << 1/2``):
+        ``first_order_time_s = -coef[0]`` (s) and ``curvature_z`` is ``coef[1]`` over its
+        standard error. When ``coef[1] < 0`` (the gain rises with frequency, an underdamped
+        resonance) ``natural_frequency_hz`` and ``damping_ratio`` follow from
+        ``wn = 1 / sqrt(-coef[1])``; ``coef[1] >= 0`` is a lag without gain rise, which in
+        band is a delay.
+        """
         # G(s) ~ 1 - (2 zeta / wn) s - ((1 - 4 zeta^2) / wn^2) s^2 (zeta << 1/2)
         a, b = float(coef[0]), float(coef[1])
         se_b = math.sqrt(max(float(cov[1, 1]), 0.0)) if cov.shape == (2, 2) else math.nan
@@ -332,26 +423,34 @@ class RateDependence(Effect):
 
 
 class ColoredNoise(Effect):
-    """Coloured noise: the residual is serially correlated after every structural effect
-    has been accounted for; the likelihood becomes AR(1). Tested by Breusch–Godfrey."""
+    """Coloured noise: a serially correlated residual that no structural effect explains.
+
+    The correlation remains after every structural effect has been accounted for; the
+    likelihood becomes AR(1). Tested by Breusch–Godfrey.
+    """
 
     name = "colored_noise"
     description = "the measurement noise is serially correlated (AR(1))"
     evidence_label = "previous residual e[t-1]"
 
     def not_applicable(self, model, likelihood):
+        """Why not: the likelihood is already AR(1) (None otherwise)."""
         return "the likelihood is already AR(1)" if likelihood == "ar1" else None
 
     def regressors(self, rec, data):
+        """Not used: raises TypeError (the effect is tested on the residual by ``lag_test``)."""
         raise TypeError("colored_noise is tested on the residual itself (lag_test)")
 
     def augment(self, model, likelihood, coef, data):
+        """The same model with the AR(1) likelihood; suffix ``" with likelihood ar1"``."""
         return model, "ar1", " with likelihood ar1"
 
     def initial(self, coef, estimates):
+        """``noise.phi`` at the estimated lag-1 autocorrelation (0 if missing)."""
         return {"noise.phi": float(estimates.get("lag1_autocorrelation", 0.0))}
 
     def interpret(self, coef, cov, data):
+        """The residual's lag-1 autocorrelation ``lag1_autocorrelation``, ``coef[0]``."""
         return {"lag1_autocorrelation": float(coef[0])}
 
 

@@ -1,5 +1,7 @@
-"""The closed loop: fit → residual tests → augment with the best-supported effect → refit
-→ keep it only if held-out prediction improves → repeat (:func:`diagnose`).
+"""The closed loop of :func:`diagnose`: fit, test the residual, augment, refit, keep or stop.
+
+Each round goes fit → residual tests → augment with the best-supported effect → refit →
+keep it only if held-out prediction improves → repeat.
 
 Two gates stand between a residual pattern and an effect in ``effects_found``:
 
@@ -69,6 +71,7 @@ class DiagnosisSettings:
         return self.sampler.seed
 
     def to_dict(self) -> dict[str, Any]:
+        """JSON-ready settings: every field (tuples as lists), the sampler's dict, the seed."""
         out = {k: (list(v) if isinstance(v, tuple) else v)
                for k, v in self.__dict__.items() if k != "sampler"}
         out["sampler"] = self.sampler.to_dict()
@@ -132,8 +135,10 @@ class DiagnosisFit:
 
     @property
     def pointwise_elpd(self) -> np.ndarray | None:
-        """Cycle-wise PSIS-LOO elpd (exact where refitted), shape (n_cycles,); a
-        diagnosis always scores its fits."""
+        """Cycle-wise PSIS-LOO elpd (exact where refitted), shape (n_cycles,).
+
+        A diagnosis always scores its fits.
+        """
         return self.fit.pointwise_elpd
 
     @property
@@ -320,10 +325,12 @@ class DiagnosisResult:
 # --------------------------------------------------------------------------- the loop
 def _carried(post: Posterior, previous: DiagnosisFit, added: dict[str, Any],
              z_old: np.ndarray, seed: int) -> np.ndarray:
-    """Points of the augmented posterior made from the previous fit's points ``z_old``
-    (M, ndim_old): their names carried into the composite's ``static.`` namespace, the
-    added parameters at the test's estimate, anything else from prior draws. Points
-    that cannot be written in the new space are left out."""
+    """Points of the augmented posterior made from the previous fit's points ``z_old``.
+
+    ``z_old`` is (M, ndim_old): its names are carried into the composite's ``static.``
+    namespace, the added parameters set at the test's estimate, anything else taken from
+    prior draws. Points that cannot be written in the new space are left out.
+    """
     old = previous.posterior.space.unpack(np.atleast_2d(z_old))
     space = post.space
     fill = space.unpack(space.sample_prior(np.random.default_rng(seed), z_old.shape[0]))
@@ -346,10 +353,13 @@ def _carried(post: Posterior, previous: DiagnosisFit, added: dict[str, Any],
 
 def _warm_start(post: Posterior, previous: DiagnosisFit, added: dict[str, Any],
                 seed: int) -> tuple[np.ndarray | None, np.ndarray | None]:
-    """A start for the augmented fit: the previous fit's best point carried over (an
-    extra MAP start) and its final ensembles carried over (the sampler's starting
-    walkers, so the augmented posterior is not sampled from scratch). None where
-    nothing has finite density (the MAP search and the sampler then start alone)."""
+    """A start for the augmented fit, carried over from the previous fit.
+
+    The previous fit's best point becomes an extra MAP start and its final ensembles the
+    sampler's starting walkers, so the augmented posterior is not sampled from scratch.
+    None where nothing has finite density (the MAP search and the sampler then start
+    alone).
+    """
     best = _carried(post, previous, added, best_point(previous.sampling)[None, :], seed)
     x0 = best[0] if best.shape[0] and np.isfinite(post.log_prob(best[0])) else None
     last = previous.sampling.chains[:, -1].reshape(-1, previous.posterior.ndim)
@@ -393,8 +403,10 @@ def _fit(data: Dataset, model: HysteresisModel, likelihood: str, label: str,
 
 
 def _added(fit: DiagnosisFit, before: DiagnosisFit) -> tuple[ParamSummary, ...]:
-    """Posterior summaries of the parameters the augmentation added (a composite
-    carries the previous model's parameters under ``static.``)."""
+    """Posterior summaries of the parameters the augmentation added.
+
+    A composite carries the previous model's parameters under ``static.``.
+    """
     def base(name: str) -> str:
         return name.removeprefix("static.")
 

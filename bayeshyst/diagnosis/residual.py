@@ -185,8 +185,11 @@ class ResidualAnalysis:
     alpha: float
 
     def fired(self) -> list[EffectTest]:
-        """Significant tests, most supported first: structural effects by Bayes factor,
-        then coloured noise (only when no structural effect fires, see module notes)."""
+        """Significant tests, most supported first.
+
+        Structural effects come by Bayes factor, then coloured noise (only when no
+        structural effect fires, see module notes).
+        """
         sig = [t for t in self.tests if t.significant]
         structural = sorted((t for t in sig if t.effect != ColoredNoise.name),
                             key=lambda t: -t.log_bayes_factor)

@@ -94,8 +94,10 @@ class ARFit:
 
 
 def _lagged(e: np.ndarray, segments: Segments, p: int) -> tuple[np.ndarray, np.ndarray]:
-    """Targets ``e_t`` and lags ``[e_{t-1} .. e_{t-p}]`` for every t with p past samples
-    inside its own segment."""
+    """Targets ``e_t`` and lags ``[e_{t-1} .. e_{t-p}]``.
+
+    One row for every t with p past samples inside its own segment.
+    """
     ys, xs = [], []
     for a, b in segments:
         if b - a <= p:

@@ -89,6 +89,18 @@ class CheckpointBackend(HDFBackend):
             g["accepted"][:] = ck["accepted"]
 
     def reset(self, nwalkers: int, ndim: int) -> None:
+        """Clear the ensemble's group for a new run and store an empty checkpoint.
+
+        The buffers are emptied, the acceptance counts zeroed and the ``checkpoint``
+        attribute set to iteration 0 without a random state.
+
+        Parameters
+        ----------
+        nwalkers : int
+            Walkers of the ensemble.
+        ndim : int
+            Dimension of each walker's coordinates.
+        """
         super().reset(nwalkers, ndim)
         self._coords, self._log_prob = [], []
         self._accepted = np.zeros(nwalkers, dtype=int)
@@ -99,6 +111,7 @@ class CheckpointBackend(HDFBackend):
 
     @property
     def random_state(self) -> Any:
+        """Random state of the last step: the buffered one, else the stored checkpoint's."""
         if self._random_state is not None:
             return self._random_state
         if not self.initialized:
@@ -117,14 +130,38 @@ class CheckpointBackend(HDFBackend):
 
     @property
     def iteration(self) -> int:
+        """Steps taken: those on disk plus the buffered ones."""
         return super().iteration + len(self._coords)
 
     # ------------------------------------------------------------------ buffering
     def grow(self, ngrow: int, blobs: Any) -> None:
+        """Flush the buffer, then enlarge the datasets by ``ngrow`` steps (emcee's ``grow``).
+
+        Parameters
+        ----------
+        ngrow : int
+            Number of steps to make room for.
+        blobs : Any
+            Passed on to emcee; :meth:`save_step` refuses steps that carry blobs.
+        """
         self.flush()
         super().grow(ngrow, blobs)
 
     def save_step(self, state: Any, accepted: np.ndarray) -> None:
+        """Buffer one step; flush once ``flush_seconds`` have passed since the last flush.
+
+        Parameters
+        ----------
+        state : emcee.State
+            The step's coordinates (W, ndim), log posteriors (W,) and random state.
+        accepted : ndarray of bool, shape (W,)
+            Walkers whose proposal was accepted at this step.
+
+        Raises
+        ------
+        ParameterError
+            If the state carries blobs or its shape does not fit the checkpoint.
+        """
         if state.blobs is not None:
             raise ParameterError("the checkpoint backend does not store blobs")
         # emcee's _check opens the file twice per step; check against the cached shape
@@ -166,15 +203,21 @@ class CheckpointBackend(HDFBackend):
         self._coords, self._log_prob = [], []
 
     def get_value(self, name: str, flat: bool = False, thin: int = 1, discard: int = 0) -> Any:
+        """The stored array ``name`` (emcee's ``get_value``) after a flush, buffered steps included.
+
+        Parameters are those of :meth:`emcee.backends.Backend.get_value`.
+        """
         self.flush()
         return super().get_value(name, flat=flat, thin=thin, discard=discard)
 
     @property
     def accepted(self) -> np.ndarray:
+        """Accepted proposals per walker (W,), buffered steps included (flushes first)."""
         self.flush()
         return super().accepted
 
     def get_last_sample(self) -> Any:
+        """The last step as an emcee ``State``, after a flush."""
         self.flush()
         return super().get_last_sample()
 

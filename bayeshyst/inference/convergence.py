@@ -87,8 +87,11 @@ def _autocov(x: np.ndarray) -> np.ndarray:
 
 
 def _ess(x: np.ndarray) -> float:
-    """ESS of (chains, draws) by Geyer's initial positive then monotone sequence of
-    paired autocorrelations ``rho_2t + rho_2t+1`` (Stan's estimator)."""
+    """ESS of (chains, draws) by Stan's estimator.
+
+    Geyer's initial positive then monotone sequence of paired autocorrelations
+    ``rho_2t + rho_2t+1``.
+    """
     m, n = x.shape
     if n < 4:
         return math.nan

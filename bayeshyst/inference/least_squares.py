@@ -36,8 +36,11 @@ __all__ = ["gauss_newton_covariance", "least_squares_point", "residual_coordinat
 
 
 def residual_coordinates(post: Posterior, structure: LinearStructure | None) -> np.ndarray:
-    """Indices of ``z`` the least squares searches over: the linear block's design
-    coordinates, or every coordinate but the noise when there is no linear block."""
+    """Indices of ``z`` the least squares searches over.
+
+    These are the linear block's design coordinates, or every coordinate but the noise
+    when there is no linear block.
+    """
     if structure is not None:
         return structure.design_idx
     noise = [i for i, lab in enumerate(_owners(post)) if lab.startswith(NOISE + ".")]
@@ -53,8 +56,12 @@ def _owners(post: Posterior) -> list[str]:
 
 def _gaussian_prior_rows(post: Posterior, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray,
                                                                       np.ndarray]:
-    """Centre and width in ``z`` of the coordinates ``idx`` whose prior is Gaussian there
-    (Normal with identity transform, log-normal with log transform), and which they are."""
+    """Centre and width in ``z`` of the coordinates ``idx`` whose prior is Gaussian there.
+
+    Gaussian in ``z`` means Normal with identity transform or log-normal with log
+    transform. Returns the centres and widths (0 and 1 for the other coordinates) and the
+    mask of which coordinates they are.
+    """
     owners = _owners(post)
     mu, sd, mask = np.zeros(idx.size), np.ones(idx.size), np.zeros(idx.size, dtype=bool)
     for j, i in enumerate(idx):
@@ -68,8 +75,11 @@ def _gaussian_prior_rows(post: Posterior, idx: np.ndarray) -> tuple[np.ndarray, 
 
 
 def _data_residuals(post: Posterior, z: np.ndarray) -> np.ndarray:
-    """Whitened residuals ``(y - yhat) / sigma`` over the scored, kept samples (W, n),
-    simulated (posteriors without a linear block); NaN rows where a simulation fails."""
+    """Whitened residuals ``(y - yhat) / sigma`` over the scored, kept samples (W, n).
+
+    They are simulated (posteriors without a linear block); NaN rows where a simulation
+    fails.
+    """
     theta = post.space.unpack(z)
     sigma = np.broadcast_to(np.asarray(theta[f"{NOISE}.sigma"], float), (z.shape[0],))
     phi = (np.broadcast_to(np.asarray(theta[f"{NOISE}.phi"], float), (z.shape[0],))
@@ -127,8 +137,10 @@ class _Residuals:
 
 def _update_noise(post: Posterior, structure: LinearStructure | None,
                   z: np.ndarray) -> np.ndarray:
-    """``z`` with sigma (and the AR(1) phi) at their maximum-likelihood values given the
-    rest (left unchanged where they are fixed or the residual is degenerate)."""
+    """``z`` with sigma (and the AR(1) phi) at their maximum-likelihood values given the rest.
+
+    They are left unchanged where they are fixed or the residual is degenerate.
+    """
     z = z.copy()
     space = post.space
     names = space.names

@@ -76,8 +76,11 @@ class LinearStats:
 
 @dataclass(frozen=True)
 class Conditional:
-    """``beta | z_n ~ N(mean, Lambda^-1)`` for ``W`` walkers (``chol`` is Lambda's lower
-    Cholesky factor); ``ok`` False where it is undefined (failed design, bad noise)."""
+    """The conditional posterior ``beta | z_n ~ N(mean, Lambda^-1)`` for ``W`` walkers.
+
+    ``chol`` is Lambda's lower Cholesky factor; ``ok`` is False where the conditional is
+    undefined (failed design, bad noise).
+    """
 
     mean: np.ndarray
     chol: np.ndarray
@@ -101,8 +104,10 @@ class Conditional:
 
 
 def _stacked(phi: np.ndarray, r: np.ndarray) -> np.ndarray:
-    """``X = [Phi, r]`` per walker, shape (W, N, P + 1), non-finite entries zeroed (their
-    walkers are flagged failed by the caller)."""
+    """``X = [Phi, r]`` per walker, shape (W, N, P + 1), non-finite entries zeroed.
+
+    The walkers with non-finite entries are flagged failed by the caller.
+    """
     w, n = r.shape
     p = phi.shape[2]
     x = np.empty((w, n, p + 1))
@@ -137,10 +142,12 @@ def _grams(x: np.ndarray, keep: np.ndarray, lagged: bool
 
 def _grams_shared(phi: np.ndarray, r: np.ndarray, keep: np.ndarray, lagged: bool
                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None]:
-    """:func:`_grams` for a design shared by every walker (``phi`` (N, P), e.g. Bouc–Wen's
-    ``[u, 1]``): the design's own products once, its products with each walker's
-    residual one ``r_w @ phi`` each (one call per walker: values independent of the
-    batch), and no ``W``-fold copy of the design."""
+    """:func:`_grams` for a design shared by every walker (``phi`` (N, P)).
+
+    Used e.g. for Bouc–Wen's ``[u, 1]``: the design's own products once, its products
+    with each walker's residual one ``r_w @ phi`` each (one call per walker: values
+    independent of the batch), and no ``W``-fold copy of the design.
+    """
     w, _ = r.shape
     p = phi.shape[1]
     q = p + 1
@@ -257,8 +264,11 @@ class LinearStructure:
     # ------------------------------------------------------------------ construction
     @classmethod
     def of(cls, post: Posterior, reference: np.ndarray | None = None) -> LinearStructure | None:
-        """The posterior's linear structure, or None when it has none (Student-t noise,
-        a tempered likelihood, no free linear parameter)."""
+        """The posterior's linear structure, or None when it has none.
+
+        It has none with Student-t noise, a tempered likelihood or no free linear
+        parameter.
+        """
         try:
             return cls(post, reference)
         except ValueError:
@@ -273,10 +283,12 @@ class LinearStructure:
         self._constant = None
 
     def _design_is_shared(self) -> bool:
-        """Whether the design's columns are the same for every walker (Bouc–Wen's ``[u,
-        1]``, an offset alone): then the Grams take the shared path whatever the batch
-        size (the path is a property of the model, so a walker's values never depend on
-        the batch it is computed in)."""
+        """Whether the design's columns are the same for every walker.
+
+        They are for Bouc–Wen's ``[u, 1]`` or an offset alone: then the Grams take the
+        shared path whatever the batch size (the path is a property of the model, so a
+        walker's values never depend on the batch it is computed in).
+        """
         if self.design_idx.size == 0:
             return True
         z = self.post.space.sample_prior(np.random.default_rng(0), 2)
@@ -312,8 +324,10 @@ class LinearStructure:
         return out
 
     def z_of(self, beta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """``z`` coordinates (W, P) of linear values ``beta`` and ``log |dbeta/dz|`` (W,);
-        values outside a parameter's support give NaN coordinates."""
+        """``z`` coordinates (W, P) of linear values ``beta`` and ``log |dbeta/dz|`` (W,).
+
+        Values outside a parameter's support give NaN coordinates.
+        """
         zb = np.empty_like(beta)
         logjac = np.zeros(beta.shape[0])
         start = 0
@@ -466,8 +480,10 @@ class LinearStructure:
         return resid, np.concatenate(des_parts, axis=1), beta
 
     def stats(self, z: np.ndarray) -> LinearStats:
-        """Grams of the walkers ``z`` (W, ndim), from a cache where their design-
-        determining coordinates were seen before (values identical to a recomputation).
+        """Grams of the walkers ``z`` (W, ndim), cached by their design coordinates.
+
+        Walkers whose design-determining coordinates were seen before are served from the
+        cache (values identical to a recomputation).
         """
         z = np.atleast_2d(np.asarray(z, dtype=float))
         if self.design_idx.size == 0:
@@ -505,11 +521,11 @@ class LinearStructure:
             entries[0][5], entries[0][6], np.array([e[4] for e in entries]))
 
     def held_out_log_predictive(self, z: np.ndarray, *, chunk: int = 64) -> np.ndarray:
-        """``log p(y_c | y_-c, z_n)`` of every cycle ``c`` (W, n_units), the linear block
-        integrated out exactly.
+        """Held-out ``log p(y_c | y_-c, z_n)`` of every cycle ``c``, shape (W, n_units).
 
-        The Rao-Blackwellised leave-one-cycle-out term: the marginal of all scored
-        samples minus the marginal without cycle ``c`` (whose Grams are the cycle's own
+        With the linear block integrated out exactly, this is the Rao-Blackwellised
+        leave-one-cycle-out term: the marginal of all scored samples minus the marginal
+        without cycle ``c`` (whose Grams are the cycle's own
         contribution taken away; with AR(1) noise the sample after a held-out cycle
         stays conditioned on it, as in :meth:`Posterior.holding_out`). Importance
         sampling over the nonlinear draws alone (PSIS-LOO on these values) leaves the
@@ -618,8 +634,10 @@ class LinearStructure:
 
     def log_likelihood(self, st: LinearStats, z: np.ndarray,
                        beta: np.ndarray | None = None) -> np.ndarray:
-        """Log-likelihood (W,) at ``z`` (its linear block replaced by ``beta`` if given);
-        -inf for failed designs or noise outside its support."""
+        """Log-likelihood (W,) at ``z``, its linear block replaced by ``beta`` if given.
+
+        -inf for failed designs or noise outside its support.
+        """
         sigma, phi = self.noise(z)
         beta = self.beta_of(z) if beta is None else beta
         ok = ~st.failed & self._noise_ok(sigma, phi) & np.all(np.isfinite(beta), axis=1)
@@ -663,8 +681,10 @@ class LinearStructure:
     def sigma_proposal(self, st: LinearStats, z: np.ndarray, beta: np.ndarray,
                        random: np.random.RandomState) -> tuple[np.ndarray, np.ndarray,
                                                                np.ndarray]:
-        """Draw ``sigma'`` from ``sigma^2 ~ InvGamma(n/2, Q/2)``, the likelihood's own
-        shape in ``sigma`` (so only the prior is left in the MH ratio).
+        """Draw ``sigma'`` from ``sigma^2 ~ InvGamma(n/2, Q/2)``.
+
+        That is the likelihood's own shape in ``sigma``, so only the prior is left in the
+        MH ratio.
 
         Returns the proposed ``sigma`` (W,), and the proposal's log density in the
         parameter's ``z`` coordinate at the proposed and at the current value.

@@ -1,5 +1,7 @@
-"""emcee moves that use the posterior's structure: exact Gibbs draws of the linear block,
-an adaptive independence proposal and differential evolution on the rest.
+"""emcee moves that use the posterior's structure.
+
+They are exact Gibbs draws of the linear block, an adaptive independence proposal and
+differential evolution on the rest.
 
 Each move is an :class:`emcee.moves.Move`: emcee stays the sampler (its state, random
 state, backend, checkpoints and resume are unchanged) and picks one move per step from
@@ -97,8 +99,10 @@ class MoveStats:
 
 
 class StructuredTarget:
-    """The posterior as the moves see it: which coordinates they propose, and how a
-    proposal is completed with the linear block.
+    """The posterior as the moves see it.
+
+    It says which coordinates the moves propose, and how a proposal is completed with the
+    linear block.
 
     Parameters
     ----------
@@ -181,8 +185,10 @@ class StructuredTarget:
         return z, lp, logq
 
     def log_q_current(self, z: np.ndarray) -> np.ndarray:
-        """Log density (W,) of the current linear blocks under their conditional
-        proposal: the reverse term of a completed proposal's MH ratio."""
+        """Log density (W,) of the current linear blocks under their conditional proposal.
+
+        It is the reverse term of a completed proposal's MH ratio.
+        """
         if self.structure is None:
             return np.zeros(z.shape[0])
         keys = [row.tobytes() for row in z]
@@ -234,6 +240,26 @@ class LinearGibbsMove(_StructuredMove):
         super().__init__(target, stats)
 
     def propose(self, model: Any, state: State) -> tuple[State, np.ndarray]:
+        """One Gibbs sweep over every walker: the linear block, then ``sigma`` and ``phi``.
+
+        The linear block is drawn from its conditional Gaussian (every draw is taken when
+        the conditional is exact; with stand-in priors the exact MH ratio decides), then
+        ``sigma`` and the AR(1) ``phi`` are updated by MH when they are free.
+
+        Parameters
+        ----------
+        model : emcee model
+            The sampler's interface to the moves; only its ``random`` state is used.
+        state : emcee.State
+            Current coordinates (W, ndim) and log posteriors (W,).
+
+        Returns
+        -------
+        state : emcee.State
+            The new coordinates and log posteriors.
+        accepted : ndarray of bool, shape (W,)
+            Walkers that moved in any of the steps.
+        """
         s = self.target.structure
         random = model.random
         z = np.array(state.coords, dtype=float)
@@ -272,8 +298,11 @@ class LinearGibbsMove(_StructuredMove):
     def _noise_step(self, z: np.ndarray, lp: np.ndarray, st: Any, beta: np.ndarray,
                     random: np.random.RandomState, which: str
                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """MH update of ``sigma`` (given the rest) or of the AR(1) ``phi`` (along the
-        curve of constant innovation scale, moving ``sigma`` with it when it is free)."""
+        """MH update of ``sigma`` (given the rest) or of the AR(1) ``phi``.
+
+        ``phi`` moves along the curve of constant innovation scale, moving ``sigma`` with
+        it when it is free.
+        """
         s = self.target.structure
         space = self.target.post.space
         sig_p, sig_sl = space[s.sigma_name], space.slice_of(s.sigma_name).start
@@ -378,8 +407,9 @@ DEFENSIVE_SCALE = 2.0
 
 
 class IndependenceMove(_StructuredMove):
-    """Adaptive independence proposal on ``z_n`` (a mixture of multivariate t), ``beta``
-    drawn exactly.
+    """Adaptive independence proposal on ``z_n`` (a mixture of multivariate t).
+
+    ``beta`` is drawn exactly.
 
     The proposal is one t distribution at the start (the MAP and its Laplace
     covariance); each adaptation re-fits it to the ensemble's draws as a mixture of up
@@ -431,9 +461,12 @@ class IndependenceMove(_StructuredMove):
 
     def set_proposal(self, mean: np.ndarray, cov: np.ndarray,
                      weights: np.ndarray | None = None) -> None:
-        """The proposal: one t component (``mean`` (d,), ``cov`` (d, d)) or a mixture
-        (``mean`` (K, d), ``cov`` (K, d, d), ``weights`` (K,)); scales are regularised
-        to be positive definite."""
+        """Set the proposal: one t component or a mixture.
+
+        One component takes ``mean`` (d,) and ``cov`` (d, d); a mixture ``mean`` (K, d),
+        ``cov`` (K, d, d) and ``weights`` (K,). Scales are regularised to be positive
+        definite.
+        """
         means = np.atleast_2d(np.asarray(mean, dtype=float))
         covs = np.asarray(cov, dtype=float).reshape(means.shape[0], means.shape[1],
                                                     means.shape[1])
@@ -497,6 +530,25 @@ class IndependenceMove(_StructuredMove):
         return special.logsumexp(np.array(parts), axis=0)
 
     def propose(self, model: Any, state: State) -> tuple[State, np.ndarray]:
+        """One independence proposal per walker, completed with an exact draw of ``beta``.
+
+        ``z_n`` is drawn from the t mixture, the linear block from its conditional given the
+        proposed ``z_n``; the MH ratio includes both proposal densities.
+
+        Parameters
+        ----------
+        model : emcee model
+            The sampler's interface to the moves; only its ``random`` state is used.
+        state : emcee.State
+            Current coordinates (W, ndim) and log posteriors (W,).
+
+        Returns
+        -------
+        state : emcee.State
+            The new coordinates and log posteriors.
+        accepted : ndarray of bool, shape (W,)
+            Walkers that moved.
+        """
         random = model.random
         z = np.array(state.coords, dtype=float)
         lp = np.array(state.log_prob, dtype=float)
@@ -541,6 +593,26 @@ class DifferentialMove(_StructuredMove):
         self.jump = float(jump)
 
     def propose(self, model: Any, state: State) -> tuple[State, np.ndarray]:
+        """One differential-evolution step per walker, completed with an exact draw of ``beta``.
+
+        The walkers are split into two random halves; each walker of one half moves by
+        ``gamma`` times the difference of two distinct walkers of the other half
+        (``gamma = 1`` with probability ``jump``), then the other half moves the same way.
+
+        Parameters
+        ----------
+        model : emcee model
+            The sampler's interface to the moves; only its ``random`` state is used.
+        state : emcee.State
+            Current coordinates (W, ndim) and log posteriors (W,).
+
+        Returns
+        -------
+        state : emcee.State
+            The new coordinates and log posteriors.
+        accepted : ndarray of bool, shape (W,)
+            Walkers that moved.
+        """
         random = model.random
         z = np.array(state.coords, dtype=float)
         lp = np.array(state.log_prob, dtype=float)

@@ -155,8 +155,11 @@ def laplace_covariance(post: Posterior, z: np.ndarray) -> tuple[np.ndarray, bool
 
 
 def _polish(post: Posterior, z: np.ndarray, target: Any) -> tuple[float, np.ndarray]:
-    """L-BFGS-B on the exact ``-log p`` from ``z`` (batched central-difference gradients,
-    evaluated from the linear block's Grams where there is one)."""
+    """L-BFGS-B on the exact ``-log p`` from ``z``.
+
+    Gradients are batched central differences, evaluated from the linear block's Grams
+    where there is one.
+    """
     def value_and_grad(zz: np.ndarray) -> tuple[float, np.ndarray]:
         h = _steps(zz)
         eye = np.diag(h)
@@ -177,8 +180,9 @@ def _polish(post: Posterior, z: np.ndarray, target: Any) -> tuple[float, np.ndar
 
 def _global_search(post: Posterior, rng: np.random.Generator, cand: np.ndarray,
                    f: np.ndarray, maxiter: int, structure: Any = None) -> np.ndarray:
-    """Differential evolution over five prior sd either side of the prior median in
-    ``z``, its population seeded with the best screened draws and filled with a Latin
+    """Differential evolution over five prior sd either side of the prior median in ``z``.
+
+    Its population is seeded with the best screened draws and filled with a Latin
     hypercube.
 
     With a linear block the search runs over the other coordinates only, the block at
@@ -297,8 +301,10 @@ def find_map(
         starts.append(cand[0])
 
     def more_starts(k: int) -> list[np.ndarray]:
-        """The next ``k`` best screened draws not within a tenth of a prior scale of a
-        start already taken."""
+        """The next ``k`` best screened draws, none near a start already taken.
+
+        Near means within a tenth of a prior scale.
+        """
         new: list[np.ndarray] = []
         for i in order:
             if f[i] >= _BIG or len(new) >= k:

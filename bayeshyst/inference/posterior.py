@@ -294,8 +294,10 @@ class Posterior:
         return new
 
     def record_counts(self, evaluations: int, prior_rejected: int, failed: int) -> None:
-        """Count evaluations made outside :meth:`log_prob_batch` (the sampler's moves
-        evaluate proposals from their linear-block statistics)."""
+        """Count evaluations made outside :meth:`log_prob_batch`.
+
+        The sampler's moves evaluate proposals from their linear-block statistics.
+        """
         self._n_evals += int(evaluations)
         self._n_prior += int(prior_rejected)
         self._n_failed += int(failed)

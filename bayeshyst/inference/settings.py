@@ -128,8 +128,10 @@ class SamplerSettings:
         return int(min(w, self.max_steps - 1))
 
     def walkers(self, n_proposed: int, ndim: int) -> int:
-        """Walkers per ensemble (even) for a posterior of ``ndim`` coordinates of which
-        the moves propose ``n_proposed``."""
+        """Walkers per ensemble (even) for a posterior of ``ndim`` coordinates.
+
+        The moves propose ``n_proposed`` of the coordinates.
+        """
         if self.n_walkers is not None:
             w = self.n_walkers
         elif self.moves == "structured":
@@ -147,8 +149,11 @@ class SamplerSettings:
         return dataclasses.replace(self, **changes)
 
     def fingerprint(self) -> dict[str, str]:
-        """What the draws depend on (checkpoint path, progress bar and flush interval
-        do not): a checkpoint written with other values is not resumed."""
+        """What the draws depend on; a checkpoint written with other values is not resumed.
+
+        The checkpoint path, progress bar and flush interval are left out: the draws do
+        not depend on them.
+        """
         skip = {"checkpoint", "progress", "flush_seconds"}
         return {f.name: str(getattr(self, f.name)) for f in dataclasses.fields(self)
                 if f.name not in skip}

@@ -115,11 +115,11 @@ def _first(theta: Mapping[str, Any], name: str) -> float:
 @register
 @dataclass(frozen=True)
 class BoucWen(LinearInParams, HysteresisModel):
-    """Classical Bouc–Wen model (review Eq. 47–48).
+    r"""Classical Bouc–Wen model (review Eq. 47–48).
 
-    .. math::  y = k u - h, \\quad
-               \\dot h = \\alpha \\dot u - \\beta |\\dot u| |h|^{n-1} h
-                         - \\gamma \\dot u |h|^n, \\quad h(0) = 0
+    .. math::  y = k u - h, \quad
+               \dot h = \alpha \dot u - \beta |\dot u| |h|^{n-1} h
+                         - \gamma \dot u |h|^n, \quad h(0) = 0
 
     integrated in the input: ``dh/du = α - (β sgn(u̇) sgn(h) + γ)|h|^n`` with ``u``
     linear between samples (exactly rate-independent; the sample times are ignored).
@@ -190,6 +190,11 @@ class BoucWen(LinearInParams, HysteresisModel):
         ))
 
     def param_space(self, data: Any = None) -> ParamSpace:
+        """``k``, ``alpha``, ``beta``, ``gamma`` and ``n`` with default priors scaled from ``data``.
+
+        The priors are those of the class Notes; ``data`` as in
+        :meth:`HysteresisModel.param_space`.
+        """
         return self._space(data_scales(data))
 
     def h_bound(self, theta: Mapping[str, Any]) -> float:
@@ -263,11 +268,11 @@ class BoucWen(LinearInParams, HysteresisModel):
 @register
 @dataclass(frozen=True)
 class AsymmetricBoucWen(BoucWen):
-    """Asymmetric Bouc–Wen model (review Eq. 49, ref. [94]).
+    r"""Asymmetric Bouc–Wen model (review Eq. 49, ref. [94]).
 
-    .. math::  y = k u - h, \\quad
-               \\dot h = \\alpha \\dot u - \\beta |\\dot u| |h|^{n-1} h
-                         - \\gamma \\dot u |h|^n + \\delta\\, u\\, \\dot u
+    .. math::  y = k u - h, \quad
+               \dot h = \alpha \dot u - \beta |\dot u| |h|^{n-1} h
+                         - \gamma \dot u |h|^n + \delta\, u\, \dot u
 
     i.e. ``dh/du = α + δ u - (β sgn(u̇) sgn(h) + γ)|h|^n``.
 
@@ -301,6 +306,11 @@ class AsymmetricBoucWen(BoucWen):
     equation: ClassVar[str] = "review Eq. 49 (term read as delta*u*du/dt)"
 
     def param_space(self, data: Any = None) -> ParamSpace:
+        """The :class:`BoucWen` parameters plus ``delta`` (output unit/V²), scaled from ``data``.
+
+        ``delta ~ Normal(0, 0.2 α_med / u_ref)`` (class Notes); ``data`` as in
+        :meth:`HysteresisModel.param_space`.
+        """
         sc = data_scales(data)
         u_ref = max(abs(sc.u_min), abs(sc.u_max))
         d_sd = 0.2 * 0.3 * abs(sc.gain) / u_ref
@@ -315,11 +325,11 @@ class AsymmetricBoucWen(BoucWen):
 @register
 @dataclass(frozen=True)
 class ModifiedBoucWen(LinearInParams, HysteresisModel):
-    """Weighted-polynomial modified Bouc–Wen model, WPMBW (review Eq. 52–53, 55; ref. [99]).
+    r"""Weighted-polynomial modified Bouc–Wen model, WPMBW (review Eq. 52–53, 55; ref. [99]).
 
-    .. math::  \\dot w = \\frac{\\rho\\, \\dot u}
-                              {1 - \\mathrm{sgn}(\\dot u)\\, \\rho (\\lambda u - \\mu w)},
-               \\qquad y = v = \\sum_{i=1}^{L} c_i w^i
+    .. math::  \dot w = \frac{\rho\, \dot u}
+                              {1 - \mathrm{sgn}(\dot u)\, \rho (\lambda u - \mu w)},
+               \qquad y = v = \sum_{i=1}^{L} c_i w^i
 
     (Eq. 52 gives the two branches ``u̇ >= 0``: ``ρ/(1 - ρλu + ρμw)`` and ``u̇ <= 0``:
     ``ρ/(1 + ρλu - ρμw)``; its minus signs are lost in the review's text and restored
@@ -373,6 +383,11 @@ class ModifiedBoucWen(LinearInParams, HysteresisModel):
         return tuple(f"c{i}" for i in range(1, self.order + 1))
 
     def param_space(self, data: Any = None) -> ParamSpace:
+        """``rho``, ``lam`` (1/V) and the weights ``c1..cL`` with priors scaled from ``data``.
+
+        The priors are those of the class Notes; ``data`` as in
+        :meth:`HysteresisModel.param_space`.
+        """
         sc = data_scales(data)
         g = abs(sc.gain)
         u_ref = max(abs(sc.u_min), abs(sc.u_max))
@@ -412,7 +427,7 @@ class ModifiedBoucWen(LinearInParams, HysteresisModel):
 
     def theta_from_review(self, rho: float, lam: float, mu: float,
                           c: Any) -> dict[str, float]:
-        """This model's ``theta`` for Eq. 52–53 written with a free ``μ`` (e.g. published values).
+        """The model's ``theta`` for Eq. 52–53 written with a free ``μ`` (e.g. published values).
 
         With ``s = μ/λ`` the gauge map gives ``rho = ρ μ/λ``, ``lam = λ²/μ``,
         ``c_i -> c_i (λ/μ)^i``; the output ``v(u)`` is unchanged.
@@ -513,11 +528,11 @@ class ModifiedBoucWen(LinearInParams, HysteresisModel):
 @register
 @dataclass(frozen=True)
 class BoucWenOscillator(HysteresisModel):
-    """Second-order dynamics with a Bouc–Wen restoring term (generalised review Eq. 50–51).
+    r"""Second-order dynamics with a Bouc–Wen restoring term (generalised review Eq. 50–51).
 
-    .. math::  m \\ddot x + c \\dot x + k x = k_1 u - h, \\quad
-               \\dot h = \\alpha_h \\dot x - \\beta_h |\\dot x| |h|^{n-1} h
-                         - \\gamma_h \\dot x |h|^n, \\quad y = x
+    .. math::  m \ddot x + c \dot x + k x = k_1 u - h, \quad
+               \dot h = \alpha_h \dot x - \beta_h |\dot x| |h|^{n-1} h
+                         - \gamma_h \dot x |h|^n, \quad y = x
 
     (the BW term is driven by the displacement, so the loop widens and tilts with the
     drive frequency). Sampled in the normalised form, dividing by ``m`` and writing
@@ -607,6 +622,11 @@ class BoucWenOscillator(HysteresisModel):
         _check_scale(self.bw_step, "bw_step", 4.0)
 
     def param_space(self, data: Any = None) -> ParamSpace:
+        """``fn`` (Hz), ``zeta``, ``gain`` and the BW shape ``alpha``, ``beta``, ``gamma``, ``n``.
+
+        Priors as in the class Notes, scaled from ``data`` (its sampling rate bounds ``fn``
+        below Nyquist); ``data`` as in :meth:`HysteresisModel.param_space`.
+        """
         sc = data_scales(data)
         fs = sampling_rate(data)
         g = abs(sc.gain)

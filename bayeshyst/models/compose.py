@@ -92,14 +92,17 @@ class Composite(LinearInParams, HysteresisModel):
     # the registry name and flags of a composed model follow from its parts
     @property
     def name(self) -> str:  # type: ignore[override]
+        """The spec string: base and block names joined by ``+``."""
         return "+".join([self.base.name, *(b.name for b in self.blocks)])
 
     @property
     def rate_dependent(self) -> bool:  # type: ignore[override]
+        """Whether the base or any block is rate-dependent."""
         return self.base.rate_dependent or any(b.rate_dependent for b in self.blocks)
 
     @property
     def equation(self) -> str:  # type: ignore[override]
+        """The non-empty equations of the base and the blocks, joined by ``->``."""
         parts = [self.base.equation, *(b.equation for b in self.blocks)]
         return " -> ".join(p for p in parts if p)
 
@@ -186,6 +189,11 @@ class Composite(LinearInParams, HysteresisModel):
         return _namespaces(self.blocks)
 
     def param_space(self, data: Any = None) -> ParamSpace:
+        """The base's space under ``static.`` and each block's under its namespace.
+
+        ``data`` as in :meth:`HysteresisModel.param_space`; every part scales its priors
+        from it.
+        """
         spaces = {STATIC: self.base.param_space(data)}
         for ns, block in zip(self.namespaces, self.blocks, strict=True):
             spaces[ns] = block.param_space(data)

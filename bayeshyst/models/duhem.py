@@ -1,5 +1,6 @@
-"""Duhem-type differential hysteresis: Coleman–Hodgdon (review Eq. 45) and the improved
-Duhem model (review Eq. 46); MODELS.md §5.
+"""Duhem-type differential hysteresis: Coleman–Hodgdon and improved Duhem (MODELS.md §5).
+
+The Coleman–Hodgdon model is review Eq. 45, the improved Duhem model review Eq. 46.
 
 Both are integrated *in the input*, not in time: between samples the input is a
 straight line, and along it the state obeys a linear ODE in the input that is solved
@@ -71,9 +72,9 @@ def _check_time(t: np.ndarray, state0: np.ndarray, col: int) -> None:
 @register
 @dataclass(frozen=True)
 class Duhem(LinearInParams, HysteresisModel):
-    """Coleman–Hodgdon (classical Duhem) model, review Eq. 45:
+    r"""Coleman–Hodgdon (classical Duhem) model, review Eq. 45.
 
-    .. math::  \\dot w = \\alpha |\\dot s| (f(s) - w) + \\dot s\\, g(s), \\qquad y = w,
+    .. math::  \dot w = \alpha |\dot s| (f(s) - w) + \dot s\, g(s), \qquad y = w,
 
     with polynomials ``f(s) = sum_j f_j s^j`` (the curve that ``w`` relaxes to, output
     unit) and ``g(s) = sum_j g_j s^j`` (output unit per unit ``s``) in the normalised
@@ -125,6 +126,14 @@ class Duhem(LinearInParams, HysteresisModel):
         _check_order(self.g_order, "g_order")
 
     def param_space(self, data: Any = None) -> ParamSpace:
+        """``alpha``, ``f`` (f_order + 1,), ``g`` (g_order + 1,), fixed ``u_centre``, ``u_half``.
+
+        Priors: ``alpha ~ LogNormal(median 3, 1)``; every coefficient of ``f`` and ``g``
+        ``Normal(0, y_ref)`` with ``y_ref`` the largest output magnitude of ``data``, so that
+        the constant term reaches the offset of a unipolar output as easily as the linear
+        term reaches its span. ``u_centre`` and ``u_half`` (V) are the centre and half-span
+        of the data's input range; ``data`` as in :meth:`HysteresisModel.param_space`.
+        """
         sc = data_scales(data)
         # coefficient scale: the output magnitude, so that the constant term can reach
         # the offset of a unipolar output as easily as the linear term reaches its span
@@ -182,10 +191,10 @@ class Duhem(LinearInParams, HysteresisModel):
 @register
 @dataclass(frozen=True)
 class ImprovedDuhem(HysteresisModel):
-    """Improved Duhem model, review Eq. 46 (ref. [85]), MODELS.md §5:
+    r"""Improved Duhem model, review Eq. 46 (ref. [85]), MODELS.md §5.
 
-    .. math::  y = k u + p \\dot u - h, \\qquad
-               \\dot h = \\alpha \\dot s - \\beta |\\dot s| h + \\gamma s \\dot s,
+    .. math::  y = k u + p \dot u - h, \qquad
+               \dot h = \alpha \dot s - \beta |\dot s| h + \gamma s \dot s,
 
     with the normalised input ``s = (u - u_centre) / u_half``. The review's text lost
     the absolute-value bars; this is the form commonly published (the dissipative term
@@ -213,6 +222,14 @@ class ImprovedDuhem(HysteresisModel):
     rate_dependent: ClassVar[bool] = True
 
     def param_space(self, data: Any = None) -> ParamSpace:
+        """``k``, ``p``, ``alpha``, ``beta``, ``gamma`` and the fixed ``u_centre``, ``u_half``.
+
+        Priors scaled from ``data``: ``k ~ Normal(g, |g|)`` (secant gain ``g``); ``p`` such
+        that ``p du/dt`` reaches the full stroke at 1 sd for an excitation at 1 % of the
+        sampling rate; ``alpha`` and ``gamma`` ``Normal(0, y_span / 2)``;
+        ``beta ~ LogNormal(median 2, 1)``. ``data`` as in
+        :meth:`HysteresisModel.param_space`.
+        """
         sc = data_scales(data)
         g = abs(sc.gain)
         gu = f"{sc.y_unit}/{sc.u_unit}"

@@ -61,6 +61,12 @@ class MaxwellSlip(LinearInParams, HysteresisModel):
         check_count(self.n_elements, "n_elements")
 
     def param_space(self, data: Any = None) -> ParamSpace:
+        """``k0``, ``k`` (n,) and the fixed slip deflections ``delta`` (n,), scaled from ``data``.
+
+        ``k0 ~ Normal(g, |g|)`` and ``k_i ~ Normal(0, |g|)`` (either sign) for the secant
+        gain ``g``; ``delta`` at :func:`~bayeshyst.models.pi.default_thresholds` over the
+        input span. ``data`` as in :meth:`HysteresisModel.param_space`.
+        """
         sc = data_scales(data)
         g = abs(sc.gain)
         gu = f"{sc.y_unit}/{sc.u_unit}"

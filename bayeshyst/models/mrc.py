@@ -103,6 +103,14 @@ class MRCElectromechanical(HysteresisModel):
         check_count(self.max_substeps, "max_substeps")
 
     def param_space(self, data: Any = None) -> ParamSpace:
+        """``f_n``, ``zeta``, ``gain``, ``coupling``, ``rho`` (n,) and the fixed ``delta`` (n,).
+
+        Priors scaled from ``data``: ``f_n`` log-normal with median a quarter of the
+        sampling rate (resolvable but not assumed; 1 kHz without time stamps), ``zeta``
+        log-normal with median 0.3, ``gain ~ Normal(g, |g|)``, half-normal ``coupling`` and
+        ``rho``; ``delta`` over the input span as the Maxwell-slip thresholds. ``data`` as in
+        :meth:`HysteresisModel.param_space`.
+        """
         sc = data_scales(data)
         n = self.n_elements
         gu = f"{sc.y_unit}/{sc.u_unit}"

@@ -48,8 +48,11 @@ def default_thresholds(n: int, scales: DataScales) -> np.ndarray:
 
 
 def operator_space(n: int, scales: DataScales, *, linear: str) -> ParamSpace:
-    """Weights ``p0``, ``w`` (n,) with priors scaled to the secant gain, thresholds ``r``
-    fixed by :func:`default_thresholds` — the parameters every PI-type model shares."""
+    """The parameters every PI-type model shares: weights ``p0``, ``w`` (n,), thresholds ``r``.
+
+    The weights have priors scaled to the secant gain; the thresholds ``r`` are fixed by
+    :func:`default_thresholds`.
+    """
     g = scales.gain
     gu = f"{scales.y_unit}/{scales.u_unit}"
     span = scales.u_span
@@ -79,10 +82,10 @@ class LinearInWeights(LinearInParams):
 @register
 @dataclass(frozen=True)
 class PrandtlIshlinskii(LinearInWeights, HysteresisModel):
-    """Prandtl–Ishlinskii model with play (backlash) operators.
+    r"""Prandtl–Ishlinskii model with play (backlash) operators.
 
-    .. math::  y_k = p_0 u_k + \\sum_{i=1}^{n} w_i F_{r_i}[u]_k,
-               \\quad F_r[u]_k = \\max(u_k - r, \\min(u_k + r, F_r[u]_{k-1}))
+    .. math::  y_k = p_0 u_k + \sum_{i=1}^{n} w_i F_{r_i}[u]_k,
+               \quad F_r[u]_k = \max(u_k - r, \min(u_k + r, F_r[u]_{k-1}))
 
     (review Eq. 11–12 and 20). The loop is counter-clockwise for positive weights and
     monotone while ``p0 > 0`` and every partial sum ``p0 + w_1 + ... + w_i > 0``; then
@@ -111,6 +114,7 @@ class PrandtlIshlinskii(LinearInWeights, HysteresisModel):
         check_count(self.n_operators)
 
     def param_space(self, data: Any = None) -> ParamSpace:
+        """Weights ``p0``, ``w`` (n,) and fixed thresholds ``r`` (n,): :func:`operator_space`."""
         return operator_space(self.n_operators, data_scales(data), linear="linear (p0 u)")
 
     def _initial_state(self, theta: Mapping[str, np.ndarray], u0: float) -> np.ndarray:
@@ -183,8 +187,10 @@ class PIInverse:
 
     @property
     def stop_theta(self) -> dict[str, Any]:
-        """The same inverse written with stop operators, ``F = y - E``:
-        ``u = (w'_0 + sum w'_i) y - sum w'_i E_{r'_i}[y]`` (a ``pi_stop`` model)."""
+        """The same inverse written with stop operators (a ``pi_stop`` model).
+
+        With ``F = y - E``: ``u = (w'_0 + sum w'_i) y - sum w'_i E_{r'_i}[y]``.
+        """
         return {"p0": self.p0 + float(self.w.sum()), "w": -self.w, "r": self.r}
 
     def state_from_forward(self, v: Any, u_prev: float) -> np.ndarray:
@@ -257,10 +263,10 @@ def play_pi_inverse(p0: float, w: Any, r: Any) -> PIInverse:
 @register
 @dataclass(frozen=True)
 class PrandtlIshlinskiiStop(LinearInWeights, HysteresisModel):
-    """Prandtl–Ishlinskii model with stop (elastic-plastic) operators.
+    r"""Prandtl–Ishlinskii model with stop (elastic-plastic) operators.
 
-    .. math::  y_k = p_0 u_k + \\sum_{i=1}^{n} w_i E_{r_i}[u]_k,
-               \\quad E_r[u]_k = \\min(r, \\max(-r, E_r[u]_{k-1} + u_k - u_{k-1}))
+    .. math::  y_k = p_0 u_k + \sum_{i=1}^{n} w_i E_{r_i}[u]_k,
+               \quad E_r[u]_k = \min(r, \max(-r, E_r[u]_{k-1} + u_k - u_{k-1}))
 
     (review Eq. 13–14, 20 with ``E`` for ``F``). Stop operators run clockwise, so with
     positive weights this model describes clockwise loops: fitted with the displacement
@@ -286,6 +292,7 @@ class PrandtlIshlinskiiStop(LinearInWeights, HysteresisModel):
         check_count(self.n_operators)
 
     def param_space(self, data: Any = None) -> ParamSpace:
+        """Weights ``p0``, ``w`` (n,) and fixed thresholds ``r`` (n,): :func:`operator_space`."""
         return operator_space(self.n_operators, data_scales(data), linear="linear (p0 u)")
 
     def _initial_state(self, theta: Mapping[str, np.ndarray], u0: float) -> np.ndarray:

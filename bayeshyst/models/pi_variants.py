@@ -111,10 +111,10 @@ def typical_rate(data: Any = None) -> float:
 @register
 @dataclass(frozen=True)
 class GeneralizedPrandtlIshlinskii(LinearInWeights, HysteresisModel):
-    """Prandtl–Ishlinskii model with generalised play operators (review Eq. 22, 20).
+    r"""Prandtl–Ishlinskii model with generalised play operators (review Eq. 22, 20).
 
-    .. math::  y_k = p_0 u_k + \\sum_{i=1}^{n} w_i v_{i,k}, \\quad
-               v_{i,k} = \\max(\\gamma_l(u_k) - r_i,\\ \\min(\\gamma_r(u_k) + r_i,\\ v_{i,k-1}))
+    .. math::  y_k = p_0 u_k + \sum_{i=1}^{n} w_i v_{i,k}, \quad
+               v_{i,k} = \max(\gamma_l(u_k) - r_i,\ \min(\gamma_r(u_k) + r_i,\ v_{i,k-1}))
 
     The rising branches follow ``γ_l(u) - r_i`` and the falling ones ``γ_r(u) + r_i``;
     different or non-odd envelopes give the asymmetric loops of piezo actuators.
@@ -170,6 +170,13 @@ class GeneralizedPrandtlIshlinskii(LinearInWeights, HysteresisModel):
                              f"got {self.envelope!r}")
 
     def param_space(self, data: Any = None) -> ParamSpace:
+        """The shared operator parameters plus the envelope bends ``b_l``, ``b_r``.
+
+        :func:`~bayeshyst.models.pi.operator_space` gives ``p0``, ``w`` and the fixed ``r``;
+        ``b_l`` and ``b_r`` get ``Normal(0, 0.3)`` (cubic) or ``Normal(0, 0.25)``
+        (quadratic), and the fixed ``u_c``, ``u_h`` are the centre and half-span of the
+        data's input range.
+        """
         sc = data_scales(data)
         # quadratic: |b| <= 1/2 keeps it monotone over the data; a prior sd of 1/4 puts
         # ~95 % of the mass there. Cubic: 0.3 bends the branch by up to ~30 % of u_h.
@@ -202,7 +209,7 @@ class GeneralizedPrandtlIshlinskii(LinearInWeights, HysteresisModel):
         return np.ascontiguousarray(np.maximum(gl - r, np.minimum(gr + r, mid)))
 
     def _monotone(self, theta: Mapping[str, np.ndarray], u: np.ndarray) -> np.ndarray:
-        """Per walker: are both envelopes non-decreasing where they are evaluated?"""
+        """Per walker, whether both envelopes are non-decreasing where they are evaluated."""
         uc, uh = theta["u_c"], theta["u_h"]
         ok = uh > 0
         if self.envelope == "cubic":
@@ -250,10 +257,10 @@ class GeneralizedPrandtlIshlinskii(LinearInWeights, HysteresisModel):
 @register
 @dataclass(frozen=True)
 class AsymmetricPrandtlIshlinskii(LinearInWeights, HysteresisModel):
-    """Prandtl–Ishlinskii model with asymmetric unilateral play operators (review Eq. 27).
+    r"""Prandtl–Ishlinskii model with asymmetric unilateral play operators (review Eq. 27).
 
-    .. math::  y_k = p_0 u_k + \\sum_{i=1}^{n} w_i v_{i,k}, \\quad
-               v_{i,k} = \\max(u_k - r_i,\\ \\min(m u_k,\\ v_{i,k-1}))
+    .. math::  y_k = p_0 u_k + \sum_{i=1}^{n} w_i v_{i,k}, \quad
+               v_{i,k} = \max(u_k - r_i,\ \min(m u_k,\ v_{i,k-1}))
 
     This is Eq. 27 as written in the review and in MODELS.md: the classical play's
     upper boundary ``u + r`` is replaced by the line ``m u`` through the origin, so rising
@@ -306,6 +313,12 @@ class AsymmetricPrandtlIshlinskii(LinearInWeights, HysteresisModel):
             raise ModelError(f"per_operator_slope must be a bool, got {self.per_operator_slope!r}")
 
     def param_space(self, data: Any = None) -> ParamSpace:
+        """The shared operator parameters plus the falling-boundary slope ``m``.
+
+        The thresholds are twice ``pi_play``'s: ``r`` is fixed at ``i * span / (n + 1)``.
+        ``m`` (scalar, or (n,) with ``per_operator_slope``) is log-normal around 1 with a
+        log-scale spread ``min(0.5, span / (4 max|u|))``.
+        """
         sc = data_scales(data)
         n = self.n_operators
         base = operator_space(n, sc, linear=_LINEAR)
@@ -340,13 +353,13 @@ class AsymmetricPrandtlIshlinskii(LinearInWeights, HysteresisModel):
 @register
 @dataclass(frozen=True)
 class RateDependentPrandtlIshlinskii(LinearInWeights, HysteresisModel):
-    """Play Prandtl–Ishlinskii model with rate-dependent thresholds (review Eq. 28–30).
+    r"""Play Prandtl–Ishlinskii model with rate-dependent thresholds (review Eq. 28–30).
 
-    .. math::  y_k = p_0 u_k + \\sum_{i=1}^{n} w_i v_{i,k}, \\quad
-               v_{i,k} = \\max(u_k - \\bar r_{i,k},\\ \\min(u_k + \\bar r_{i,k},\\ v_{i,k-1})),
+    .. math::  y_k = p_0 u_k + \sum_{i=1}^{n} w_i v_{i,k}, \quad
+               v_{i,k} = \max(u_k - \bar r_{i,k},\ \min(u_k + \bar r_{i,k},\ v_{i,k-1})),
 
-    .. math::  \\bar r_{i,k} = r_i \\left(1 + c \\ln(1 + |\\dot u_k| / \\dot u_0)\\right),
-               \\quad \\dot u_k = \\frac{u_k - u_{k-1}}{t_k - t_{k-1}}
+    .. math::  \bar r_{i,k} = r_i \left(1 + c \ln(1 + |\dot u_k| / \dot u_0)\right),
+               \quad \dot u_k = \frac{u_k - u_{k-1}}{t_k - t_{k-1}}
 
     The threshold law is MODELS.md §1's one-term form of ref. [53]'s
     ``α sum_l ln(β_l + λ_l |u̇|^ε)`` (review Eq. 28), written so that ``c = 0`` is the
@@ -391,6 +404,11 @@ class RateDependentPrandtlIshlinskii(LinearInWeights, HysteresisModel):
         check_count(self.n_operators)
 
     def param_space(self, data: Any = None) -> ParamSpace:
+        """The shared operator parameters plus ``c`` and ``udot0`` (V/s).
+
+        ``c ~ HalfNormal(0.5)``; ``udot0`` log-normal with the median at
+        :func:`typical_rate` of ``data`` and a decade either way at one sd.
+        """
         sc = data_scales(data)
         return _extended(operator_space(self.n_operators, sc, linear=_LINEAR), (
             # c = 0.5 widens thresholds by half at |u̇| = (e^1 - 1) u̇_0

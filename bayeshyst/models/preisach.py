@@ -233,9 +233,9 @@ class _Staircase:
 @register
 @dataclass(frozen=True)
 class Preisach(LinearInParams, _Staircase, HysteresisModel):
-    """Discrete Preisach model: a triangular grid of weighted relays.
+    r"""Discrete Preisach model: a triangular grid of weighted relays.
 
-    .. math::  y_k = c + \\sum_{i \\ge j} \\mu_{ij} \\gamma_{q_i q_j}[u]_k
+    .. math::  y_k = c + \sum_{i \ge j} \mu_{ij} \gamma_{q_i q_j}[u]_k
 
     (review Eq. 1–4; the 1-0 relay of ref. [38] or the ±1 relay), evaluated through the
     Everett form Eq. 7–8 with a step-function Everett table.
@@ -289,6 +289,11 @@ class Preisach(LinearInParams, _Staircase, HysteresisModel):
         return self.n_levels * (self.n_levels + 1) // 2
 
     def param_space(self, data: Any = None) -> ParamSpace:
+        """``offset``, cell weights ``mu`` (n_cells,) and the fixed ``levels`` (n_levels,).
+
+        Priors as in the class Notes, scaled from ``data``; ``levels`` at
+        :func:`default_levels`. ``data`` as in :meth:`HysteresisModel.param_space`.
+        """
         sc = data_scales(data)
         nc = self.n_cells
         half = 2.0 if self.relay == "pm1" else 1.0
@@ -343,10 +348,10 @@ class Preisach(LinearInParams, _Staircase, HysteresisModel):
 @register
 @dataclass(frozen=True)
 class PreisachDensity(_Staircase, HysteresisModel):
-    """Preisach model with a parametric density, plus a reversible linear part.
+    r"""Preisach model with a parametric density, plus a reversible linear part.
 
-    .. math::  y = c + k_{rev} u + s \\frac{\\int\\!\\!\\int_{T_+} \\mu(\\alpha, \\beta)}
-               {\\int\\!\\!\\int_{T} \\mu(\\alpha, \\beta)}
+    .. math::  y = c + k_{rev} u + s \frac{\int\!\!\int_{T_+} \mu(\alpha, \beta)}
+               {\int\!\!\int_{T} \mu(\alpha, \beta)}
 
     (review Eq. 3–4 with 1-0 relays, ref. [38]; evaluated by Eq. 7–8 with a bilinearly
     interpolated Everett function, ref. [40]). ``T`` is the bounded plane
@@ -397,6 +402,12 @@ class PreisachDensity(_Staircase, HysteresisModel):
         return "sd_log_halfwidth" if self.shape == "lognormal" else "sd_halfwidth"
 
     def param_space(self, data: Any = None) -> ParamSpace:
+        """The density, stroke and offset parameters of the class Notes, and the fixed ``bounds``.
+
+        Prior means split the data's stroke 30 % reversible, 70 % hysteretic; ``bounds`` is
+        the input range widened by 5 % of the span on each side. ``data`` as in
+        :meth:`HysteresisModel.param_space`.
+        """
         sc = data_scales(data)
         g, span = sc.gain, sc.u_span
         gu = f"{sc.y_unit}/{sc.u_unit}"

@@ -48,8 +48,11 @@ TASK_FORMAT = 2
 
 
 def settings_fingerprint(settings: CompareSettings) -> dict[str, Any]:
-    """JSON-ready :class:`CompareSettings` as far as a result depends on them: the
-    scoring fields and the sampler's fingerprint (not its checkpoint or progress bar)."""
+    """JSON-ready :class:`CompareSettings` as far as a result depends on them.
+
+    That is the scoring fields and the sampler's fingerprint (not its checkpoint or
+    progress bar).
+    """
     out: dict[str, Any] = {f.name: getattr(settings, f.name) for f in fields(settings)
                            if f.name != "sampler"}
     out["sampler"] = settings.sampler.fingerprint()
@@ -111,8 +114,11 @@ class StudyTask:
 
     @property
     def name(self) -> str:
-        """File-name-safe, readable, unique: ``<dataset>__<model>__<f>__<lik>__s<seed>-<hash>``
-        (the first 12 hex digits of :attr:`digest`)."""
+        """File-name-safe, readable, unique name of the task.
+
+        ``<dataset>__<model>__<f>__<lik>__s<seed>-<hash>``, ``<hash>`` the first 12 hex
+        digits of :attr:`digest`.
+        """
         f = "unknown" if self.frequency_hz is None else f"{self.frequency_hz:g}Hz"
         model = self.spec.key.split("__")[0]
         return (f"{slug(self.dataset)}__{model}__{f}__{self.likelihood}__s{self.seed}"
@@ -120,8 +126,11 @@ class StudyTask:
 
     @property
     def fit_seed(self) -> int:
-        """The seed handed to the fit: same study seed, dataset and likelihood, same
-        numbers, whichever worker runs the task and in which order."""
+        """The seed handed to the fit, derived from the study seed, dataset and likelihood.
+
+        The same study seed, dataset and likelihood give the same numbers, whichever
+        worker runs the task and in which order.
+        """
         return derived_seed(self.seed, f"{self.dataset}|{self.likelihood}")
 
     def label(self) -> str:
@@ -155,9 +164,12 @@ class FitOutcome:
 
 
 def _work_dir(requested: str | None) -> tuple[Path, bool, tuple[str, ...]]:
-    """The folder of the fit's checkpoint and posterior: ``requested`` when this worker
-    can write it (a shared file system: the checkpoint survives the worker), otherwise
-    a private temporary folder (removed after the fit)."""
+    """The folder of the fit's checkpoint and posterior.
+
+    It is ``requested`` when this worker can write it (a shared file system: the
+    checkpoint survives the worker), otherwise a private temporary folder (removed after
+    the fit).
+    """
     if requested is not None:
         try:
             Path(requested).mkdir(parents=True, exist_ok=True)

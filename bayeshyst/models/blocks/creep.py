@@ -36,9 +36,9 @@ def _lag_state(w0: np.ndarray, n: int, t0: float) -> np.ndarray:
 @register_block
 @dataclass(frozen=True)
 class Creep(EffectBlock):
-    """Creep as a bank of first-order lags with fixed log-spaced time constants.
+    r"""Creep as a bank of first-order lags with fixed log-spaced time constants.
 
-    .. math::  y = w + \\sum_j c_j (x_j - w), \\qquad \\tau_j \\dot x_j = w - x_j
+    .. math::  y = w + \sum_j c_j (x_j - w), \qquad \tau_j \dot x_j = w - x_j
 
     i.e. ``G(s) = 1 - sum_j c_j tau_j s / (tau_j s + 1)`` (MODELS.md §7), linear in the
     gains ``c``. Each lag is discretised exactly (ZOH on ``w``), for any sampling.
@@ -87,6 +87,7 @@ class Creep(EffectBlock):
 
     @property
     def state_size(self) -> int:
+        """``n_terms + 3``: the lags, the previous input and time, and ``h_ref``."""
         return self.n_terms + 3
 
     def time_constants(self, data: Any = None) -> np.ndarray:
@@ -103,6 +104,11 @@ class Creep(EffectBlock):
         return np.geomspace(lo, hi, self.n_terms)
 
     def param_space(self, data: Any = None) -> ParamSpace:
+        """Free gains ``c`` (n_terms,) and the fixed time constants ``tau`` (n_terms,) (s).
+
+        The prior of ``c`` is ``Normal(0.015 D, 0.02 D)`` with ``D`` decades per lag; ``tau``
+        is :meth:`time_constants` for ``data`` (Record, Dataset or None).
+        """
         tau = self.time_constants(data)
         n = self.n_terms
         dec = math.log10(tau[-1] / tau[0]) / (n - 1) if n > 1 and tau[-1] > tau[0] else 1.0
@@ -173,9 +179,15 @@ class FractionalCreep(EffectBlock):
 
     @property
     def state_size(self) -> int:
+        """``n_modes + 3``: the modes, the previous input and time, and ``h_ref``."""
         return self.n_modes + 3
 
     def param_space(self, data: Any = None) -> ParamSpace:
+        """``gain``, ``tau`` (s) and ``lam`` with the priors of the class Notes.
+
+        The median of ``tau`` is a tenth of the longest record of ``data`` (Record, Dataset
+        or None).
+        """
         ts = time_scales(data)
         return ParamSpace((
             Param("gain", Normal(0.05, 0.05), unit="1",

@@ -78,9 +78,15 @@ class ARX(EffectBlock):
 
     @property
     def state_size(self) -> int:
+        """``na + nk + nb - 1``: the last ``na`` outputs and ``nk + nb - 1`` inputs."""
         return self.na + self.nk + self.nb - 1
 
     def param_space(self, data: Any = None) -> ParamSpace:
+        """Reflection coefficients ``kappa`` (na,) and gain shares ``beta`` (nb - 1,).
+
+        Each is declared only when non-empty; priors as in the class Notes (they do not
+        depend on ``data``).
+        """
         params = []
         if self.na:
             params.append(Param("kappa", Uniform(-1.0, 1.0), shape=(self.na,), unit="1",
@@ -159,9 +165,15 @@ class SecondOrder(EffectBlock):
 
     @property
     def state_size(self) -> int:
+        """5: ``[y, dy/dt, w_prev, t_prev, h_ref]``."""
         return 5
 
     def param_space(self, data: Any = None) -> ParamSpace:
+        """``f_n`` (Hz) and ``zeta`` with the priors of the class Notes.
+
+        The median of ``f_n`` is ``fs / 20`` for the sampling rate ``fs`` of ``data``
+        (Record, Dataset or None; 10 kHz without data).
+        """
         fs = time_scales(data).fs
         return ParamSpace((
             Param("f_n", LogNormal.from_median(fs / 20.0, 1.0), unit="Hz",

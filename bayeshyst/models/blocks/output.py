@@ -55,9 +55,15 @@ class Drift(EffectBlock):
 
     @property
     def state_size(self) -> int:
+        """1: the first sample's time ``t_0``."""
         return 1
 
     def param_space(self, data: Any = None) -> ParamSpace:
+        """Gain drift ``g`` (order,), offset drift ``d`` (order,) and the fixed ``t_scale`` (s).
+
+        ``t_scale`` is the longest record's duration in ``data`` (Record, Dataset or None)
+        and the prior of ``d`` scales with its output span (class Notes).
+        """
         sc, ts = data_scales(data), time_scales(data)
         n = self.order
         return ParamSpace(
@@ -112,9 +118,11 @@ class Delay(EffectBlock):
 
     @property
     def state_size(self) -> int:
+        """``2 (max_delay_samples + 1)``: the last ``H`` times and inputs."""
         return 2 * (self.max_delay_samples + 1)
 
     def param_space(self, data: Any = None) -> ParamSpace:
+        """The delay ``d`` (s), uniform on ``[0, max_delay_samples dt]`` for ``dt`` of ``data``."""
         top = self.max_delay_samples * time_scales(data).dt
         return ParamSpace((Param("d", Uniform(0.0, top), unit="s",
                                  description="time delay (fractional samples allowed)"),))
@@ -169,9 +177,15 @@ class AsymmetricOutput(EffectBlock):
 
     @property
     def state_size(self) -> int:
+        """0: the map is static."""
         return 0
 
     def param_space(self, data: Any = None) -> ParamSpace:
+        """Coefficients ``a2..an`` and the fixed ``centre`` and ``half_span`` of the output.
+
+        ``centre`` and ``half_span`` are those of the output range of ``data`` (Record,
+        Dataset or None); priors as in the class Notes.
+        """
         sc = data_scales(data)
         coef = tuple(Param(f"a{i}", Normal(0.0, 0.15 / i), unit="1",
                            description=f"coefficient of x^{i} (normalised output)")
