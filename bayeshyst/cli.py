@@ -3,6 +3,11 @@
 Exit status: 0 success, 2 bad input (one clear line on stderr, nothing written half-way),
 1 internal error. A command that fails before its first result leaves its output
 folder as it found it (:func:`bayeshyst.files.removed_on_failure`).
+
+Each command runs the library, computes what its writer needs (a fit's InferenceData,
+the figures of :mod:`bayeshyst.report.assemble`), hands both to its writer in
+:mod:`bayeshyst.report` and prints the summary the writer returns; ``--json`` prints it
+with the serialiser ``summary.json`` was written with, so the two are the same text.
 """
 
 from __future__ import annotations
@@ -18,11 +23,10 @@ from typing import Any
 
 import numpy as np
 
-from bayeshyst import __version__
+from bayeshyst._version import __version__
 from bayeshyst.errors import DataError, ModelError, ParameterError
-from bayeshyst.files import RunOutputs, removed_on_failure
+from bayeshyst.files import RunOutputs, json_text, removed_on_failure
 from bayeshyst.inference.settings import MOVES, SamplerSettings
-from bayeshyst.report.files import jsonable
 
 __all__ = ["build_parser", "int_at_least", "main", "non_negative_float", "non_negative_int",
            "positive_int", "probability", "sampler_settings"]
@@ -143,11 +147,13 @@ def sampler_settings(args: argparse.Namespace, **overrides: Any) -> SamplerSetti
 
 
 def _cmd_fit(args: argparse.Namespace) -> int:
+    from bayeshyst import diagnostics
     from bayeshyst.data import load
     from bayeshyst.inference.fit import fit_model
     from bayeshyst.likelihoods import get_likelihood
     from bayeshyst.models import get as get_model
     from bayeshyst.report import write_fit_outputs
+    from bayeshyst.report.assemble import fit_figures
 
     # validate everything cheap before the long part starts
     data = load(args.data)
@@ -164,11 +170,12 @@ def _cmd_fit(args: argparse.Namespace) -> int:
         # the sampled chains are the result: should writing fail, their checkpoint stays
         # and the rerun resumes from it instead of sampling again
         outputs.keep()
-        summary = write_fit_outputs(fit, out, data_path=str(args.data),
-                                    figures=not args.no_figures, seed=sampler.seed)
+        idata = diagnostics.to_inference_data(fit.posterior, fit.sampling, seed=sampler.seed)
+        figures = None if args.no_figures else fit_figures(fit, seed=sampler.seed)
+        summary = write_fit_outputs(fit, out, idata=idata, figures=figures,
+                                    data_path=str(args.data))
     if args.json:
-        json.dump(jsonable(summary), sys.stdout, indent=2)
-        sys.stdout.write("\n")
+        sys.stdout.write(json_text(summary))
     else:
         print(fit)
         print(f"outputs in {out}/: summary.json, posterior.nc"
@@ -179,6 +186,7 @@ def _cmd_fit(args: argparse.Namespace) -> int:
 def _cmd_compare(args: argparse.Namespace) -> int:
     from bayeshyst.data import load
     from bayeshyst.likelihoods import get_likelihood
+    from bayeshyst.report.assemble import comparison_figures
     from bayeshyst.report.compare_outputs import write_comparison_outputs
     from bayeshyst.selection import check_models, compare_models
 
@@ -199,11 +207,11 @@ def _cmd_compare(args: argparse.Namespace) -> int:
                                 lofo=not args.no_lofo, max_refits=args.max_refits,
                                 gp_n_train=args.gp_train, n_jobs=args.jobs, out_dir=out,
                                 progress=sampler.progress)
-        summary = write_comparison_outputs(result, out, data_path=str(args.data),
-                                           figures=not args.no_figures)
+        figures = None if args.no_figures else comparison_figures(result)
+        summary = write_comparison_outputs(result, out, figures=figures,
+                                           data_path=str(args.data))
     if args.json:
-        json.dump(jsonable(summary), sys.stdout, indent=2)
-        sys.stdout.write("\n")
+        sys.stdout.write(json_text(summary))
     else:
         print(result)
         print()
@@ -228,12 +236,14 @@ def probability(text: str) -> float:
 
 
 def _cmd_compensate(args: argparse.Namespace) -> int:
+    from bayeshyst import diagnostics
     from bayeshyst.data import load
     from bayeshyst.inference.fit import fit_model
     from bayeshyst.inverse.compensate import REFERENCE_KINDS, compensate, load_reference
     from bayeshyst.likelihoods import get_likelihood
     from bayeshyst.models import get as get_model
-    from bayeshyst.report.compensate_outputs import write_compensation_outputs
+    from bayeshyst.report.assemble import compensation_figures
+    from bayeshyst.report.compensate_outputs import write_compensation_outputs, written_files
 
     # validate everything cheap before the long part starts
     data = load(args.data)
@@ -268,16 +278,18 @@ def _cmd_compensate(args: argparse.Namespace) -> int:
                             plant=None if args.plant == "auto" else args.plant,
                             n_design_draws=args.design_draws, robust_quantile=args.quantile,
                             sampler=sampler)
-        written = write_compensation_outputs(result, out, figures=not args.no_figures,
-                                             fit=fit, data_path=str(args.data))
+        idata = diagnostics.to_inference_data(fit.posterior, fit.sampling,
+                                              seed=int(result.settings.get("seed", 0)))
+        figures = None if args.no_figures else compensation_figures(result, fit=fit)
+        summary = write_compensation_outputs(result, out, fit=fit, idata=idata,
+                                             figures=figures, data_path=str(args.data))
     if args.json:
-        sys.stdout.write((out / "summary.json").read_text())
+        sys.stdout.write(json_text(summary))
     else:
-        summary = json.loads((out / "summary.json").read_text())
         print(result)
         for w in summary["warnings"]:
             print(f"warning: {w}")
-        print(f"outputs in {out}/: " + ", ".join(p.name for p in written))
+        print(f"outputs in {out}/: " + ", ".join(written_files(summary)))
     return EXIT_OK
 
 
@@ -309,6 +321,7 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
     from bayeshyst.diagnosis import EFFECTS, diagnose
     from bayeshyst.likelihoods import get_likelihood
     from bayeshyst.models import get as get_model
+    from bayeshyst.report.assemble import diagnosis_figures
     from bayeshyst.report.diagnose_outputs import write_diagnosis_outputs
 
     # validate everything cheap before the long part starts
@@ -343,13 +356,14 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
                           alpha=args.alpha, threshold=args.threshold,
                           max_rounds=args.max_rounds, sampler=sampler,
                           checkpoint_dir=checkpoints, on_fit=on_fit)
-        written = write_diagnosis_outputs(result, out, data_name=str(args.data),
-                                          figures=not args.no_figures)
+        figures = None if args.no_figures else diagnosis_figures(result)
+        summary = write_diagnosis_outputs(result, out, figures=figures,
+                                          data_name=str(args.data))
     if args.json:
-        sys.stdout.write((out / "summary.json").read_text())
+        sys.stdout.write(json_text(summary))
     else:
         print(result)
-        print(f"outputs in {out}/: " + ", ".join(p.name for p in written)
+        print(f"outputs in {out}/: " + ", ".join(summary["outputs"])
               + ("" if checkpoints is None else ", checkpoints/"))
     return EXIT_OK
 
@@ -368,6 +382,7 @@ def _report_run(data: Any, data_path: str, models: tuple[str, ...], settings: An
     diagnosis fit marks the first result). Returns ``(result, summary)`` for
     :func:`_report_print`.
     """
+    from bayeshyst.report.assemble import report_figures, report_posteriors
     from bayeshyst.report.report_outputs import write_report_outputs
     from bayeshyst.workflow import run_report
 
@@ -389,8 +404,10 @@ def _report_run(data: Any, data_path: str, models: tuple[str, ...], settings: An
               f"{freqs}); models: {', '.join(models)}", file=sys.stderr)
     result = run_report(data, models, settings=settings, out_dir=out,
                         progress=settings.sampler.progress, on_fit=on_fit)
-    summary = write_report_outputs(result, out, data_path=data_path,
-                                   figures=not args.no_figures)
+    posteriors = report_posteriors(result)
+    figures = None if args.no_figures else report_figures(result, posteriors)
+    summary = write_report_outputs(result, out, posteriors=posteriors, figures=figures,
+                                   data_path=data_path)
     return result, summary
 
 
@@ -398,7 +415,7 @@ def _report_print(args: argparse.Namespace, result: Any, summary: Any) -> int:
     """Print what ``report`` and ``demo`` did (after the outputs are written)."""
     out = Path(args.out)
     if args.json:
-        sys.stdout.write((out / "summary.json").read_text())
+        sys.stdout.write(json_text(summary))
     else:
         print(result)
         for w in summary["warnings"]:
@@ -455,6 +472,8 @@ def _cmd_demo(args: argparse.Namespace) -> int:
 
 
 def _cmd_study(args: argparse.Namespace) -> int:
+    from bayeshyst.report.assemble import study_output_figures
+    from bayeshyst.report.study_outputs import write_study_outputs
     from bayeshyst.study import read_study, run_study
     from bayeshyst.study.tasks import slug
 
@@ -469,15 +488,18 @@ def _cmd_study(args: argparse.Namespace) -> int:
         with removed_on_failure(out, results=("fits/*.json",)):
             result = run_study(study, out, scheduler=args.scheduler, n_workers=args.workers,
                                serial=args.serial, retry_failed=args.retry_failed,
-                               progress=not args.quiet,
-                               figures=not args.no_figures or args.report, html=args.report)
+                               progress=not args.quiet)
+            # the HTML report embeds the figures: --report draws them even with --no-figures
+            draw = not args.no_figures or args.report
+            summary = write_study_outputs(result, out, html=args.report,
+                                          figures=study_output_figures(result) if draw else None)
     except KeyboardInterrupt:
         n_done = len(list((out / "fits").glob("*.json")))
         print(f"bayeshyst study: interrupted; {n_done} finished fit(s) are stored in "
               f"{out / 'fits'}; run the same command again to resume", file=sys.stderr)
         return 130
     if args.json:
-        sys.stdout.write((out / "summary.json").read_text())
+        sys.stdout.write(json_text(summary))
     else:
         print(result)
         print(f"table: {out / 'table.csv'}; per frequency: {out / 'by_frequency.csv'}"

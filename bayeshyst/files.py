@@ -10,19 +10,29 @@ The same holds for a whole run: :func:`removed_on_failure` takes back what a com
 created in its output folder (checkpoints, half a set of outputs, the folder itself)
 when it fails before its first result, and nothing that was there before.
 
+JSON goes through one serialiser, :func:`json_text` (plain types, no NaN): what
+:func:`write_json` puts in a file and what a command prints for ``--json`` are the
+same text.
+
 This module is at the bottom of the package: data writers, figures, netCDF posteriors
 and JSON summaries all use it.
 """
 
 from __future__ import annotations
 
+import json
+import math
 import os
 import tempfile
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager, suppress
 from pathlib import Path
+from typing import Any
 
-__all__ = ["RunOutputs", "atomic_path", "atomic_paths", "removed_on_failure"]
+import numpy as np
+
+__all__ = ["RunOutputs", "atomic_path", "atomic_paths", "json_text", "jsonable",
+           "removed_on_failure", "write_json"]
 
 
 def _default_mode() -> int:
@@ -68,6 +78,80 @@ def atomic_path(target: str | os.PathLike[str]) -> Iterator[Path]:
     """Yield a temporary path beside ``target``; rename it to ``target`` on success."""
     with atomic_paths([target]) as (tmp,):
         yield tmp
+
+
+def jsonable(obj: Any) -> Any:
+    """``obj`` with NumPy types made plain and non-finite floats made ``None``.
+
+    JSON has no NaN or infinity; writing them would make files that strict parsers
+    reject, so a missing number is ``null``.
+
+    Parameters
+    ----------
+    obj : any
+        Nested dicts, lists, tuples, arrays and scalars.
+
+    Returns
+    -------
+    any
+        The same structure of plain Python types (dict keys as ``str``, tuples and
+        arrays as lists); objects of other types are returned as they are.
+    """
+    if isinstance(obj, dict):
+        return {str(k): jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, list | tuple):
+        return [jsonable(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return jsonable(obj.tolist())
+    if isinstance(obj, np.bool_ | bool):
+        return bool(obj)
+    if isinstance(obj, np.integer):
+        return int(obj)
+    if isinstance(obj, float | np.floating):
+        x = float(obj)
+        return x if math.isfinite(x) else None
+    return obj
+
+
+def json_text(obj: Any, *, default: Callable[[Any], Any] = str) -> str:
+    """``obj`` as indented JSON text with a final newline: the one serialiser of the
+    package's JSON files (:func:`write_json`) and of what ``--json`` prints.
+
+    Parameters
+    ----------
+    obj : any
+        Made plain by :func:`jsonable` first (non-finite numbers become ``null``).
+    default : callable
+        Turns what JSON cannot hold (a path, a model object) into something it can.
+
+    Returns
+    -------
+    str
+    """
+    return json.dumps(jsonable(obj), indent=2, default=default, allow_nan=False) + "\n"
+
+
+def write_json(path: str | os.PathLike[str], obj: Any, *,
+               default: Callable[[Any], Any] = str) -> Path:
+    """Write ``obj`` as :func:`json_text` atomically.
+
+    Parameters
+    ----------
+    path : path-like
+        Target file (its folder is created if needed).
+    obj : any
+        What to write.
+    default : callable
+        As in :func:`json_text`.
+
+    Returns
+    -------
+    Path
+        ``path``.
+    """
+    with atomic_path(path) as tmp:
+        tmp.write_text(json_text(obj, default=default))
+    return Path(path)
 
 
 def _tree(root: Path) -> set[Path]:

@@ -13,6 +13,7 @@ from types import SimpleNamespace
 import pytest
 
 import bayeshyst.diagnosis
+import bayeshyst.diagnostics
 import bayeshyst.inference.fit
 import bayeshyst.report
 import bayeshyst.selection
@@ -143,18 +144,20 @@ def test_failure_after_the_first_result_keeps_what_a_rerun_resumes_from(command,
 @pytest.mark.parametrize("command", ["fit", "compensate"])
 def test_a_finished_fit_is_a_result_even_if_what_follows_fails(command, tmp_path,
                                                                monkeypatch):
-    # the fit returns (its chains are in the checkpoint); writing or designing fails
+    # the fit returns (its chains are in the checkpoint); what follows fails: building
+    # the outputs (the InferenceData comes first), writing them, or designing
     out = tmp_path / "out"
 
     def fit_model(*args, sampler, **kwargs):
         sampler.checkpoint.parent.mkdir(parents=True)
         sampler.checkpoint.write_bytes(b"chains")
-        return SimpleNamespace()
+        return SimpleNamespace(posterior=None, sampling=None)
 
     def broken(*args, **kwargs):
         raise RuntimeError("disk full")
 
     monkeypatch.setattr(bayeshyst.inference.fit, "fit_model", fit_model)
+    monkeypatch.setattr(bayeshyst.diagnostics, "to_inference_data", broken)
     monkeypatch.setattr(bayeshyst.report, "write_fit_outputs", broken)
     monkeypatch.setattr(COMPENSATE, "compensate", broken)
     with pytest.raises(RuntimeError, match="disk full"):  # an internal error: exit 1

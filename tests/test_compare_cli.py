@@ -81,13 +81,15 @@ def test_compare_writes_every_output(compared):
     assert not [p for p in out.rglob("*") if ".tmp" in p.name]
 
 
-def test_unconverged_fits_are_named(compared, tmp_path):
+def test_unconverged_fits_are_named(compared, tmp_path, capsys):
     # 20 steps of which the first 10 adapt the moves (discarded): at most 10 steps x 12
     # walkers x 2 ensembles = 240 draws are kept, fewer than the ESS >= 400 required
     out = tmp_path / "out"
     assert main(["compare", str(compared[2]), "--models", "pi_play(n_operators=3)",
                  "--steps", "20", "--walkers", "12", "--no-lofo", "--max-refits", "0",
-                 "--jobs", "1", "--quiet", "--no-figures", "--out", str(out)]) == 0
+                 "--jobs", "1", "--quiet", "--no-figures", "--json", "--out", str(out)]) == 0
+    # --json prints summary.json itself (the writer's serialiser), byte for byte
+    assert capsys.readouterr().out == (out / "summary.json").read_text()
     summary = json.loads((out / "summary.json").read_text())
     assert [f["converged"] for f in summary["fits"]] == [False] * 3
     (warned,) = [w for w in summary["warnings"] if "did not converge" in w]

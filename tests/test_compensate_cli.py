@@ -108,8 +108,10 @@ def test_reference_file_and_json(data_csv, tmp_path, capsys):
     out = tmp_path / "out"
     assert main(["compensate", str(data_csv), *RUN, "--reference", str(ref), "--out", str(out),
                  "--json", "--no-figures", "--no-checkpoint"]) == 0
-    printed = json.loads(capsys.readouterr().out)
+    text = capsys.readouterr().out
+    printed = json.loads(text)
     assert printed == json.loads((out / "summary.json").read_text())
+    assert text == (out / "summary.json").read_text()  # the writer's serialiser
     assert len(printed["per_frequency"]) == 1
     row = printed["per_frequency"][0]
     assert row["frequency_hz"] is None and row["reference"] == "ref.csv"

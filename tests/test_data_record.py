@@ -185,7 +185,7 @@ def test_one_frequency_identity_for_grouping_comparing_and_the_study():
     assert recs[1].metadata["frequency_hz"] == 10.0 + 1e-9
     assert frequency_key(None) is None and frequency_key(123456789.0) == 123457000.0
     # the study's summary and figures use the very same definition
-    from bayeshyst.report import study_figures
+    from bayeshyst.plotting import study as study_figures
     from bayeshyst.study import summary
 
     assert summary.frequency_key is frequency_key is study_figures.frequency_key

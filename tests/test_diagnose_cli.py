@@ -24,7 +24,7 @@ from bayeshyst.diagnostics import load_netcdf
 from bayeshyst.errors import ParameterError
 from bayeshyst.inference.posterior import cycle_units
 from bayeshyst.models.base import DataScales
-from bayeshyst.plotting import _build_effect_evidence, plot_effect_evidence
+from bayeshyst.plotting import effect_evidence_figure, plot_effect_evidence
 from bayeshyst.report.diagnose_outputs import STEP_COLUMNS, evidence_figures
 
 MODEL = "pi_play(n_operators=3)"
@@ -155,6 +155,7 @@ def test_non_converged_fits_say_so(drift_csv, tmp_path):
 def test_json_on_stdout_is_the_summary(diagnosed):
     printed = _strict_json(diagnosed.stdout)
     assert printed == _strict_json((diagnosed.out / "summary.json").read_text())
+    assert diagnosed.stdout == (diagnosed.out / "summary.json").read_text()
     assert printed["effects_found"] == ["drift"]
 
 
@@ -301,7 +302,7 @@ def _test(effect="delay", skipped=None, significant=True):
 
 
 def test_evidence_figure_labels(tmp_path):
-    fig = _build_effect_evidence(_test(), y_unit="um")
+    fig = effect_evidence_figure(_test(), y_unit="um")
     ax = fig.axes[0]
     assert ax.get_xlabel() == "rate of the model output dw/dt (µm/s)"
     assert ax.get_ylabel() == "residual [µm]"

@@ -96,9 +96,12 @@ def test_rerun_resumes_from_the_checkpoint_with_identical_results(fitted, data_c
 def test_json_flag_prints_the_summary(data_csv, tmp_path, capsys):
     assert main(["fit", str(data_csv), "--model", "pi_stop", "--out", str(tmp_path), "--steps",
                  "100", "--quiet", "--json", "--no-figures", "--no-checkpoint"]) == 0
-    printed = json.loads(capsys.readouterr().out)
+    text = capsys.readouterr().out
+    printed = json.loads(text)
     assert printed["model"] == "pi_stop"
     assert printed == json.loads((tmp_path / "summary.json").read_text())
+    # the same serialiser: what is printed is the file, byte for byte
+    assert text == (tmp_path / "summary.json").read_text()
     assert not (tmp_path / "checkpoint.h5").exists()
 
 

@@ -15,6 +15,8 @@ from scipy import stats
 from bayeshyst import plotting as P
 from bayeshyst.errors import ParameterError
 from bayeshyst.inference.convergence import rhat
+from bayeshyst.plotting._common import RED
+from bayeshyst.plotting.posterior import _ranks
 from tests.test_diagnostics import two_record_fit
 
 N_DRAWS = 40
@@ -38,10 +40,10 @@ def _calls(fit):
     post, res = fit
     n_rec, k = len(post.data), res.space.ndim
     return {
-        "loops": (P.plot_loops, P._build_loops, (post, res), {"n_draws": N_DRAWS}, n_rec),
-        "trace": (P.plot_trace, P._build_trace, (res,), {}, 2 * k),
-        "corner": (P.plot_corner, P._build_corner, (res,), {}, k * (k + 1) // 2),
-        "residuals": (P.plot_residuals, P._build_residuals, (post, res),
+        "loops": (P.plot_loops, P.loops_figure, (post, res), {"n_draws": N_DRAWS}, n_rec),
+        "trace": (P.plot_trace, P.trace_figure, (res,), {}, 2 * k),
+        "corner": (P.plot_corner, P.corner_figure, (res,), {}, k * (k + 1) // 2),
+        "residuals": (P.plot_residuals, P.residuals_figure, (post, res),
                       {"n_draws": N_DRAWS}, 2 * n_rec),
     }
 
@@ -66,19 +68,19 @@ def test_each_plot_writes_a_readable_png(fit, kind, tmp_path):
 def test_converged_run_has_no_red_banner(fit):
     _, res = fit
     conv = dataclasses.replace(res.convergence, converged=True, reasons=())
-    fig = P._build_trace(dataclasses.replace(res, convergence=conv), params=["p0"])
+    fig = P.trace_figure(dataclasses.replace(res, convergence=conv), params=["p0"])
     assert fig.get_suptitle().startswith(f"{res.model} / {res.likelihood}")
     assert "NOT CONVERGED" not in fig.get_suptitle()
     assert "converged (R-hat max" in fig.get_suptitle()
     conv = dataclasses.replace(res.convergence, converged=False, reasons=("R-hat 1.2 >= 1.01",))
-    fig = P._build_trace(dataclasses.replace(res, convergence=conv), params=["p0"])
+    fig = P.trace_figure(dataclasses.replace(res, convergence=conv), params=["p0"])
     assert fig.get_suptitle().startswith("NOT CONVERGED: R-hat 1.2 >= 1.01")
-    assert fig._suptitle.get_color() == P._RED
+    assert fig._suptitle.get_color() == RED
 
 
 def test_loops_show_the_mean_prediction_and_labels(fit):
     post, res = fit
-    fig = P._build_loops(post, res, n_draws=N_DRAWS, seed=2)
+    fig = P.loops_figure(post, res, n_draws=N_DRAWS, seed=2)
     pred = post.predict(res.draws(N_DRAWS, seed=2))
     for ax, rec, p in zip(fig.axes, post.data, pred, strict=True):
         measured, mean = ax.lines[0], ax.lines[1]
@@ -92,7 +94,7 @@ def test_loops_show_the_mean_prediction_and_labels(fit):
 
 def test_residuals_are_measured_minus_mean_prediction(fit):
     post, res = fit
-    fig = P._build_residuals(post, res, n_draws=N_DRAWS, seed=1)
+    fig = P.residuals_figure(post, res, n_draws=N_DRAWS, seed=1)
     pred = post.predict(res.draws(N_DRAWS, seed=1))
     for i, (rec, p) in enumerate(zip(post.data, pred, strict=True)):
         ax_t, ax_u = fig.axes[2 * i], fig.axes[2 * i + 1]
@@ -106,7 +108,7 @@ def test_residuals_are_measured_minus_mean_prediction(fit):
 
 def test_trace_titles_carry_rhat_and_units(fit):
     _, res = fit
-    fig = P._build_trace(res, params=["w[1]", "noise.sigma"])
+    fig = P.trace_figure(res, params=["w[1]", "noise.sigma"])
     assert len(fig.axes) == 4
     j = res.space.labels.index("w[1]")
     x = res.chains[..., j]  # w has an identity transform (Normal prior): z is the value
@@ -119,17 +121,17 @@ def test_trace_titles_carry_rhat_and_units(fit):
 
 def test_ranks_match_scipy():
     x = np.random.default_rng(0).normal(size=(3, 50))
-    np.testing.assert_array_equal(P._ranks(x) + 1,
+    np.testing.assert_array_equal(_ranks(x) + 1,
                                   stats.rankdata(x.ravel(), method="ordinal").reshape(x.shape))
 
 
 def test_corner_selection_by_name_label_and_limit(fit):
     _, res = fit
-    fig = P._build_corner(res, params=["p0", "w"])  # w expands to w[0], w[1]
+    fig = P.corner_figure(res, params=["p0", "w"])  # w expands to w[0], w[1]
     assert len(fig.axes) == 6
     assert fig.axes[-1].get_xlabel() == "w[1] [µm/V]"
-    assert len(P._build_corner(res, params="w[1]").axes) == 1
-    fig = P._build_corner(res, max_params=2)
+    assert len(P.corner_figure(res, params="w[1]").axes) == 1
+    fig = P.corner_figure(res, max_params=2)
     assert len(fig.axes) == 3 and "first 2 of 5 elements" in fig.get_suptitle()
     diag = fig.axes[0]
     assert diag.get_title().startswith("p0: 90% HDI\n[")

@@ -171,7 +171,7 @@ def test_report_tables_have_no_nan_and_show_the_summary_numbers(
         assert format(r["robust_nrmse_percent"], ".4g") in page.cells
 
 
-def test_metadata_with_script_comes_out_escaped(tmp_path: Path) -> None:
+def test_metadata_with_script_comes_out_escaped(tmp_path: Path, capsys) -> None:
     one = load(bundled_data()).by_frequency()[50.0][0]
     rec = one.with_(name=f"run {EVIL}",
                     metadata={**one.metadata, "operator": EVIL, "note": "a & b"})
@@ -180,8 +180,10 @@ def test_metadata_with_script_comes_out_escaped(tmp_path: Path) -> None:
     out = tmp_path / "out"
     code = main(["report", str(data_file), "--models", "bouc_wen", "--steps", "100",
                  "--no-lofo", "--max-refits", "0", "--max-rounds", "1", "--no-figures",
-                 "--quiet", "--out", str(out)])
+                 "--quiet", "--json", "--out", str(out)])
     assert code == 0
+    # --json prints summary.json as written (same serialiser), byte for byte
+    assert capsys.readouterr().out == (out / "summary.json").read_text()
     raw = (out / "report.html").read_text(encoding="utf-8")
     page = _parse(out / "report.html")
     assert page.tags.get("script", 0) == 0 and page.tags.get("b", 0) == 0

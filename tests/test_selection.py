@@ -158,6 +158,7 @@ def _decimated(rec, per_cycle=80, cycles=3.5):
 
 def test_mr_damper_comparison_runs_end_to_end(shared_data_dir, tmp_path):
     from bayeshyst.data.measured import load_mr_damper
+    from bayeshyst.report.assemble import comparison_figures
     from bayeshyst.report.compare_outputs import write_comparison_outputs
 
     mr = load_mr_damper(shared_data_dir, current_a=0.5, frequency_hz=[0.1, 1.0, 5.0])
@@ -167,7 +168,8 @@ def test_mr_damper_comparison_runs_end_to_end(shared_data_dir, tmp_path):
                                                  n_walkers=20),
                          lofo=False, max_refits=0, draws_per_chain=10, gp_n_train=200,
                          n_jobs=2)
-    summary = write_comparison_outputs(res, tmp_path, data_path="mr_damper")
+    summary = write_comparison_outputs(res, tmp_path, data_path="mr_damper",
+                                       figures=comparison_figures(res))
     assert [e["frequency_hz"] for e in summary["per_frequency"]] == [0.1, 1.0, 5.0]
     for entry in summary["per_frequency"]:
         assert entry["best"] in {"bouc_wen", "pi_play(n_operators=6)", "gp_memory"}

@@ -26,6 +26,7 @@ from bayeshyst.data.io import write_csv
 from bayeshyst.data.record import Dataset
 from bayeshyst.errors import ModelError, ParameterError
 from bayeshyst.inference.settings import SamplerSettings
+from bayeshyst.report.study_outputs import write_study_outputs
 from bayeshyst.selection.tasks import CompareSettings, TaskSpec, derived_seed, run_task
 from bayeshyst.study import plan_study, read_study, run_study
 from bayeshyst.study.rows import TABLE_COLUMNS, VOLATILE_COLUMNS
@@ -138,7 +139,8 @@ def test_two_worker_cluster_gives_the_serial_table_even_when_a_worker_is_killed(
                                   dashboard_address=None) as cluster, \
             distributed.Client(cluster) as client:
         result = run_study(read_study(files / "study.toml"), tmp_path / "out", client=client,
-                           progress=False, figures=False, on_result=kill_a_busy_worker)
+                           progress=False, on_result=kill_a_busy_worker)
+    write_study_outputs(result, tmp_path / "out")
     assert killed, "no worker was busy when the first fit came back"
     assert result.n_run == len(MODELS) * 4 and not [r for r in result.failed
                                                     if r["dataset"] != "broken"]
@@ -150,9 +152,13 @@ def test_rerun_does_no_work_and_a_lost_result_is_the_only_fit_run_again(
     study = read_study(files / "study.toml")
     fits = sorted((serial / "fits").iterdir())
     stamps = {p: p.stat().st_mtime_ns for p in fits}
-    again = run_study(study, serial, progress=False, figures=False)
+    outputs = {p: p.stat().st_mtime_ns for p in serial.iterdir() if p.is_file()}
+    again = run_study(study, serial, progress=False)
     assert again.n_run == 0 and again.cluster == "nothing to run"  # no cluster started
     assert {p: p.stat().st_mtime_ns for p in sorted((serial / "fits").iterdir())} == stamps
+    # running a study writes its fits only: the tables and summary are the writer's
+    assert "summary.json" in {p.name for p in outputs}
+    assert {p: p.stat().st_mtime_ns for p in serial.iterdir() if p.is_file()} == outputs
     # an interrupted study: copy the results, drop one, run again → only that one runs
     import shutil
 
@@ -160,7 +166,8 @@ def test_rerun_does_no_work_and_a_lost_result_is_the_only_fit_run_again(
     shutil.copytree(serial, out)
     victim = next(out.glob("fits/act-a__*10Hz*.json"))
     victim.unlink()
-    resumed = run_study(study, out, serial=True, progress=False, figures=False)
+    resumed = run_study(study, out, serial=True, progress=False)
+    write_study_outputs(resumed, out)
     assert resumed.n_run == 1 and resumed.n_reused == len(MODELS) * 4 - 1
     assert _stable(_rows(out)) == _stable(_rows(serial))
 

@@ -21,14 +21,17 @@ from typing import Any
 import numpy as np
 import pytest
 
+from bayeshyst.errors import ParameterError
 from bayeshyst.inference.settings import SamplerSettings
-from bayeshyst.report.study_figures import (
-    _build_best_model,
-    _build_scores_vs_frequency,
+from bayeshyst.plotting.study import (
+    best_model_figure,
     model_colors,
     plot_best_model,
     plot_scores_vs_frequency,
+    scores_vs_frequency_figure,
+    study_figures,
 )
+from bayeshyst.report.assemble import study_output_figures
 from bayeshyst.report.study_html import SECTIONS, study_html
 from bayeshyst.report.study_outputs import write_study_outputs
 from bayeshyst.selection.tasks import CompareSettings
@@ -139,7 +142,7 @@ def test_summarise_constant_scores_known_answer(constant: StudyResult) -> None:
 
 
 def test_best_model_cells_show_the_lead(constant: StudyResult) -> None:
-    fig = _build_best_model(constant)
+    fig = best_model_figure(constant)
     texts = [t.get_text() for ax in fig.axes for t in ax.texts]
     # lead over the runner-up = number of cycles (1 per cycle), se 0
     assert texts == ["Δ 4.0 ± 0.0", "Δ 5.0 ± 0.0", "Δ 6.0 ± 0.0"]
@@ -153,7 +156,7 @@ def test_best_model_cells_show_the_lead(constant: StudyResult) -> None:
 
 
 def test_scores_vs_frequency_plots_per_cycle_values(constant: StudyResult) -> None:
-    fig = _build_scores_vs_frequency(constant)
+    fig = scores_vs_frequency_figure(constant)
     ax_elpd, ax_err = fig.axes
     lines = {ln.get_gid(): ln for ln in ax_elpd.lines if ln.get_gid()}
     assert set(lines) == {f"{d}|{m}" for d in ("d1", "d2", "d3") for m in ("A", "B")}
@@ -314,7 +317,8 @@ def written(mixed: tuple[StudyResult, dict[str, np.ndarray]],
             tmp_path_factory: pytest.TempPathFactory) -> tuple[StudyResult, Path, dict]:
     result, _ = mixed
     out = tmp_path_factory.mktemp("study")
-    summary = write_study_outputs(result, out, figures=True, html=True)
+    summary = write_study_outputs(result, out, figures=study_output_figures(result),
+                                  html=True)
     return result, out, summary
 
 
@@ -401,7 +405,7 @@ def test_summary_json_lists_the_files(written: tuple[StudyResult, Path, dict]) -
 def test_best_model_marks_failed_and_single_cells(
         mixed: tuple[StudyResult, dict[str, np.ndarray]]) -> None:
     result, _ = mixed
-    fig = _build_best_model(result)
+    fig = best_model_figure(result)
     texts = [t.get_text() for t in fig.axes[0].texts]
     assert "all failed" in texts  # EVIL at 10 Hz
     assert any(t.startswith("only model") for t in texts)  # d2 at 10 Hz: B failed
@@ -419,6 +423,12 @@ def test_figures_return_none_when_there_is_nothing(tmp_path: Path) -> None:
     assert plot_best_model(result, tmp_path / "best.png") is None
     assert plot_scores_vs_frequency(result, tmp_path / "scores.png") is None
     assert list(tmp_path.iterdir()) == []
+    # the figure functions refuse, and the study's figures leave both out
+    with pytest.raises(ParameterError, match="no ranking"):
+        best_model_figure(result)
+    with pytest.raises(ParameterError, match="no model has a score"):
+        scores_vs_frequency_figure(result)
+    assert study_figures(result) == {} and study_output_figures(result) == {}
     html = study_html(result, {})
     assert "<script" not in html and "nan" not in html.lower().split()
 
@@ -431,11 +441,11 @@ def test_unknown_frequency_points_are_left_out_with_a_note() -> None:
         for m, v in (("A", -1.0), ("B", -3.0)):
             _add(rows, pw, _ok_row("d1", m, f, 0, np.full(4, v)), np.full(4, v))
     result = _result(study, rows, pw)
-    fig = _build_scores_vs_frequency(result)
+    fig = scores_vs_frequency_figure(result)
     xs = {ln.get_gid(): list(ln.get_xdata()) for ln in fig.axes[0].lines if ln.get_gid()}
     assert xs == {"d1|A": [2.0], "d1|B": [2.0]}
     assert "left out: 2 point(s) at unknown excitation frequency" in fig.get_supxlabel()
-    grid = _build_best_model(result)
+    grid = best_model_figure(result)
     assert [t.get_text() for t in grid.axes[0].get_xticklabels()] == ["2 Hz", "unknown"]
 
 
@@ -453,7 +463,7 @@ def test_large_study_stays_readable() -> None:
                 x = np.full(3, -1.0 - ((i + j) % 3))
                 _add(rows, pw, _ok_row(ds, m, f, 0, x), x)
     result = _result(study, rows, pw)
-    fig = _build_best_model(result)
+    fig = best_model_figure(result)
     fig.canvas.draw()
     (ax,) = fig.axes
     box = ax.get_window_extent().transformed(fig.dpi_scale_trans.inverted())
@@ -463,6 +473,6 @@ def test_large_study_stays_readable() -> None:
     # legend and labels outside the grid: nothing drawn over the cells
     legend = fig.legends[0].get_window_extent().transformed(fig.dpi_scale_trans.inverted())
     assert legend.x0 >= box.x1
-    scores = _build_scores_vs_frequency(result)
+    scores = scores_vs_frequency_figure(result)
     assert all(ax.get_xscale() == "log" for ax in scores.axes)  # 0.5 … 500 Hz
     assert len([ln for ln in scores.axes[0].lines if ln.get_gid()]) == 60

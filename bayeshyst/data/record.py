@@ -25,16 +25,33 @@ import numpy as np
 from bayeshyst.errors import DataError
 
 __all__ = ["DEFAULT_UNITS", "MAGNITUDE_MAX", "MIN_SAMPLES", "RESOLUTION_MIN", "SPAN_MIN",
-           "Dataset", "Record", "check_fittable", "frequency_key"]
+           "Dataset", "Record", "check_fittable", "frequency_key", "frequency_label"]
 
 def frequency_key(f: float | None) -> float | None:
-    """The identity of an excitation frequency: values that agree to 6 significant
-    digits are one frequency (a file's 10 and a computed 10.000000001 Hz group together).
+    """The identity of an excitation frequency: the value to 6 significant digits.
+
+    Values that agree to 6 significant digits are one frequency (a file's 10 and a
+    computed 10.000000001 Hz group together).
 
     Every grouping and comparison of frequencies goes through it, via
     :attr:`Record.frequency_hz`; ``metadata["frequency_hz"]`` keeps the value as given.
     """
     return None if f is None else float(f"{float(f):.6g}")
+
+
+def frequency_label(f: float | None) -> str:
+    """``"10 Hz"``, or ``"unknown"`` for records without a frequency.
+
+    Parameters
+    ----------
+    f : float or None
+        An excitation frequency in Hz (a :func:`frequency_key`), None when unknown.
+
+    Returns
+    -------
+    str
+    """
+    return "unknown" if f is None else f"{f:g} Hz"
 
 
 #: Fewest samples a Record may hold. Four is the smallest count that can contain one
@@ -373,8 +390,10 @@ class Record:
 
     @property
     def frequency_hz(self) -> float | None:
-        """Excitation frequency [Hz] from ``metadata["frequency_hz"]`` to 6 significant
-        digits (:func:`frequency_key`: the frequency's identity), or None."""
+        """Excitation frequency [Hz] from ``metadata["frequency_hz"]``, or None.
+
+        Rounded to 6 significant digits (:func:`frequency_key`: the frequency's identity).
+        """
         return frequency_key(self.metadata.get("frequency_hz"))
 
     @property

@@ -2,7 +2,8 @@
 ``comparison.txt`` and the figure ``compare.png``.
 
 The posteriors of the fits (``posteriors/<model>__<scope>_<frequency>.nc``) and their
-resumable sampler checkpoints (``checkpoints/``) are written by the fits themselves.
+resumable sampler checkpoints (``checkpoints/``) are written by the fits themselves; the
+figure is built by the caller (:func:`~bayeshyst.report.assemble.comparison_figures`).
 """
 
 from __future__ import annotations
@@ -10,11 +11,12 @@ from __future__ import annotations
 import csv
 import io
 import math
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
 from bayeshyst.files import atomic_path
-from bayeshyst.report.files import write_json
+from bayeshyst.report.files import write_figures, write_json
 from bayeshyst.selection import ComparisonResult, FrequencyComparison
 
 __all__ = ["CSV_COLUMNS", "comparison_summary", "write_comparison_outputs"]
@@ -89,9 +91,28 @@ def _csv_text(result: ComparisonResult) -> str:
 
 
 def write_comparison_outputs(result: ComparisonResult, out_dir: str | Path, *,
-                             data_path: str | None = None,
-                             figures: bool = True) -> dict[str, Any]:
-    """Write the comparison's files into ``out_dir`` (each atomically); return the summary."""
+                             figures: Mapping[str, Any] | None = None,
+                             data_path: str | None = None) -> dict[str, Any]:
+    """Write the comparison's files into ``out_dir`` (each atomically, ``summary.json``
+    last).
+
+    Parameters
+    ----------
+    result : ComparisonResult
+    out_dir : path-like
+        Created if needed.
+    figures : mapping of str to Figure, optional
+        PNG file name -> figure
+        (:func:`~bayeshyst.report.assemble.comparison_figures`); none by default.
+    data_path : str, optional
+        The data file, recorded in the summary.
+
+    Returns
+    -------
+    dict
+        The summary written to ``summary.json`` (:func:`comparison_summary`), before JSON
+        encoding (print it with :func:`bayeshyst.files.json_text`).
+    """
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     files: dict[str, Any] = {"table": "comparison.csv", "text": "comparison.txt",
@@ -102,13 +123,7 @@ def write_comparison_outputs(result: ComparisonResult, out_dir: str | Path, *,
     statements = "\n".join(_statement(fc) for fc in (*result.per_frequency, result.overall))
     with atomic_path(out / "comparison.txt") as tmp:
         tmp.write_text(str(result) + "\n\n" + statements + "\n")
-    if figures and any(fc.frequency_hz is not None for fc in result.per_frequency):
-        from bayeshyst.plotting import plot_model_comparison
-
-        plot_model_comparison(result, out / "compare.png")
-        files["figures"] = ["compare.png"]
-    else:
-        files["figures"] = []
+    files["figures"] = write_figures(out, figures)
     summary = comparison_summary(result, data_path=data_path, files=files)
     write_json(out / "summary.json", summary)
     return summary

@@ -4,7 +4,9 @@ behind the design, its posterior ``posterior.nc``.
 
 Every file is written atomically, and ``summary.json`` last: a run that fails half-way
 leaves no summary that claims outputs which do not exist. The resumable sampler
-checkpoint (``checkpoint.h5``) is written by the fit itself.
+checkpoint (``checkpoint.h5``) is written by the fit itself. The writer only writes: the
+fit's InferenceData and the figure
+(:func:`~bayeshyst.report.assemble.compensation_figures`) come from the caller.
 """
 
 from __future__ import annotations
@@ -12,18 +14,20 @@ from __future__ import annotations
 import csv
 import io
 import re
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from bayeshyst.errors import ParameterError
 from bayeshyst.files import atomic_path
 from bayeshyst.inference.fit import FitResult
 from bayeshyst.inverse.compensate import CompensationResult, CompensationRow
-from bayeshyst.report.files import csv_cell, write_json
+from bayeshyst.report.files import csv_cell, write_figures, write_json
 
 __all__ = ["COMMANDS", "CSV_COLUMNS", "compensation_summary", "curve_prefix",
-           "write_compensation_outputs"]
+           "write_compensation_outputs", "written_files"]
 
 #: The four commands of every row, in the order they are reported.
 COMMANDS = ("uncompensated", "nominal", "posterior", "robust")
@@ -122,63 +126,76 @@ def _curves(result: CompensationResult) -> dict[str, np.ndarray]:
 
 
 def write_compensation_outputs(result: CompensationResult, out_dir: str | Path, *,
-                               figures: bool = True, fit: FitResult | None = None,
-                               data_path: str | None = None,
-                               posterior: str | None = None) -> list[Path]:
-    """Write the compensation's files into ``out_dir`` (each atomically).
+                               fit: FitResult | None = None, idata: Any = None,
+                               posterior: str | None = None,
+                               figures: Mapping[str, Any] | None = None,
+                               data_path: str | None = None) -> dict[str, Any]:
+    """Write the compensation's files into ``out_dir`` (each atomically, ``summary.json``
+    last): ``compensation.csv``, ``compensation.txt``, ``curves.npz``, ``posterior.nc``
+    when ``idata`` is given, the figures, ``summary.json``.
 
     Parameters
     ----------
     result : CompensationResult
     out_dir : path-like
         Created if needed.
-    figures : bool
-        Draw ``compensate.png``.
     fit : FitResult, optional
-        The posterior the commands were designed from: written as ``posterior.nc``
-        (as ``bayeshyst fit`` writes it) and summarised under ``fit`` in the summary.
-    data_path : str, optional
-        Recorded in the summary.
+        The posterior the commands were designed from: summarised under ``fit`` in the
+        summary.
+    idata : arviz.InferenceData, optional
+        ``fit`` as :func:`bayeshyst.diagnostics.to_inference_data` gives it: written as
+        ``posterior.nc`` (as ``bayeshyst fit`` writes it).
     posterior : str, optional
         Where ``fit``'s posterior is already saved (a path relative to ``out_dir``'s
         parent, e.g. ``"../diagnose/posterior_final.nc"``): recorded instead of writing
-        ``posterior.nc`` a second time.
+        it a second time. Not together with ``idata``.
+    figures : mapping of str to Figure, optional
+        PNG file name -> figure
+        (:func:`~bayeshyst.report.assemble.compensation_figures`); none by default.
+    data_path : str, optional
+        Recorded in the summary.
 
     Returns
     -------
-    list of Path
-        The files written, ``summary.json`` last.
+    dict
+        The summary written to ``summary.json`` (:func:`compensation_summary`), before
+        JSON encoding (print it with :func:`bayeshyst.files.json_text`).
+
+    Raises
+    ------
+    ParameterError
+        Both ``idata`` and ``posterior`` given (nothing is written).
     """
+    if idata is not None and posterior is not None:
+        raise ParameterError("give the posterior to write (idata) or where it is saved "
+                             "(posterior), not both")
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    written: list[Path] = []
     files: dict[str, Any] = {"table": "compensation.csv", "text": "compensation.txt",
-                             "curves": "curves.npz", "posterior": None, "figures": []}
+                             "curves": "curves.npz", "posterior": posterior, "figures": []}
     with atomic_path(out / "compensation.csv") as tmp:
         tmp.write_text(_csv_text(result))
-    written.append(out / "compensation.csv")
     with atomic_path(out / "compensation.txt") as tmp:
         tmp.write_text(str(result) + "\n")
-    written.append(out / "compensation.txt")
     # through a file handle: given a name, numpy would append ".npz" to the temporary file
     with atomic_path(out / "curves.npz") as tmp, open(tmp, "wb") as fh:
         np.savez_compressed(fh, **_curves(result))
-    written.append(out / "curves.npz")
-    if fit is not None and posterior is not None:
-        files["posterior"] = posterior
-    elif fit is not None:
+    if idata is not None:
         from bayeshyst import diagnostics
 
-        idata = diagnostics.to_inference_data(fit.posterior, fit.sampling,
-                                              seed=int(result.settings.get("seed", 0)))
-        written.append(diagnostics.save_netcdf(idata, out / "posterior.nc"))
+        diagnostics.save_netcdf(idata, out / "posterior.nc")
         files["posterior"] = "posterior.nc"
-    if figures and result.rows:
-        from bayeshyst.plotting import plot_compensation
-
-        y_unit = fit.posterior.data[0].units.get("y", "") if fit is not None else ""
-        written.append(plot_compensation(result, out / "compensate.png", y_unit=y_unit))
-        files["figures"] = ["compensate.png"]
+    files["figures"] = write_figures(out, figures)
     summary = compensation_summary(result, fit=fit, data_path=data_path, files=files)
-    written.append(write_json(out / "summary.json", summary))
-    return written
+    write_json(out / "summary.json", summary)
+    return summary
+
+
+def written_files(summary: dict[str, Any]) -> list[str]:
+    """The files :func:`write_compensation_outputs` wrote, from the summary it returned,
+    in the order written (``summary.json`` last); a posterior saved elsewhere is not
+    among them."""
+    f = summary["files"]
+    saved_here = f["posterior"] == "posterior.nc"
+    return [f["table"], f["text"], f["curves"], *(["posterior.nc"] if saved_here else []),
+            *f["figures"], "summary.json"]

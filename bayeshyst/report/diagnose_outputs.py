@@ -1,17 +1,25 @@
 """What ``bayeshyst diagnose`` writes: the summary, the steps table, the posteriors of the
-base and final models, and the figures."""
+base and final models, and the figures.
+
+The writer only writes: the posteriors are the InferenceData each fit of the diagnosis
+carries (:attr:`DiagnosisFit.idata`, made when its leave-one-cycle-out elpd was
+computed), the figures are built by the caller
+(:func:`~bayeshyst.report.assemble.diagnosis_figures`).
+"""
 
 from __future__ import annotations
 
 import csv
 import io
 import re
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
 from bayeshyst.diagnosis import DiagnosisFit, DiagnosisResult, EffectTest
+from bayeshyst.errors import ParameterError
 from bayeshyst.files import atomic_path
-from bayeshyst.report.files import csv_cell, write_json
+from bayeshyst.report.files import csv_cell, write_figures, write_json
 
 __all__ = ["STEP_COLUMNS", "diagnosis_summary", "evidence_figures", "write_diagnosis_outputs"]
 
@@ -37,10 +45,11 @@ def _slug(name: str) -> str:
 
 
 def evidence_figures(result: DiagnosisResult) -> list[tuple[str, EffectTest]]:
-    """``(file name, test)`` of every evidence figure :func:`write_diagnosis_outputs`
-    draws: ``evidence_<effect>.png`` for every effect tested on the base model's residual,
-    and ``evidence_round<k>_<effect>.png`` for the test behind each step accepted in a
-    later round ``k``. Skipped tests have no evidence and no figure."""
+    """``(file name, test)`` of every evidence figure
+    :func:`~bayeshyst.report.assemble.diagnosis_figures` builds:
+    ``evidence_<effect>.png`` for every effect tested on the base model's residual, and
+    ``evidence_round<k>_<effect>.png`` for the test behind each step accepted in a later
+    round ``k``. Skipped tests have no evidence and no figure."""
     out = [(f"evidence_{_slug(t.effect)}.png", t) for t in result.base.analysis.tests
            if t.skipped is None]
     for step in result.steps:
@@ -73,67 +82,64 @@ def diagnosis_summary(result: DiagnosisResult, *, data_name: str | None = None,
     return out
 
 
-def _idata(fit: DiagnosisFit, seed: int) -> Any:
-    if fit.idata is not None:
-        return fit.idata
-    from bayeshyst import diagnostics
-
-    return diagnostics.to_inference_data(fit.posterior, fit.sampling, seed=seed)
+def _idata(fit: DiagnosisFit) -> Any:
+    if fit.idata is None:
+        raise ParameterError(f"{fit.label}: the fit carries no InferenceData to write (a "
+                             "DiagnosisFit made by bayeshyst.diagnosis.diagnose has one)")
+    return fit.idata
 
 
 def write_diagnosis_outputs(result: DiagnosisResult, out_dir: str | Path, *,
-                            data_name: str | None = None, figures: bool = True) -> list[Path]:
+                            figures: Mapping[str, Any] | None = None,
+                            data_name: str | None = None) -> dict[str, Any]:
     """Write the diagnosis's files into ``out_dir`` (each atomically, ``summary.json`` last).
 
     Files: ``diagnosis.txt`` (the text report), ``steps.csv`` (one row per augmentation
     tried, columns :data:`STEP_COLUMNS`; non-finite numbers empty), ``posterior_base.nc``
-    and — when the loop kept an effect — ``posterior_final.nc`` (arviz InferenceData of
-    the base and final fits), with ``figures`` ``residuals.png`` (before/after) and the
-    evidence figures of :func:`evidence_figures`, then ``summary.json``
-    (:func:`diagnosis_summary`).
+    and — when the loop kept an effect — ``posterior_final.nc`` (the InferenceData the
+    base and final fits carry), the ``figures``, then ``summary.json``
+    (:func:`diagnosis_summary`, whose ``outputs`` lists every file written).
 
     Parameters
     ----------
     result : DiagnosisResult
+        Its base and final fits carry their InferenceData (``DiagnosisFit.idata``).
     out_dir : path-like
         Created if needed.
+    figures : mapping of str to Figure, optional
+        PNG file name -> figure
+        (:func:`~bayeshyst.report.assemble.diagnosis_figures`); none by default.
     data_name : str, optional
         The data the diagnosis ran on (a path or name), recorded in the summary.
-    figures : bool
-        Draw the PNG figures.
 
     Returns
     -------
-    list of Path
-        The files written, ``summary.json`` last.
+    dict
+        The summary written to ``summary.json``, before JSON encoding (print it with
+        :func:`bayeshyst.files.json_text`).
+
+    Raises
+    ------
+    ParameterError
+        A fit to be written carries no InferenceData (nothing is written).
     """
     from bayeshyst import diagnostics
 
     if not isinstance(result, DiagnosisResult):
         raise TypeError(f"result must be a DiagnosisResult, got {type(result).__name__}")
+    posteriors = {"posterior_base.nc": _idata(result.base)}
+    if result.final is not result.base:
+        posteriors["posterior_final.nc"] = _idata(result.final)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    written: list[Path] = []
     with atomic_path(out / "diagnosis.txt") as tmp:
         tmp.write_text(str(result) + "\n")
-    written.append(out / "diagnosis.txt")
     with atomic_path(out / "steps.csv") as tmp:
         tmp.write_text(_steps_csv(result))
-    written.append(out / "steps.csv")
-    seed = int(result.settings.seed)
-    written.append(diagnostics.save_netcdf(_idata(result.base, seed),
-                                           out / "posterior_base.nc"))
-    if result.final is not result.base:
-        written.append(diagnostics.save_netcdf(_idata(result.final, seed),
-                                               out / "posterior_final.nc"))
-    if figures:
-        from bayeshyst.plotting import plot_diagnosis_residuals, plot_effect_evidence
-
-        written.append(plot_diagnosis_residuals(result, out / "residuals.png"))
-        y_unit = _y_unit(result)
-        for name, test in evidence_figures(result):
-            written.append(plot_effect_evidence(test, out / name, y_unit=y_unit))
-    names = [p.name for p in written] + ["summary.json"]
+    for name, idata in posteriors.items():
+        diagnostics.save_netcdf(idata, out / name)
+    names = ["diagnosis.txt", "steps.csv", *posteriors, *write_figures(out, figures),
+             "summary.json"]
     summary = diagnosis_summary(result, data_name=data_name, outputs=names)
-    written.append(write_json(out / "summary.json", summary))
-    return written
+    write_json(out / "summary.json", summary)
+    return summary

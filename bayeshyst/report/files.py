@@ -1,21 +1,25 @@
-"""JSON output: plain types, no NaN, written atomically (:mod:`bayeshyst.files`)."""
+"""What every writer uses: CSV cells and rows, non-finite fields named, figures saved.
+
+The JSON serialiser itself (:func:`jsonable`, :func:`json_text`, :func:`write_json`)
+lives in :mod:`bayeshyst.files`, below every layer that writes JSON (the study stores
+its per-fit records with it); it is re-exported here for the writers.
+"""
 
 from __future__ import annotations
 
 import csv
 import io
-import json
 import math
-from collections.abc import Callable, Iterable, Mapping, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from bayeshyst.files import atomic_path
+from bayeshyst.files import atomic_path, json_text, jsonable, write_json
 
-__all__ = ["atomic_path", "csv_cell", "jsonable", "nonfinite_fields", "write_json",
-           "write_rows_csv"]
+__all__ = ["atomic_path", "csv_cell", "json_text", "jsonable", "nonfinite_fields",
+           "write_figures", "write_json", "write_rows_csv"]
 
 
 def csv_cell(value: Any) -> Any:
@@ -28,28 +32,6 @@ def csv_cell(value: Any) -> Any:
     if isinstance(value, float | np.floating):
         return float(value) if math.isfinite(value) else ""
     return value
-
-
-def jsonable(obj: Any) -> Any:
-    """``obj`` with NumPy types made plain and non-finite floats made ``None``.
-
-    JSON has no NaN or infinity; writing them would make files that strict parsers
-    reject, so a missing number is ``null``.
-    """
-    if isinstance(obj, dict):
-        return {str(k): jsonable(v) for k, v in obj.items()}
-    if isinstance(obj, list | tuple):
-        return [jsonable(v) for v in obj]
-    if isinstance(obj, np.ndarray):
-        return jsonable(obj.tolist())
-    if isinstance(obj, np.bool_ | bool):
-        return bool(obj)
-    if isinstance(obj, np.integer):
-        return int(obj)
-    if isinstance(obj, float | np.floating):
-        x = float(obj)
-        return x if math.isfinite(x) else None
-    return obj
 
 
 def nonfinite_fields(obj: Any, prefix: str = "") -> list[str]:
@@ -83,14 +65,6 @@ def nonfinite_fields(obj: Any, prefix: str = "") -> list[str]:
     return []
 
 
-def write_json(path: str | Path, obj: Any, *, default: Callable[[Any], Any] = str) -> Path:
-    """Write ``obj`` as indented JSON atomically; return the path."""
-    with atomic_path(path) as tmp:
-        tmp.write_text(json.dumps(jsonable(obj), indent=2, default=default, allow_nan=False)
-                       + "\n")
-    return Path(path)
-
-
 def write_rows_csv(path: str | Path, columns: Sequence[str],
                    rows: Iterable[Mapping[str, Any]]) -> Path:
     """Write ``rows`` (dicts) under ``columns`` as CSV, atomically; missing keys, None
@@ -103,3 +77,29 @@ def write_rows_csv(path: str | Path, columns: Sequence[str],
     with atomic_path(path) as tmp:
         tmp.write_text(buf.getvalue(), encoding="utf-8")
     return Path(path)
+
+
+def write_figures(out: str | Path, figures: Mapping[str, Any] | None) -> list[str]:
+    """Save each figure as PNG under ``out``, atomically, in the order given.
+
+    Parameters
+    ----------
+    out : path-like
+        The writer's output folder.
+    figures : mapping of str to Figure, optional
+        File name relative to ``out`` (``"loops.png"``, ``"figures/corner_final.png"``)
+        -> the figure, as built by :mod:`bayeshyst.plotting`.
+
+    Returns
+    -------
+    list of str
+        The file names, in the order written.
+    """
+    if not figures:
+        return []
+    # imported here: matplotlib is loaded only by a run that draws
+    from bayeshyst.plotting import save_figure
+
+    for name, fig in figures.items():
+        save_figure(fig, Path(out) / name)
+    return list(figures)

@@ -1,14 +1,20 @@
-"""What ``bayeshyst fit`` writes: ``summary.json``, ``posterior.nc`` and the figures."""
+"""What ``bayeshyst fit`` writes: ``summary.json``, ``posterior.nc`` and the figures.
+
+The writer only writes: the caller hands it the fit's InferenceData (from
+:func:`bayeshyst.diagnostics.to_inference_data`, which simulates every kept draw) and
+the figures (:func:`bayeshyst.report.assemble.fit_figures`).
+"""
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from bayeshyst.inference.fit import FitResult
-from bayeshyst.report.files import nonfinite_fields, write_json
+from bayeshyst.report.files import nonfinite_fields, write_figures, write_json
 
 __all__ = ["fit_summary", "write_fit_outputs"]
 
@@ -116,38 +122,41 @@ def fit_summary(fit: FitResult, *, data_path: str | None = None,
     return summary
 
 
-def write_fit_outputs(fit: FitResult, out: str | Path, *, data_path: str | None = None,
-                      figures: bool = True, seed: int = 0) -> dict[str, Any]:
+def write_fit_outputs(fit: FitResult, out: str | Path, *, idata: Any,
+                      figures: Mapping[str, Any] | None = None,
+                      data_path: str | None = None) -> dict[str, Any]:
     """Write ``posterior.nc``, the figures and ``summary.json`` into ``out``.
 
     Every file is written atomically, and ``summary.json`` last: a run that fails
     half-way leaves no summary that claims outputs which do not exist.
 
+    Parameters
+    ----------
+    fit : FitResult
+    out : path-like
+        Created if needed.
+    idata : arviz.InferenceData
+        The fit as :func:`bayeshyst.diagnostics.to_inference_data` gives it; written as
+        ``posterior.nc``.
+    figures : mapping of str to Figure, optional
+        PNG file name -> figure (:func:`~bayeshyst.report.assemble.fit_figures`); none
+        by default.
+    data_path : str, optional
+        The data file, recorded in the summary.
+
     Returns
     -------
     dict
-        The summary that was written.
+        The summary written to ``summary.json`` (:func:`fit_summary`), before JSON
+        encoding (print it with :func:`bayeshyst.files.json_text`).
     """
     from bayeshyst import diagnostics
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    idata = diagnostics.to_inference_data(fit.posterior, fit.sampling, seed=seed)
     diagnostics.save_netcdf(idata, out / "posterior.nc")
-    files: dict[str, Any] = {"posterior": "posterior.nc", "figures": []}
-    if figures:
-        from bayeshyst import plotting
-
-        names = fit.sampling.space.names
-        bw = ["alpha", "beta", "gamma", "n"]
-        corner = bw if all(n in names for n in bw) else None
-        made = [
-            plotting.plot_loops(fit.posterior, fit.sampling, out / "loops.png", seed=seed),
-            plotting.plot_trace(fit.sampling, out / "trace.png"),
-            plotting.plot_corner(fit.sampling, out / "corner.png", params=corner),
-            plotting.plot_residuals(fit.posterior, fit.sampling, out / "residuals.png"),
-        ]
-        files["figures"] = [Path(p).name for p in made]
+    files: dict[str, Any] = {"posterior": "posterior.nc",
+                             "figures": write_figures(out, figures)}
     summary = fit_summary(fit, data_path=data_path, files=files)
     write_json(out / "summary.json", summary)
     return summary

@@ -13,25 +13,31 @@ Layout of ``out``::
 
 Every user-provided string (data and record names, file paths, metadata) reaches the
 HTML through :mod:`bayeshyst.report.html`, which escapes it.
+
+The writer only writes: the caller loads the comparison's joint posteriors
+(:func:`~bayeshyst.report.assemble.report_posteriors`) and builds every figure
+(:func:`~bayeshyst.report.assemble.report_figures`).
 """
 
 from __future__ import annotations
 
 import json
 import platform
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from bayeshyst import __version__
+from bayeshyst._version import __version__
 from bayeshyst.data.record import Dataset
-from bayeshyst.files import atomic_path
+from bayeshyst.files import atomic_path, json_text
 from bayeshyst.report import html as H
+from bayeshyst.report.assemble import CORNER_MAX, corner_figure_name, joint_tasks
 from bayeshyst.report.compare_outputs import write_comparison_outputs
 from bayeshyst.report.compensate_outputs import COMMANDS, write_compensation_outputs
 from bayeshyst.report.diagnose_outputs import evidence_figures, write_diagnosis_outputs
-from bayeshyst.report.files import jsonable, write_json
+from bayeshyst.report.files import jsonable, write_figures, write_json
 from bayeshyst.workflow import ReportResult
 
 __all__ = ["SECTIONS", "data_overview", "write_report_outputs"]
@@ -39,12 +45,8 @@ __all__ = ["SECTIONS", "data_overview", "write_report_outputs"]
 #: Sections of ``summary.json`` (and of the HTML report), in order.
 SECTIONS = ("data", "posteriors", "model_selection", "diagnosis", "compensation")
 
-#: Parameters of the Bouc–Wen corner plot the report always shows when Bouc–Wen is fitted.
-BOUC_WEN_CORNER = ("alpha", "beta", "gamma", "n")
-
 _METADATA_SHOWN = 6  # metadata entries listed per record (the rest are in summary.json)
 _INLINE_CHARS = 40  # longer metadata values are named, not shown (they are in summary.json)
-CORNER_MAX = 6  # parameters in the final model's corner plot (k (k + 1) / 2 panels)
 
 
 # ----------------------------------------------------------------------------- data
@@ -114,40 +116,30 @@ def _conv_words(rep: dict[str, Any]) -> str:
             f"step budget (--steps). Why: {reasons}.")
 
 
-def _posteriors(result: ReportResult, out: Path, figures: bool) -> tuple[dict[str, Any],
-                                                                        list[Path]]:
+def _under(figures: Mapping[str, Any], folder: str) -> dict[str, Any]:
+    """The figures of one stage, named relative to its folder."""
+    prefix = f"{folder}/"
+    return {k[len(prefix):]: v for k, v in figures.items() if k.startswith(prefix)}
+
+
+def _posteriors(result: ReportResult, out: Path, posteriors: Mapping[str, Any],
+                figures: Mapping[str, Any]) -> dict[str, Any]:
     """Per parametric model: its joint fit's posterior (from the comparison's netCDF)."""
     from bayeshyst import diagnostics
 
     entries = []
-    figs: list[Path] = []
-    for task in result.comparison.tasks:
-        if task.spec.scope != "joint" or not task.ok or not task.netcdf:
-            continue
-        idata = diagnostics.load_netcdf(task.netcdf)
+    for task in joint_tasks(result):
+        idata = posteriors[task.spec.key]
         rep = diagnostics.sampling_report(idata)
         params = [{"label": p.label, "unit": p.unit, "mean": p.mean, "sd": p.sd,
                    "hdi_5": p.hdi_lo, "hdi_95": p.hdi_hi}
                   for p in diagnostics.posterior_summary(idata, 0.9)]
-        entry = {"model": task.spec.model, "scope": "all frequencies jointly",
-                 "posterior": str(Path(task.netcdf).relative_to(out)),
-                 "sampling": rep, "params": params, "verdict": _conv_words(rep),
-                 "corner": None}
-        names = set(idata.posterior.data_vars)
-        if figures and set(BOUC_WEN_CORNER) <= names:
-            draws = {k: np.asarray(idata.posterior[k].values).ravel() for k in BOUC_WEN_CORNER}
-            units = {k: str(idata.posterior[k].attrs.get("unit", "")) for k in BOUC_WEN_CORNER}
-            from bayeshyst.plotting import plot_draws_corner
-
-            title = (f"{task.spec.model}, all frequencies: posterior of α, β, γ, n "
-                     f"({draws['alpha'].size} saved draws; "
-                     f"{'converged' if rep['converged'] else 'NOT CONVERGED'})")
-            slug = task.spec.key.split("__")[0]
-            p = plot_draws_corner(draws, out / "figures" / f"corner_{slug}.png", units=units,
-                                  title=title)
-            figs.append(p)
-            entry["corner"] = str(p.relative_to(out))
-        entries.append(entry)
+        corner = corner_figure_name(task)
+        entries.append({"model": task.spec.model, "scope": "all frequencies jointly",
+                        "posterior": str(Path(task.netcdf).relative_to(out)),
+                        "sampling": rep, "params": params,
+                        "verdict": _conv_words(rep),
+                        "corner": corner if corner in figures else None})
     section: dict[str, Any] = {"models": entries, "chosen": None, "base_converged": None}
     if result.diagnosis is not None:
         section["base_converged"] = bool(result.diagnosis.base.sampling.converged)
@@ -163,16 +155,10 @@ def _posteriors(result: ReportResult, out: Path, figures: bool) -> tuple[dict[st
                         "hdi_5": p.hdi_lo, "hdi_95": p.hdi_hi}
                        for p in fit.sampling.summary(0.9)],
             "trace": None, "corner": None}
-        if figures:
-            from bayeshyst.plotting import plot_corner, plot_trace
-
-            tr = plot_trace(fit.sampling, out / "figures" / "trace_final.png")
-            co = plot_corner(fit.sampling, out / "figures" / "corner_final.png",
-                             max_params=CORNER_MAX)
-            figs += [tr, co]
-            section["chosen"]["trace"] = str(tr.relative_to(out))
-            section["chosen"]["corner"] = str(co.relative_to(out))
-    return section, figs
+        for key in ("trace", "corner"):
+            name = f"figures/{key}_final.png"
+            section["chosen"][key] = name if name in figures else None
+    return section
 
 
 def _param_table(params: list[dict[str, Any]]) -> H.Markup:
@@ -445,9 +431,17 @@ def _warnings(result: ReportResult, sel: dict[str, Any], dg: dict[str, Any] | No
     return list(dict.fromkeys(out))
 
 
+def _as_written(summary: dict[str, Any]) -> dict[str, Any]:
+    """A stage's summary as its ``summary.json`` holds it (plain types, ``null`` for
+    non-finite numbers): what the report's own summary and HTML are built from."""
+    return json.loads(json_text(summary))
+
+
 def write_report_outputs(result: ReportResult, out_dir: str | Path, *,
-                         data_path: str | None = None, title: str | None = None,
-                         figures: bool = True) -> dict[str, Any]:
+                         posteriors: Mapping[str, Any],
+                         figures: Mapping[str, Any] | None = None,
+                         data_path: str | None = None,
+                         title: str | None = None) -> dict[str, Any]:
     """Write ``report.html``, ``summary.json`` and each stage's files into ``out_dir``.
 
     Parameters
@@ -456,12 +450,17 @@ def write_report_outputs(result: ReportResult, out_dir: str | Path, *,
     out_dir : path-like
         Created if needed; the comparison's posteriors must already be under
         ``out_dir/compare`` (pass the same folder to :func:`~bayeshyst.workflow.run_report`).
+    posteriors : mapping of str to arviz.InferenceData
+        The comparison's joint posteriors
+        (:func:`~bayeshyst.report.assemble.report_posteriors`).
+    figures : mapping of str to Figure, optional
+        File name relative to ``out_dir`` -> figure
+        (:func:`~bayeshyst.report.assemble.report_figures`); each stage's are handed to
+        its writer, the rest written under ``figures/`` and embedded. None by default.
     data_path : str, optional
         The data file, shown in the report and recorded in the summary.
     title : str, optional
         Report title (default: "bayeshyst report: <data name>").
-    figures : bool
-        Draw and embed the figures.
 
     Returns
     -------
@@ -471,35 +470,34 @@ def write_report_outputs(result: ReportResult, out_dir: str | Path, *,
     """
     if not isinstance(result, ReportResult):
         raise TypeError(f"result must be a ReportResult, got {type(result).__name__}")
+    figures = figures or {}
     out = Path(out_dir)
     (out / "figures").mkdir(parents=True, exist_ok=True)
+    # the report's own figures (the stages' go to their writers below)
+    write_figures(out, {k: v for k, v in figures.items() if k.startswith("figures/")})
     data_sec = data_overview(result.data, data_path)
-    overview = None
-    if figures:
-        from bayeshyst.report.figures import plot_data_overview
-
-        overview = plot_data_overview(result.data, out / "figures" / "data_loops.png")
+    overview = out / "figures" / "data_loops.png"
+    overview = overview if "figures/data_loops.png" in figures else None
     sel = write_comparison_outputs(result.comparison, out / "compare", data_path=data_path,
-                                   figures=figures)
+                                   figures=_under(figures, "compare"))
     dg = comp = None
     evidence: list[str] = []
     if result.diagnosis is not None:
-        write_diagnosis_outputs(result.diagnosis, out / "diagnose", data_name=data_path,
-                                figures=figures)
-        dg = json.loads((out / "diagnose" / "summary.json").read_text())
-        if figures:
-            kept = {s.effect for s in result.diagnosis.steps}
-            evidence = [n for n, t in evidence_figures(result.diagnosis)
-                        if t.effect in kept or t.significant]
+        dg = _as_written(write_diagnosis_outputs(result.diagnosis, out / "diagnose",
+                                                 data_name=data_path,
+                                                 figures=_under(figures, "diagnose")))
+        kept = {s.effect for s in result.diagnosis.steps}
+        evidence = [n for n, t in evidence_figures(result.diagnosis)
+                    if (t.effect in kept or t.significant) and f"diagnose/{n}" in figures]
     if result.compensation is not None:
         # the design's posterior is the diagnosis' final fit, already saved there
         saved = "posterior_final.nc" if (result.diagnosis.final is not result.diagnosis.base
                                          ) else "posterior_base.nc"
-        write_compensation_outputs(result.compensation, out / "compensate", figures=figures,
-                                   fit=result.final_fit, data_path=data_path,
-                                   posterior=f"../diagnose/{saved}")
-        comp = json.loads((out / "compensate" / "summary.json").read_text())
-    post_sec, _ = _posteriors(result, out, figures)
+        comp = _as_written(write_compensation_outputs(
+            result.compensation, out / "compensate", fit=result.final_fit,
+            posterior=f"../diagnose/{saved}", figures=_under(figures, "compensate"),
+            data_path=data_path))
+    post_sec = _posteriors(result, out, posteriors, figures)
     summary: dict[str, Any] = {
         "command": "report",
         "title": title or f"bayeshyst report: {result.data.name}",

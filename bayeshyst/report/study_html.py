@@ -16,7 +16,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from bayeshyst import __version__
+from bayeshyst._version import __version__
 from bayeshyst.report import html as H
 
 __all__ = ["SECTIONS", "study_html"]

@@ -9,18 +9,21 @@
   ``figures/scores_vs_frequency.png`` (elpd per cycle and NRMSE against frequency);
 - ``study.html`` when asked for; ``summary.json`` last (what ran, where, the files).
 
-Each file is written to a temporary name and renamed, so none is ever half-written.
+Each file is written to a temporary name and renamed, so none is ever half-written. The
+figures are built by the caller (:func:`bayeshyst.report.assemble.study_output_figures`).
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-from bayeshyst import __version__
+from bayeshyst._version import __version__
 from bayeshyst.files import atomic_path
-from bayeshyst.report.files import write_json, write_rows_csv
+from bayeshyst.report.files import write_figures, write_json, write_rows_csv
+from bayeshyst.study.rows import TABLE_COLUMNS
 
 __all__ = ["BY_FREQUENCY_COLUMNS", "RANKING_COLUMNS", "write_study_outputs"]
 
@@ -54,27 +57,29 @@ def _ranking_rows(result: Any) -> list[dict[str, Any]]:
     return out
 
 
-def write_study_outputs(result: Any, out: str | Path, *, figures: bool = True,
+def write_study_outputs(result: Any, out: str | Path, *,
+                        figures: Mapping[str, Any] | None = None,
                         html: bool = False) -> dict[str, Any]:
     """Write the study's tables, figures, optional HTML report and ``summary.json``.
 
     Parameters
     ----------
     result : bayeshyst.study.StudyResult
-    out : path
+    out : path-like
         The study's output folder.
-    figures : bool
-        Draw ``figures/*.png`` (needed for the HTML report's figures).
+    figures : mapping of str to Figure, optional
+        File name relative to ``out`` -> figure
+        (:func:`~bayeshyst.report.assemble.study_output_figures`: ``figures/*.png``, which
+        the HTML report embeds); none by default.
     html : bool
         Write ``study.html``.
 
     Returns
     -------
     dict
-        The content of ``summary.json``.
+        The summary written to ``summary.json``, before JSON encoding (print it with
+        :func:`bayeshyst.files.json_text`).
     """
-    from bayeshyst.study.rows import TABLE_COLUMNS
-
     out = Path(out)
     rows = [dict(r) for r in result.rows]
     write_rows_csv(out / "table.csv", TABLE_COLUMNS, rows)
@@ -88,19 +93,11 @@ def write_study_outputs(result: Any, out: str | Path, *, figures: bool = True,
                              "best_by_dataset": ["best_by_dataset.csv",
                                                  "best_by_dataset.json"],
                              "fits": "fits/", "figures": []}
-    figs: dict[str, Path] = {}
     # figures of an earlier run of this folder would not match the new table
     for name in ("best_model", "scores_vs_frequency"):
         (out / "figures" / f"{name}.png").unlink(missing_ok=True)
-    if figures:
-        from bayeshyst.report.study_figures import plot_best_model, plot_scores_vs_frequency
-
-        for name, fn in (("best_model", plot_best_model),
-                         ("scores_vs_frequency", plot_scores_vs_frequency)):
-            path = fn(result, out / "figures" / f"{name}.png")
-            if path is not None:
-                figs[name] = Path(path)
-                files["figures"].append(f"figures/{Path(path).name}")
+    files["figures"] = write_figures(out, figures)
+    figs = {Path(name).stem: out / name for name in files["figures"]}
     if html:
         from bayeshyst.report.study_html import study_html
 

@@ -15,7 +15,7 @@ from typing import Any
 
 import numpy as np
 
-from bayeshyst.report.files import write_json
+from bayeshyst.files import write_json
 from bayeshyst.selection import total_and_se
 from bayeshyst.study.tasks import FitOutcome, StudyTask, settings_fingerprint
 

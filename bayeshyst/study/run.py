@@ -29,17 +29,12 @@ from typing import Any
 
 import numpy as np
 
-from bayeshyst.data.record import Dataset
+from bayeshyst.data.record import Dataset, frequency_label
 from bayeshyst.errors import DataError, ParameterError
 from bayeshyst.files import atomic_path
 from bayeshyst.study.rows import failed_row, fit_record, read_record, write_record
 from bayeshyst.study.spec import DatasetSpec, Study, load_dataset
-from bayeshyst.study.summary import (
-    DatasetRanking,
-    FrequencySummary,
-    frequency_label,
-    summarise,
-)
+from bayeshyst.study.summary import DatasetRanking, FrequencySummary, summarise
 from bayeshyst.study.tasks import FitOutcome, StudyTask, data_digest, execute
 
 __all__ = ["StudyResult", "plan_study", "run_study"]
@@ -224,7 +219,7 @@ def _worker_stack() -> dict[str, str]:
     import numpy
     import scipy
 
-    from bayeshyst import __version__
+    from bayeshyst._version import __version__
 
     return {"bayeshyst": __version__, "numpy": numpy.__version__, "scipy": scipy.__version__,
             "numba": numba.__version__, "emcee": emcee.__version__}
@@ -260,20 +255,23 @@ def run_study(
     serial: bool = False,
     retry_failed: bool = False,
     progress: bool = True,
-    figures: bool = True,
-    html: bool = False,
     on_result: Callable[[dict[str, Any], Any], None] | None = None,
 ) -> StudyResult:
-    """Run every fit of ``study`` that is not done yet, then write the study's outputs.
+    """Run every fit of ``study`` that is not done yet, and gather the table and the
+    model selection across datasets.
+
+    Each fit's posterior and record are stored under ``out_dir/fits/`` as it completes
+    (what a rerun resumes from). The study's tables, figures and ``summary.json`` are
+    written by :func:`bayeshyst.report.study_outputs.write_study_outputs`, given the
+    result (``bayeshyst study`` does both).
 
     Parameters
     ----------
     study : Study
         From :func:`~bayeshyst.study.spec.read_study`.
     out_dir : path
-        ``fits/`` (one posterior + record per fit), ``work/`` (checkpoints of running
-        fits), ``table.csv``/``table.json``, ``by_frequency.*``, ``best_by_dataset.*``,
-        ``figures/``, ``summary.json`` (written last) and, with ``html``, ``study.html``.
+        ``fits/`` (one posterior + record per fit) and ``work/`` (checkpoints of running
+        fits, removed once every fit finished).
     scheduler : str, optional
         Address of a running Dask scheduler (``tcp://host:port``).
     n_workers : int, optional
@@ -288,8 +286,6 @@ def run_study(
         like a finished one, is not repeated: its inputs and seed are the same).
     progress : bool
         One line per fit on stderr.
-    figures, html : bool
-        Draw the figures; write ``study.html``.
     on_result : callable, optional
         Called as ``on_result(row, client)`` after each fit run now is stored (the
         client is None in serial mode).
@@ -389,12 +385,8 @@ def run_study(
         else:
             rows.append(infra[item.name])
     rankings, by_freq = summarise(rows, pointwise, study.models)
-    result = StudyResult(study, tuple(rows), rankings, by_freq, done_now,
-                         n_tasks - len(todo), time.perf_counter() - t0, str(out), cluster)
-    from bayeshyst.report.study_outputs import write_study_outputs
-
-    write_study_outputs(result, out, figures=figures, html=html)
-    return result
+    return StudyResult(study, tuple(rows), rankings, by_freq, done_now,
+                       n_tasks - len(todo), time.perf_counter() - t0, str(out), cluster)
 
 
 def _state(row: dict[str, Any]) -> str:

@@ -24,16 +24,11 @@ from typing import Any
 
 import numpy as np
 
-from bayeshyst.data.record import frequency_key
+from bayeshyst.data.record import frequency_key, frequency_label
 from bayeshyst.selection.ranking import rank_by_elpd
 
 __all__ = ["DatasetRanking", "FrequencySummary", "ModelAcrossDatasets", "ModelAtDataset",
            "frequency_label", "summarise"]
-
-
-def frequency_label(f: float | None) -> str:
-    """``"10 Hz"``, or ``"unknown"`` for records without a frequency."""
-    return "unknown" if f is None else f"{f:g} Hz"
 
 
 @dataclass(frozen=True)

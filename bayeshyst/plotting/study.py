@@ -1,14 +1,17 @@
 """Figures of a study (``bayeshyst study``): the best model per dataset and frequency,
 and the scores against frequency.
 
-Built like the figures of :mod:`bayeshyst.plotting` (object-oriented matplotlib on an Agg
-canvas, no pyplot; PNG written atomically by its ``_save``). Each model keeps one colour
-in both figures (:func:`model_colors`, in the order of the study's models). Sizes grow
-with the number of datasets and frequencies, fonts are small and legends sit outside
-the axes, so a study of 20 datasets × 10 frequencies stays readable.
+Built like every figure of :mod:`bayeshyst.plotting` (object-oriented matplotlib on an
+Agg canvas, no pyplot). Each model keeps one colour in both figures
+(:func:`model_colors`, in the order of the study's models). Sizes grow with the number
+of datasets and frequencies, fonts are small and legends sit outside the axes, so a
+study of 20 datasets × 10 frequencies stays readable.
 
-The ``_build_*`` functions return the Figure (or None when there is nothing to draw),
-for tests and for callers that compose their own output.
+Each ``*_figure`` function returns the Figure and raises
+:class:`~bayeshyst.errors.ParameterError` when the study has nothing to draw;
+:func:`study_figures` returns those that have something; each ``plot_*`` function
+writes its figure as PNG (atomically) and returns the path, or None when there was
+nothing to draw.
 """
 
 from __future__ import annotations
@@ -27,11 +30,12 @@ from matplotlib.lines import Line2D
 from matplotlib.patches import Patch, Rectangle
 from matplotlib.ticker import NullFormatter
 
-from bayeshyst.data.record import frequency_key
-from bayeshyst.plotting import _RED, _figure, _png_path, _save
-from bayeshyst.study.summary import frequency_label
+from bayeshyst.data.record import frequency_key, frequency_label
+from bayeshyst.errors import ParameterError
+from bayeshyst.plotting._common import RED, new_figure, png_path, save_and_free
 
-__all__ = ["model_colors", "plot_best_model", "plot_scores_vs_frequency"]
+__all__ = ["best_model_figure", "model_colors", "plot_best_model",
+           "plot_scores_vs_frequency", "scores_vs_frequency_figure", "study_figures"]
 
 _LABEL_CHARS = 32  # dataset and model names longer than this are shortened in figures
 _MARKERS = ("o", "s", "^", "v", "D", "P", "X", "<", ">", "h", "p", "*")
@@ -42,7 +46,18 @@ _FAILED_GREY = "0.82"
 # --------------------------------------------------------------------------- helpers
 def model_colors(models: Sequence[str]) -> dict[str, str]:
     """One fixed colour per model, in the order given (tab10, tab20, then a sampled
-    continuous map for more than 20 models)."""
+    continuous map for more than 20 models).
+
+    Parameters
+    ----------
+    models : sequence of str
+        Model names, each once.
+
+    Returns
+    -------
+    dict of str to str
+        Model -> colour as ``"#rrggbb"``.
+    """
     n = len(models)
     if n <= 10:
         cols = list(colormaps["tab10"].colors)[:n]
@@ -108,7 +123,7 @@ def _cell_text(d: Any) -> tuple[str, bool]:
     return f"Δ {_num(-second.delta_elpd)} ± {_num(second.delta_se)}{star}", False
 
 
-def _build_best_model(result: Any) -> Figure | None:
+def _build_best_model(result: Any, fig: Figure | None) -> Figure | None:
     if not result.rankings:
         return None
     ranked = {d.dataset for d in result.rankings}
@@ -129,7 +144,8 @@ def _build_best_model(result: Any) -> Figure | None:
     legend_w = 0.9 + 0.058 * max(len(_plain(m)) for m in colors)
     cell_w = 1.15
     panel_h = 0.55 + 0.27 * nrow
-    fig = _figure(max(5.5, label_w + cell_w * ncol + legend_w), 1.1 + panel_h * npan)
+    fig = new_figure(fig, max(5.5, label_w + cell_w * ncol + legend_w),
+                     1.1 + panel_h * npan)
     axes = np.atleast_1d(fig.subplots(npan, 1, squeeze=False)).ravel()
     cell_font = 6.5 if ncol <= 12 else 5.5
     tick_font = 7 if nrow <= 30 else 6
@@ -190,7 +206,7 @@ def _build_best_model(result: Any) -> Figure | None:
     return fig
 
 
-def plot_best_model(result: Any, path: str | os.PathLike[str]) -> Path | None:
+def best_model_figure(result: Any, *, fig: Figure | None = None) -> Figure:
     """The best model at every dataset (rows) and excitation frequency (columns).
 
     Each cell is coloured by the model with the highest elpd_loo there (seeds averaged)
@@ -202,7 +218,34 @@ def plot_best_model(result: Any, path: str | os.PathLike[str]) -> Path | None:
     Parameters
     ----------
     result : bayeshyst.study.StudyResult
-    path : path
+        Its ``rankings`` (at least one) and ``rows`` (the order of the datasets).
+    fig : Figure, optional
+        An empty figure to draw into (one panel per likelihood); default a new one that
+        grows with the number of datasets and frequencies.
+
+    Returns
+    -------
+    Figure
+        With one axes per likelihood.
+
+    Raises
+    ------
+    ParameterError
+        The study has no ranking (no fit produced a score): nothing to draw.
+    """
+    made = _build_best_model(result, fig)
+    if made is None:
+        raise ParameterError("the study has no ranking: no best model to draw")
+    return made
+
+
+def plot_best_model(result: Any, path: str | os.PathLike[str]) -> Path | None:
+    """Write :func:`best_model_figure` as PNG, if the study has a ranking.
+
+    Parameters
+    ----------
+    result : bayeshyst.study.StudyResult
+    path : path-like
         PNG file to write (atomically).
 
     Returns
@@ -210,9 +253,9 @@ def plot_best_model(result: Any, path: str | os.PathLike[str]) -> Path | None:
     Path or None
         ``path``; None (nothing written) when the study has no ranking.
     """
-    path = _png_path(path)
-    fig = _build_best_model(result)
-    return None if fig is None else _save(fig, path)
+    path = png_path(path)
+    fig = _build_best_model(result, None)
+    return None if fig is None else save_and_free(fig, path)
 
 
 # ------------------------------------------------------------ scores vs frequency
@@ -226,7 +269,7 @@ def _n_cycles(result: Any) -> dict[tuple[str, str, float | None, str], int]:
     return out
 
 
-def _build_scores_vs_frequency(result: Any) -> Figure | None:
+def _build_scores_vs_frequency(result: Any, fig: Figure | None) -> Figure | None:
     liks = _likelihoods(result)
     if not liks:
         return None
@@ -260,8 +303,8 @@ def _build_scores_vs_frequency(result: Any) -> Figure | None:
     n_legend = len(models) + len(datasets) + 3
     legend_w = 1.0 + 0.058 * max(len(_plain(x)) for x in [*models, *datasets])
     legend_cols = 1 if n_legend <= 34 else 2
-    fig = _figure(2 * 4.4 + legend_w * legend_cols,
-                  max(4.0, 1.6 + 0.13 * math.ceil(n_legend / legend_cols)))
+    fig = new_figure(fig, 2 * 4.4 + legend_w * legend_cols,
+                     max(4.0, 1.6 + 0.13 * math.ceil(n_legend / legend_cols)))
     ax_elpd, ax_err = fig.subplots(1, 2)
     many = len(series) > 40
     unconverged = False
@@ -283,7 +326,7 @@ def _build_scores_vs_frequency(result: Any) -> Figure | None:
         if not conv.all():
             unconverged = True
             for ax, v in ((ax_elpd, y), (ax_err, nr)):
-                ax.plot(f[~conv], v[~conv], "x", color=_RED, ms=7, mew=1.4, zorder=5)
+                ax.plot(f[~conv], v[~conv], "x", color=RED, ms=7, mew=1.4, zorder=5)
     ax_elpd.set_ylabel("elpd_loo per cycle (± se per cycle)", fontsize=8)
     ax_elpd.set_title("(a) predictive score per cycle (higher is better)", fontsize=8.5)
     ax_err.set_ylabel("NRMSE of the posterior mean [% of stroke]", fontsize=8)
@@ -308,7 +351,7 @@ def _build_scores_vs_frequency(result: Any) -> Figure | None:
     handles += [Line2D([], [], color="0.25", marker=style[ds][0], linestyle=style[ds][1],
                        ms=4, lw=1, label=_plain(ds)) for ds in datasets]
     if unconverged:
-        handles.append(Line2D([], [], color=_RED, marker="x", linestyle="none", ms=6,
+        handles.append(Line2D([], [], color=RED, marker="x", linestyle="none", ms=6,
                               mew=1.4, label="not every seed converged"))
     fig.legend(handles=handles, loc="outside right upper", fontsize=6.5, frameon=False,
                ncols=legend_cols, handlelength=2.6)
@@ -325,7 +368,7 @@ def _build_scores_vs_frequency(result: Any) -> Figure | None:
     return fig
 
 
-def plot_scores_vs_frequency(result: Any, path: str | os.PathLike[str]) -> Path | None:
+def scores_vs_frequency_figure(result: Any, *, fig: Figure | None = None) -> Figure:
     """elpd_loo per cycle and NRMSE against excitation frequency, per dataset and model.
 
     (a) elpd_loo / n_cycles with error bars se / n_cycles (per cycle, so frequencies with
@@ -338,7 +381,35 @@ def plot_scores_vs_frequency(result: Any, path: str | os.PathLike[str]) -> Path 
     Parameters
     ----------
     result : bayeshyst.study.StudyResult
-    path : path
+        Its ``rankings`` and the ``n_cycles`` of its ok ``rows``.
+    fig : Figure, optional
+        An empty figure to draw into (two panels and a legend outside them); default a
+        new one, 8.8 in wide plus the legend.
+
+    Returns
+    -------
+    Figure
+        With two axes (elpd per cycle, NRMSE).
+
+    Raises
+    ------
+    ParameterError
+        No model has a score at a known frequency: nothing to draw.
+    """
+    made = _build_scores_vs_frequency(result, fig)
+    if made is None:
+        raise ParameterError("no model has a score at a known excitation frequency: no "
+                             "scores to draw against frequency")
+    return made
+
+
+def plot_scores_vs_frequency(result: Any, path: str | os.PathLike[str]) -> Path | None:
+    """Write :func:`scores_vs_frequency_figure` as PNG, if there is something to draw.
+
+    Parameters
+    ----------
+    result : bayeshyst.study.StudyResult
+    path : path-like
         PNG file to write (atomically).
 
     Returns
@@ -346,6 +417,26 @@ def plot_scores_vs_frequency(result: Any, path: str | os.PathLike[str]) -> Path 
     Path or None
         ``path``; None (nothing written) when no model has a score at a known frequency.
     """
-    path = _png_path(path)
-    fig = _build_scores_vs_frequency(result)
-    return None if fig is None else _save(fig, path)
+    path = png_path(path)
+    fig = _build_scores_vs_frequency(result, None)
+    return None if fig is None else save_and_free(fig, path)
+
+
+# ----------------------------------------------------------------------- all of them
+def study_figures(result: Any) -> dict[str, Figure]:
+    """Every figure of a study that has something to draw.
+
+    Parameters
+    ----------
+    result : bayeshyst.study.StudyResult
+
+    Returns
+    -------
+    dict of str to Figure
+        ``"best_model"`` (:func:`best_model_figure`) and ``"scores_vs_frequency"``
+        (:func:`scores_vs_frequency_figure`), in that order, each left out when the
+        study has nothing to draw in it.
+    """
+    made = {"best_model": _build_best_model(result, None),
+            "scores_vs_frequency": _build_scores_vs_frequency(result, None)}
+    return {name: fig for name, fig in made.items() if fig is not None}
