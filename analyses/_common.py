@@ -39,7 +39,7 @@ from bayeshyst.data.record import Dataset, Record
 from bayeshyst.errors import DataError, ModelError, ParameterError
 from bayeshyst.files import atomic_path
 from bayeshyst.inference.settings import SamplerSettings
-from bayeshyst.report.files import write_rows_csv as write_csv  # one CSV writer
+from bayeshyst.outputs.files import write_rows_csv as write_csv  # one CSV writer
 from bayeshyst.selection import split_top_level
 
 __all__ = [

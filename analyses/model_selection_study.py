@@ -82,7 +82,7 @@ from analyses._common import (
 )
 from bayeshyst.errors import DataError, ParameterError
 from bayeshyst.inference.settings import SamplerSettings
-from bayeshyst.report.files import write_json
+from bayeshyst.outputs.files import write_json
 
 PROG = "model_selection_study"
 DATASETS = ("virtual", *MEASURED)
@@ -315,7 +315,8 @@ def plot_winners(wins: list[dict[str, Any]], models: Sequence[str], path: Path) 
 # ---------------------------------------------------------------------------- main
 def _study(args: argparse.Namespace) -> int:
     from bayeshyst.likelihoods import get_likelihood
-    from bayeshyst.report.compare_outputs import write_comparison_outputs
+    from bayeshyst.outputs.assemble import comparison_figures
+    from bayeshyst.outputs.compare_outputs import write_comparison_outputs
     from bayeshyst.selection import check_models, compare_models
 
     log = Progress(PROG, args.quiet)
@@ -338,7 +339,8 @@ def _study(args: argparse.Namespace) -> int:
                                 out_dir=out / slug(key), progress=not args.quiet)
         write_comparison_outputs(result, out / slug(key),
                                  data_path=args.data if key == "virtual" else data.name,
-                                 figures=not (args.no_figures or args.quick))
+                                 figures=None if args.no_figures or args.quick
+                                 else comparison_figures(result))
         these = table_rows(key, result)
         rows += these
         n_conv = sum(r["converged"] for r in these)

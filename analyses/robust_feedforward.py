@@ -26,7 +26,7 @@ in the 90 % interval predicted from held-out posterior draws.
 Outputs in ``--out``: ``feedforward.csv`` (one row per model × frequency),
 ``feedforward.txt``, ``feedforward.png`` (NRMSE and max error against frequency per
 command and model), one folder per model with what ``bayeshyst compensate`` writes
-(:func:`bayeshyst.report.compensate_outputs.write_compensation_outputs`:
+(:func:`bayeshyst.outputs.compensate_outputs.write_compensation_outputs`:
 ``summary.json``, ``compensation.csv``, ``curves.npz``, ``posterior.nc``, ...) and
 ``summary.json`` (written last).
 
@@ -74,7 +74,7 @@ from analyses._common import (
 )
 from bayeshyst.errors import ParameterError
 from bayeshyst.inference.settings import SamplerSettings
-from bayeshyst.report.files import write_json
+from bayeshyst.outputs.files import write_json
 
 PROG = "robust_feedforward"
 COMMANDS = ("uncompensated", "nominal", "posterior", "robust")
@@ -232,12 +232,14 @@ def plot_feedforward(specs: list[str], results: list[Any], rows: list[dict[str, 
 
 # ---------------------------------------------------------------------------- main
 def _analyse(args: argparse.Namespace) -> int:
+    from bayeshyst import diagnostics
     from bayeshyst.data import load
     from bayeshyst.inference.fit import fit_model
     from bayeshyst.inverse.compensate import compensate
     from bayeshyst.likelihoods import get_likelihood
     from bayeshyst.models import get as get_model
-    from bayeshyst.report.compensate_outputs import write_compensation_outputs
+    from bayeshyst.outputs.assemble import compensation_figures
+    from bayeshyst.outputs.compensate_outputs import write_compensation_outputs
 
     log = Progress(PROG, args.quiet)
     cfg = budget(args, QUICK, FULL, {"design_draws": args.design_draws})
@@ -267,8 +269,12 @@ def _analyse(args: argparse.Namespace) -> int:
         result = compensate(data, model, fit=fit, reference=args.reference,
                             n_design_draws=cfg["design_draws"],
                             robust_quantile=args.quantile, sampler=sampler)
-        write_compensation_outputs(result, folder, fit=fit, data_path=str(args.data),
-                                   figures=not (args.no_figures or args.quick))
+        idata = diagnostics.to_inference_data(fit.posterior, fit.sampling,
+                                              seed=int(result.settings.get("seed", 0)))
+        write_compensation_outputs(result, folder, fit=fit, idata=idata,
+                                   data_path=str(args.data),
+                                   figures=None if args.no_figures or args.quick
+                                   else compensation_figures(result, fit=fit))
         these = table_rows(spec, result)
         for r in these:
             log(f"{spec} @ {_f(r['frequency_hz'], 'g')} Hz: NRMSE none "

@@ -11,7 +11,7 @@ a sampler that did not converge makes every number provisional, and the report s
 so at its top.
 
 The fit is :func:`bayeshyst.inference.fit.fit_model`; ``fit/`` holds what ``bayeshyst
-fit`` writes (:func:`bayeshyst.report.write_fit_outputs`: ``summary.json``,
+fit`` writes (:func:`bayeshyst.outputs.write_fit_outputs`: ``summary.json``,
 ``posterior.nc``, figures). The band and its coverage are computed from the
 ``posterior_predictive`` group of ``fit/posterior.nc`` (scored samples only: warm-up
 excluded), so anyone can recompute them from that file. The parameter-only (credible)
@@ -63,7 +63,7 @@ from analyses._common import (
     write_text,
 )
 from bayeshyst.inference.settings import SamplerSettings
-from bayeshyst.report.files import write_json
+from bayeshyst.outputs.files import write_json
 
 PROG = "uncertainty_report"
 #: Central probability of the predictive band and of the parameter intervals.
@@ -321,7 +321,8 @@ def _analyse(args: argparse.Namespace) -> int:
     from bayeshyst.inference.fit import fit_model
     from bayeshyst.likelihoods import get_likelihood
     from bayeshyst.models import get as get_model
-    from bayeshyst.report import write_fit_outputs
+    from bayeshyst.outputs import write_fit_outputs
+    from bayeshyst.outputs.assemble import fit_figures
 
     log = Progress(PROG, args.quiet)
     settings = budget(args, QUICK, FULL)
@@ -344,8 +345,10 @@ def _analyse(args: argparse.Namespace) -> int:
         checkpoint=None if args.no_checkpoint else fit_dir / "checkpoint.h5"))
     conv = "converged" if fit.converged else "NOT converged"
     log(f"fit done ({conv}, {fit.sampling.runtime_s:.1f} s); writing fit/")
-    fit_summary = write_fit_outputs(fit, fit_dir, data_path=str(args.data),
-                                    figures=not (args.no_figures or args.quick), seed=args.seed)
+    fit_summary = write_fit_outputs(
+        fit, fit_dir, data_path=str(args.data),
+        idata=diagnostics.to_inference_data(fit.posterior, fit.sampling, seed=args.seed),
+        figures=None if args.no_figures or args.quick else fit_figures(fit, seed=args.seed))
     idata = diagnostics.load_netcdf(fit_dir / "posterior.nc")
     band = predictive_band(idata)
     credible = credible_band(fit, args.seed)

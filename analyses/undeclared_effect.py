@@ -29,7 +29,7 @@ The full run does all three; quick mode only the 150 V set, cut to a short recor
 Every record's cut is recorded in ``summary.json`` (see :mod:`analyses._common`).
 
 Outputs in ``--out``: one folder per data set with what ``bayeshyst diagnose`` writes
-(:func:`bayeshyst.report.diagnose_outputs.write_diagnosis_outputs`: ``summary.json``,
+(:func:`bayeshyst.outputs.diagnose_outputs.write_diagnosis_outputs`: ``summary.json``,
 ``diagnosis.txt``, ``steps.csv``, posteriors, figures), ``undeclared_effect.txt`` and the
 combined ``summary.json`` (written last).
 
@@ -77,7 +77,7 @@ from analyses._common import (
 )
 from bayeshyst.errors import DataError, ParameterError
 from bayeshyst.inference.settings import SamplerSettings
-from bayeshyst.report.files import write_json
+from bayeshyst.outputs.files import write_json
 
 PROG = "undeclared_effect"
 
@@ -201,7 +201,8 @@ def _analyse(args: argparse.Namespace) -> int:
     from bayeshyst.diagnosis import EFFECTS, diagnose, get_effect
     from bayeshyst.likelihoods import get_likelihood
     from bayeshyst.models import get as get_model
-    from bayeshyst.report.diagnose_outputs import write_diagnosis_outputs
+    from bayeshyst.outputs.assemble import diagnosis_figures
+    from bayeshyst.outputs.diagnose_outputs import write_diagnosis_outputs
 
     log = Progress(PROG, args.quiet)
     cfg = budget(args, QUICK, FULL, {"max_rounds": args.max_rounds,
@@ -249,7 +250,8 @@ def _analyse(args: argparse.Namespace) -> int:
                           checkpoint_dir=None if args.no_checkpoint else folder / "checkpoints",
                           on_fit=on_fit)
         write_diagnosis_outputs(result, folder, data_name=data.name,
-                                figures=not (args.no_figures or args.quick))
+                                figures=None if args.no_figures or args.quick
+                                else diagnosis_figures(result))
         entry = dataset_summary(key, data, result, slug(key))
         log(f"{key}: effects found: {', '.join(entry['effects_found']) or 'none'}; RMSE "
             f"{_f(entry['rmse_before'])} -> {_f(entry['rmse_after'])} {entry['output_unit']}")

@@ -12,23 +12,36 @@ import importlib
 from typing import Any
 
 from bayeshyst import models
+from bayeshyst._version import __version__
 from bayeshyst.data import Dataset, Record, load
 from bayeshyst.errors import DataError, ModelError, ParameterError, SimulationError
 from bayeshyst.params import Param, ParamSpace
 
-__version__ = "0.1.0.dev0"
-
-#: the verbs and their records, loaded on first use (PEP 562): ``import bayeshyst``
-#: stays light, ``bayeshyst.fit_model(...)`` works
-_LAZY = {
-    "Posterior": "bayeshyst.inference.posterior",
-    "SamplerSettings": "bayeshyst.inference.settings",
-    "compare_models": "bayeshyst.selection",
-    "compensate": "bayeshyst.inverse",
-    "diagnose": "bayeshyst.diagnosis",
-    "find_map": "bayeshyst.inference.optimize",
-    "fit_model": "bayeshyst.inference.fit",
-    "sample_posterior": "bayeshyst.inference.sampling",
+#: the verbs a user types in the CLI (data first, then model) and their records, loaded
+#: on first use (PEP 562): ``import bayeshyst`` stays light, ``bayeshyst.fit(...)`` works.
+#: name -> (module, attribute)
+_LAZY: dict[str, tuple[str, str]] = {
+    # verbs
+    "fit": ("bayeshyst.inference.fit", "fit_model"),
+    "compare": ("bayeshyst.selection.compare", "compare_models"),
+    "diagnose": ("bayeshyst.diagnosis.loop", "diagnose"),
+    "compensate": ("bayeshyst.inverse.compensate", "compensate"),
+    "report": ("bayeshyst.workflow", "run_report"),
+    # records and settings they take and return
+    "Posterior": ("bayeshyst.inference.posterior", "Posterior"),
+    "SamplerSettings": ("bayeshyst.inference.settings", "SamplerSettings"),
+    "FitResult": ("bayeshyst.inference.fit", "FitResult"),
+    "ComparisonResult": ("bayeshyst.selection.compare", "ComparisonResult"),
+    "DiagnosisResult": ("bayeshyst.diagnosis.loop", "DiagnosisResult"),
+    "CompensationResult": ("bayeshyst.inverse.compensate", "CompensationResult"),
+    "ReportResult": ("bayeshyst.workflow", "ReportResult"),
+    "ReportSettings": ("bayeshyst.workflow", "ReportSettings"),
+    # the same functions under their long names, and the two inference steps
+    "fit_model": ("bayeshyst.inference.fit", "fit_model"),
+    "compare_models": ("bayeshyst.selection.compare", "compare_models"),
+    "run_report": ("bayeshyst.workflow", "run_report"),
+    "find_map": ("bayeshyst.inference.optimize", "find_map"),
+    "sample_posterior": ("bayeshyst.inference.sampling", "sample_posterior"),
 }
 
 __all__ = [
@@ -50,7 +63,8 @@ __all__ = [
 def __getattr__(name: str) -> Any:
     if name not in _LAZY:
         raise AttributeError(f"module 'bayeshyst' has no attribute {name!r}")
-    value = getattr(importlib.import_module(_LAZY[name]), name)
+    module, attribute = _LAZY[name]
+    value = getattr(importlib.import_module(module), attribute)
     globals()[name] = value
     return value
 

@@ -5,8 +5,8 @@ Exit status: 0 success, 2 bad input (one clear line on stderr, nothing written h
 folder as it found it (:func:`bayeshyst.files.removed_on_failure`).
 
 Each command runs the library, computes what its writer needs (a fit's InferenceData,
-the figures of :mod:`bayeshyst.report.assemble`), hands both to its writer in
-:mod:`bayeshyst.report` and prints the summary the writer returns; ``--json`` prints it
+the figures of :mod:`bayeshyst.outputs.assemble`), hands both to its writer in
+:mod:`bayeshyst.outputs` and prints the summary the writer returns; ``--json`` prints it
 with the serialiser ``summary.json`` was written with, so the two are the same text.
 """
 
@@ -152,8 +152,8 @@ def _cmd_fit(args: argparse.Namespace) -> int:
     from bayeshyst.inference.fit import fit_model
     from bayeshyst.likelihoods import get_likelihood
     from bayeshyst.models import get as get_model
-    from bayeshyst.report import write_fit_outputs
-    from bayeshyst.report.assemble import fit_figures
+    from bayeshyst.outputs import write_fit_outputs
+    from bayeshyst.outputs.assemble import fit_figures
 
     # validate everything cheap before the long part starts
     data = load(args.data)
@@ -186,8 +186,8 @@ def _cmd_fit(args: argparse.Namespace) -> int:
 def _cmd_compare(args: argparse.Namespace) -> int:
     from bayeshyst.data import load
     from bayeshyst.likelihoods import get_likelihood
-    from bayeshyst.report.assemble import comparison_figures
-    from bayeshyst.report.compare_outputs import write_comparison_outputs
+    from bayeshyst.outputs.assemble import comparison_figures
+    from bayeshyst.outputs.compare_outputs import write_comparison_outputs
     from bayeshyst.selection import check_models, compare_models
 
     # validate everything cheap before the long part starts
@@ -242,8 +242,8 @@ def _cmd_compensate(args: argparse.Namespace) -> int:
     from bayeshyst.inverse.compensate import REFERENCE_KINDS, compensate, load_reference
     from bayeshyst.likelihoods import get_likelihood
     from bayeshyst.models import get as get_model
-    from bayeshyst.report.assemble import compensation_figures
-    from bayeshyst.report.compensate_outputs import write_compensation_outputs, written_files
+    from bayeshyst.outputs.assemble import compensation_figures
+    from bayeshyst.outputs.compensate_outputs import write_compensation_outputs, written_files
 
     # validate everything cheap before the long part starts
     data = load(args.data)
@@ -321,8 +321,8 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
     from bayeshyst.diagnosis import EFFECTS, diagnose
     from bayeshyst.likelihoods import get_likelihood
     from bayeshyst.models import get as get_model
-    from bayeshyst.report.assemble import diagnosis_figures
-    from bayeshyst.report.diagnose_outputs import write_diagnosis_outputs
+    from bayeshyst.outputs.assemble import diagnosis_figures
+    from bayeshyst.outputs.diagnose_outputs import write_diagnosis_outputs
 
     # validate everything cheap before the long part starts
     data = load(args.data)
@@ -382,8 +382,8 @@ def _report_run(data: Any, data_path: str, models: tuple[str, ...], settings: An
     diagnosis fit marks the first result). Returns ``(result, summary)`` for
     :func:`_report_print`.
     """
-    from bayeshyst.report.assemble import report_figures, report_posteriors
-    from bayeshyst.report.report_outputs import write_report_outputs
+    from bayeshyst.outputs.assemble import report_figures, report_posteriors
+    from bayeshyst.outputs.report_outputs import write_report_outputs
     from bayeshyst.workflow import run_report
 
     out = Path(args.out)
@@ -472,8 +472,8 @@ def _cmd_demo(args: argparse.Namespace) -> int:
 
 
 def _cmd_study(args: argparse.Namespace) -> int:
-    from bayeshyst.report.assemble import study_output_figures
-    from bayeshyst.report.study_outputs import write_study_outputs
+    from bayeshyst.outputs.assemble import study_output_figures
+    from bayeshyst.outputs.study_outputs import write_study_outputs
     from bayeshyst.study import read_study, run_study
     from bayeshyst.study.tasks import slug
 

@@ -15,7 +15,7 @@ import pytest
 import bayeshyst.diagnosis
 import bayeshyst.diagnostics
 import bayeshyst.inference.fit
-import bayeshyst.report
+import bayeshyst.outputs
 import bayeshyst.selection
 import bayeshyst.study
 import bayeshyst.workflow
@@ -158,7 +158,7 @@ def test_a_finished_fit_is_a_result_even_if_what_follows_fails(command, tmp_path
 
     monkeypatch.setattr(bayeshyst.inference.fit, "fit_model", fit_model)
     monkeypatch.setattr(bayeshyst.diagnostics, "to_inference_data", broken)
-    monkeypatch.setattr(bayeshyst.report, "write_fit_outputs", broken)
+    monkeypatch.setattr(bayeshyst.outputs, "write_fit_outputs", broken)
     monkeypatch.setattr(COMPENSATE, "compensate", broken)
     with pytest.raises(RuntimeError, match="disk full"):  # an internal error: exit 1
         main(_args(command, out, tmp_path))

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from bayeshyst.files import atomic_path, atomic_paths, removed_on_failure
-from bayeshyst.report.files import jsonable, nonfinite_fields, write_json
+from bayeshyst.outputs.files import jsonable, nonfinite_fields, write_json
 
 
 def _mode(path):

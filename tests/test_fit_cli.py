@@ -186,8 +186,8 @@ def test_a_number_that_is_not_finite_is_written_as_null_and_named_in_warnings(tm
 
     from bayeshyst.inference.fit import fit_model
     from bayeshyst.inference.settings import SamplerSettings
-    from bayeshyst.report.files import write_json
-    from bayeshyst.report.fit_outputs import fit_summary
+    from bayeshyst.outputs.files import write_json
+    from bayeshyst.outputs.fit_outputs import fit_summary
 
     model, rec, _ = pi_data(n_ops=2, n=400)
     fit = fit_model(rec, model, sampler=SamplerSettings(seed=0, max_steps=20, first_chunk=20))

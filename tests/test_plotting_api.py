@@ -1,17 +1,15 @@
-"""The public figure API and the package's layering.
+"""The public figure API.
 
 Every public ``*_figure`` function returns a Figure, draws into the caller's figure (or,
 for the one-panel evidence figure, the caller's axes) when given one, and refuses a
-figure that already has axes; :func:`save_figure` writes PNG atomically. The layering:
-only :mod:`bayeshyst.plotting` imports matplotlib, and :mod:`bayeshyst.study` never
-imports :mod:`bayeshyst.report` (checked on the source, with ``ast``).
+figure that already has axes; :func:`save_figure` writes PNG atomically. (That only
+:mod:`bayeshyst.plotting` imports matplotlib is checked with every other arrow in
+``tests/test_architecture.py``.)
 """
 
 from __future__ import annotations
 
-import ast
 from collections.abc import Callable
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -19,7 +17,6 @@ import pytest
 from matplotlib import image as mpimg
 from matplotlib.figure import Figure
 
-import bayeshyst
 from bayeshyst import plotting as P
 from bayeshyst.diagnosis import diagnose
 from bayeshyst.errors import ParameterError
@@ -32,7 +29,6 @@ from tests.test_study_outputs import _add, _ok_row, _result, _study
 
 MODEL = "pi_play(n_operators=2)"
 TINY = SamplerSettings(max_steps=100, first_chunk=100, n_walkers=16, progress=False)
-PACKAGE = Path(bayeshyst.__file__).parent
 
 
 # --------------------------------------------------------------------------- results
@@ -164,67 +160,3 @@ def test_save_figure_writes_png_atomically_at_the_figures_resolution(fit, tmp_pa
     with pytest.raises(ParameterError, match="Figure"):
         P.save_figure("not a figure", tmp_path / "x.png")
     assert not (tmp_path / "loops.jpg").exists() and not (tmp_path / "x.png").exists()
-
-
-# ------------------------------------------------------------------------- layering
-def _imports(path: Path) -> list[tuple[str, int]]:
-    """Every module ``path`` imports (absolute names; relative imports resolved), with
-    the line, including imports inside functions and ``if TYPE_CHECKING`` blocks."""
-    tree = ast.parse(path.read_text(encoding="utf-8"), filename=str(path))
-    package = ".".join(path.relative_to(PACKAGE.parent).with_suffix("").parts[:-1])
-    found = []
-    for node in ast.walk(tree):
-        if isinstance(node, ast.Import):
-            found += [(alias.name, node.lineno) for alias in node.names]
-        elif isinstance(node, ast.ImportFrom):
-            base = node.module or ""
-            if node.level:
-                parts = package.split(".")[: len(package.split(".")) - node.level + 1]
-                base = ".".join([*parts, base] if base else parts)
-            found.append((base, node.lineno))
-            # ``from bayeshyst import report`` imports the subpackage
-            found += [(f"{base}.{alias.name}", node.lineno) for alias in node.names]
-    return found
-
-
-def _modules(under: Path) -> list[Path]:
-    return sorted(p for p in under.rglob("*.py") if "__pycache__" not in p.parts)
-
-
-def _hits(paths: list[Path], prefix: str) -> list[str]:
-    return [f"{p.relative_to(PACKAGE.parent)}:{line} imports {name}"
-            for p in paths for name, line in _imports(p)
-            if name == prefix or name.startswith(prefix + ".")]
-
-
-def test_only_the_plotting_package_imports_matplotlib():
-    plotting = PACKAGE / "plotting"
-    others = [p for p in _modules(PACKAGE) if plotting not in p.parents]
-    assert len(others) > 40  # the whole package was looked at
-    assert _hits(others, "matplotlib") == []
-    # the check itself sees an import where it is (an oracle for the parser)
-    assert _hits(_modules(plotting), "matplotlib")
-
-
-def test_study_never_imports_report():
-    study = _modules(PACKAGE / "study")
-    assert study
-    assert _hits(study, "bayeshyst.report") == []
-    assert _hits(study, "bayeshyst.plotting") == []
-
-
-def test_the_import_finder_sees_every_form(tmp_path, monkeypatch):
-    # ``import m``, ``from m import x``, ``from pkg import m``, a relative import and an
-    # import inside a function are all found
-    pkg = tmp_path / "bayeshyst" / "sub"
-    pkg.mkdir(parents=True)
-    src = pkg / "mod.py"
-    src.write_text("import matplotlib.pyplot\nfrom bayeshyst import report\n"
-                   "from . import sibling\n\ndef f():\n    from matplotlib import cm\n")
-    monkeypatch.setattr(f"{__name__}.PACKAGE", tmp_path / "bayeshyst")
-    names = {n for n, _ in _imports(src)}
-    assert {"matplotlib.pyplot", "bayeshyst.report", "bayeshyst.sub.sibling",
-            "matplotlib"} <= names
-    lines = {int(h.split(" imports ")[0].rsplit(":", 1)[1]) for h in _hits([src], "matplotlib")}
-    assert lines == {1, 6} and _hits([src], "bayeshyst.report")
-    assert not _hits([src], "matplotlib.colors")  # a prefix, not a substring

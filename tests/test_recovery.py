@@ -123,7 +123,7 @@ def test_bouc_wen_90_percent_intervals_cover_at_the_nominal_rate():
 
 def test_bouc_wen_redundant_directions_are_reported():
     from bayeshyst.inference.fit import FitResult, tracking_errors
-    from bayeshyst.report import fit_summary
+    from bayeshyst.outputs import fit_summary
 
     post, res = _bw_fit(0)
     overall, per, means = tracking_errors(post, res.draws(50))

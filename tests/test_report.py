@@ -22,8 +22,8 @@ from bayeshyst.cli import main
 from bayeshyst.data import load
 from bayeshyst.data.io import write_csv
 from bayeshyst.data.record import Dataset
-from bayeshyst.report import html as H
-from bayeshyst.report.report_outputs import SECTIONS
+from bayeshyst.outputs import html as H
+from bayeshyst.outputs.report_outputs import SECTIONS
 from bayeshyst.workflow import DEMO_QUICK, bundled_data
 
 EVIL = '<script>alert("x")</script>'

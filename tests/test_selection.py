@@ -158,8 +158,8 @@ def _decimated(rec, per_cycle=80, cycles=3.5):
 
 def test_mr_damper_comparison_runs_end_to_end(shared_data_dir, tmp_path):
     from bayeshyst.data.measured import load_mr_damper
-    from bayeshyst.report.assemble import comparison_figures
-    from bayeshyst.report.compare_outputs import write_comparison_outputs
+    from bayeshyst.outputs.assemble import comparison_figures
+    from bayeshyst.outputs.compare_outputs import write_comparison_outputs
 
     mr = load_mr_damper(shared_data_dir, current_a=0.5, frequency_hz=[0.1, 1.0, 5.0])
     data = Dataset(tuple(_decimated(r) for r in mr), name="mr_damper_0.5A")

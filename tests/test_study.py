@@ -26,7 +26,7 @@ from bayeshyst.data.io import write_csv
 from bayeshyst.data.record import Dataset
 from bayeshyst.errors import ModelError, ParameterError
 from bayeshyst.inference.settings import SamplerSettings
-from bayeshyst.report.study_outputs import write_study_outputs
+from bayeshyst.outputs.study_outputs import write_study_outputs
 from bayeshyst.selection.tasks import CompareSettings, TaskSpec, derived_seed, run_task
 from bayeshyst.study import plan_study, read_study, run_study
 from bayeshyst.study.rows import TABLE_COLUMNS, VOLATILE_COLUMNS

@@ -262,7 +262,7 @@ def run_study(
 
     Each fit's posterior and record are stored under ``out_dir/fits/`` as it completes
     (what a rerun resumes from). The study's tables, figures and ``summary.json`` are
-    written by :func:`bayeshyst.report.study_outputs.write_study_outputs`, given the
+    written by :func:`bayeshyst.outputs.study_outputs.write_study_outputs`, given the
     result (``bayeshyst study`` does both).
 
     Parameters

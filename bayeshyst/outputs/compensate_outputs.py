@@ -6,7 +6,7 @@ Every file is written atomically, and ``summary.json`` last: a run that fails ha
 leaves no summary that claims outputs which do not exist. The resumable sampler
 checkpoint (``checkpoint.h5``) is written by the fit itself. The writer only writes: the
 fit's InferenceData and the figure
-(:func:`~bayeshyst.report.assemble.compensation_figures`) come from the caller.
+(:func:`~bayeshyst.outputs.assemble.compensation_figures`) come from the caller.
 """
 
 from __future__ import annotations
@@ -24,7 +24,7 @@ from bayeshyst.errors import ParameterError
 from bayeshyst.files import atomic_path
 from bayeshyst.inference.fit import FitResult
 from bayeshyst.inverse.compensate import CompensationResult, CompensationRow
-from bayeshyst.report.files import csv_cell, write_figures, write_json
+from bayeshyst.outputs.files import csv_cell, write_figures, write_json
 
 __all__ = ["COMMANDS", "CSV_COLUMNS", "compensation_summary", "curve_prefix",
            "write_compensation_outputs", "written_files"]
@@ -151,7 +151,7 @@ def write_compensation_outputs(result: CompensationResult, out_dir: str | Path, 
         it a second time. Not together with ``idata``.
     figures : mapping of str to Figure, optional
         PNG file name -> figure
-        (:func:`~bayeshyst.report.assemble.compensation_figures`); none by default.
+        (:func:`~bayeshyst.outputs.assemble.compensation_figures`); none by default.
     data_path : str, optional
         Recorded in the summary.
 

@@ -2,7 +2,7 @@
 
 The writer only writes: the caller hands it the fit's InferenceData (from
 :func:`bayeshyst.diagnostics.to_inference_data`, which simulates every kept draw) and
-the figures (:func:`bayeshyst.report.assemble.fit_figures`).
+the figures (:func:`bayeshyst.outputs.assemble.fit_figures`).
 """
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 
 from bayeshyst.inference.fit import FitResult
-from bayeshyst.report.files import nonfinite_fields, write_figures, write_json
+from bayeshyst.outputs.files import nonfinite_fields, write_figures, write_json
 
 __all__ = ["fit_summary", "write_fit_outputs"]
 
@@ -139,7 +139,7 @@ def write_fit_outputs(fit: FitResult, out: str | Path, *, idata: Any,
         The fit as :func:`bayeshyst.diagnostics.to_inference_data` gives it; written as
         ``posterior.nc``.
     figures : mapping of str to Figure, optional
-        PNG file name -> figure (:func:`~bayeshyst.report.assemble.fit_figures`); none
+        PNG file name -> figure (:func:`~bayeshyst.outputs.assemble.fit_figures`); none
         by default.
     data_path : str, optional
         The data file, recorded in the summary.

@@ -16,6 +16,7 @@ from typing import Any
 
 import numpy as np
 
+from bayeshyst.errors import ParameterError
 from bayeshyst.files import atomic_path, json_text, jsonable, write_json
 
 __all__ = ["atomic_path", "csv_cell", "json_text", "jsonable", "nonfinite_fields",
@@ -95,6 +96,10 @@ def write_figures(out: str | Path, figures: Mapping[str, Any] | None) -> list[st
     list of str
         The file names, in the order written.
     """
+    if figures is not None and not isinstance(figures, Mapping):
+        # the writers took figures=True/False before they were given the figures
+        raise ParameterError(f"figures: expected a mapping of file name to Figure (see "
+                             f"bayeshyst.outputs.assemble), got {type(figures).__name__}")
     if not figures:
         return []
     # imported here: matplotlib is loaded only by a run that draws

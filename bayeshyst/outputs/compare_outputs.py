@@ -3,7 +3,7 @@
 
 The posteriors of the fits (``posteriors/<model>__<scope>_<frequency>.nc``) and their
 resumable sampler checkpoints (``checkpoints/``) are written by the fits themselves; the
-figure is built by the caller (:func:`~bayeshyst.report.assemble.comparison_figures`).
+figure is built by the caller (:func:`~bayeshyst.outputs.assemble.comparison_figures`).
 """
 
 from __future__ import annotations
@@ -16,7 +16,7 @@ from pathlib import Path
 from typing import Any
 
 from bayeshyst.files import atomic_path
-from bayeshyst.report.files import write_figures, write_json
+from bayeshyst.outputs.files import write_figures, write_json
 from bayeshyst.selection import ComparisonResult, FrequencyComparison
 
 __all__ = ["CSV_COLUMNS", "comparison_summary", "write_comparison_outputs"]
@@ -103,7 +103,7 @@ def write_comparison_outputs(result: ComparisonResult, out_dir: str | Path, *,
         Created if needed.
     figures : mapping of str to Figure, optional
         PNG file name -> figure
-        (:func:`~bayeshyst.report.assemble.comparison_figures`); none by default.
+        (:func:`~bayeshyst.outputs.assemble.comparison_figures`); none by default.
     data_path : str, optional
         The data file, recorded in the summary.
 

@@ -4,7 +4,7 @@ base and final models, and the figures.
 The writer only writes: the posteriors are the InferenceData each fit of the diagnosis
 carries (:attr:`DiagnosisFit.idata`, made when its leave-one-cycle-out elpd was
 computed), the figures are built by the caller
-(:func:`~bayeshyst.report.assemble.diagnosis_figures`).
+(:func:`~bayeshyst.outputs.assemble.diagnosis_figures`).
 """
 
 from __future__ import annotations
@@ -19,7 +19,7 @@ from typing import Any
 from bayeshyst.diagnosis import DiagnosisFit, DiagnosisResult, EffectTest
 from bayeshyst.errors import ParameterError
 from bayeshyst.files import atomic_path
-from bayeshyst.report.files import csv_cell, write_figures, write_json
+from bayeshyst.outputs.files import csv_cell, write_figures, write_json
 
 __all__ = ["STEP_COLUMNS", "diagnosis_summary", "evidence_figures", "write_diagnosis_outputs"]
 
@@ -46,7 +46,7 @@ def _slug(name: str) -> str:
 
 def evidence_figures(result: DiagnosisResult) -> list[tuple[str, EffectTest]]:
     """``(file name, test)`` of every evidence figure
-    :func:`~bayeshyst.report.assemble.diagnosis_figures` builds:
+    :func:`~bayeshyst.outputs.assemble.diagnosis_figures` builds:
     ``evidence_<effect>.png`` for every effect tested on the base model's residual, and
     ``evidence_round<k>_<effect>.png`` for the test behind each step accepted in a later
     round ``k``. Skipped tests have no evidence and no figure."""
@@ -73,7 +73,7 @@ def diagnosis_summary(result: DiagnosisResult, *, data_name: str | None = None,
     ``delta_elpd``, ``delta_elpd_se``, ... —, ``before``, ``after``, ``per_frequency``,
     ``rounds``, ``cycles``, ``converged``, ``warnings``, ``settings``) plus ``command``
     (``"diagnose"``), ``output_unit``, ``data`` and ``outputs`` (the files written).
-    Non-finite numbers become ``null`` when written (:func:`~bayeshyst.report.files.jsonable`).
+    Non-finite numbers become ``null`` when written (:func:`~bayeshyst.outputs.files.jsonable`).
     """
     out: dict[str, Any] = {"command": "diagnose", **result.to_dict()}
     out["output_unit"] = _y_unit(result)
@@ -108,7 +108,7 @@ def write_diagnosis_outputs(result: DiagnosisResult, out_dir: str | Path, *,
         Created if needed.
     figures : mapping of str to Figure, optional
         PNG file name -> figure
-        (:func:`~bayeshyst.report.assemble.diagnosis_figures`); none by default.
+        (:func:`~bayeshyst.outputs.assemble.diagnosis_figures`); none by default.
     data_name : str, optional
         The data the diagnosis ran on (a path or name), recorded in the summary.
 

@@ -12,11 +12,11 @@ Layout of ``out``::
                          posterior is the diagnosis' final one, not written twice)
 
 Every user-provided string (data and record names, file paths, metadata) reaches the
-HTML through :mod:`bayeshyst.report.html`, which escapes it.
+HTML through :mod:`bayeshyst.outputs.html`, which escapes it.
 
 The writer only writes: the caller loads the comparison's joint posteriors
-(:func:`~bayeshyst.report.assemble.report_posteriors`) and builds every figure
-(:func:`~bayeshyst.report.assemble.report_figures`).
+(:func:`~bayeshyst.outputs.assemble.report_posteriors`) and builds every figure
+(:func:`~bayeshyst.outputs.assemble.report_figures`).
 """
 
 from __future__ import annotations
@@ -32,12 +32,12 @@ import numpy as np
 from bayeshyst._version import __version__
 from bayeshyst.data.record import Dataset
 from bayeshyst.files import atomic_path, json_text
-from bayeshyst.report import html as H
-from bayeshyst.report.assemble import CORNER_MAX, corner_figure_name, joint_tasks
-from bayeshyst.report.compare_outputs import write_comparison_outputs
-from bayeshyst.report.compensate_outputs import COMMANDS, write_compensation_outputs
-from bayeshyst.report.diagnose_outputs import evidence_figures, write_diagnosis_outputs
-from bayeshyst.report.files import jsonable, write_figures, write_json
+from bayeshyst.outputs import html as H
+from bayeshyst.outputs.assemble import CORNER_MAX, corner_figure_name, joint_tasks
+from bayeshyst.outputs.compare_outputs import write_comparison_outputs
+from bayeshyst.outputs.compensate_outputs import COMMANDS, write_compensation_outputs
+from bayeshyst.outputs.diagnose_outputs import evidence_figures, write_diagnosis_outputs
+from bayeshyst.outputs.files import jsonable, write_figures, write_json
 from bayeshyst.workflow import ReportResult
 
 __all__ = ["SECTIONS", "data_overview", "write_report_outputs"]
@@ -452,10 +452,10 @@ def write_report_outputs(result: ReportResult, out_dir: str | Path, *,
         ``out_dir/compare`` (pass the same folder to :func:`~bayeshyst.workflow.run_report`).
     posteriors : mapping of str to arviz.InferenceData
         The comparison's joint posteriors
-        (:func:`~bayeshyst.report.assemble.report_posteriors`).
+        (:func:`~bayeshyst.outputs.assemble.report_posteriors`).
     figures : mapping of str to Figure, optional
         File name relative to ``out_dir`` -> figure
-        (:func:`~bayeshyst.report.assemble.report_figures`); each stage's are handed to
+        (:func:`~bayeshyst.outputs.assemble.report_figures`); each stage's are handed to
         its writer, the rest written under ``figures/`` and embedded. None by default.
     data_path : str, optional
         The data file, shown in the report and recorded in the summary.

@@ -1,6 +1,6 @@
 """What the writers write but do not compute: figures, and the posteriors the report reads.
 
-Each ``*_outputs`` module of :mod:`bayeshyst.report` only writes: it is handed the
+Each ``*_outputs`` module of :mod:`bayeshyst.outputs` only writes: it is handed the
 InferenceData of a fit and the figures, as a mapping from file name (relative to the
 writer's folder) to :class:`matplotlib.figure.Figure`. The functions here build those
 mappings with :mod:`bayeshyst.plotting` (the only part of bayeshyst that imports
@@ -97,11 +97,11 @@ def diagnosis_figures(result: DiagnosisResult) -> dict[str, Any]:
     dict of str to Figure
         ``residuals.png`` (before/after,
         :func:`bayeshyst.plotting.diagnosis_residuals_figure`), then the evidence
-        figures named by :func:`~bayeshyst.report.diagnose_outputs.evidence_figures`
+        figures named by :func:`~bayeshyst.outputs.diagnose_outputs.evidence_figures`
         (:func:`bayeshyst.plotting.effect_evidence_figure`).
     """
+    from bayeshyst.outputs.diagnose_outputs import evidence_figures
     from bayeshyst.plotting import diagnosis_residuals_figure, effect_evidence_figure
-    from bayeshyst.report.diagnose_outputs import evidence_figures
 
     data = result.base.posterior.data
     y_unit = data[0].units.get("y", "") if len(data) else ""

@@ -10,7 +10,7 @@
 - ``study.html`` when asked for; ``summary.json`` last (what ran, where, the files).
 
 Each file is written to a temporary name and renamed, so none is ever half-written. The
-figures are built by the caller (:func:`bayeshyst.report.assemble.study_output_figures`).
+figures are built by the caller (:func:`bayeshyst.outputs.assemble.study_output_figures`).
 """
 
 from __future__ import annotations
@@ -22,7 +22,7 @@ from typing import Any
 
 from bayeshyst._version import __version__
 from bayeshyst.files import atomic_path
-from bayeshyst.report.files import write_figures, write_json, write_rows_csv
+from bayeshyst.outputs.files import write_figures, write_json, write_rows_csv
 from bayeshyst.study.rows import TABLE_COLUMNS
 
 __all__ = ["BY_FREQUENCY_COLUMNS", "RANKING_COLUMNS", "write_study_outputs"]
@@ -69,7 +69,7 @@ def write_study_outputs(result: Any, out: str | Path, *,
         The study's output folder.
     figures : mapping of str to Figure, optional
         File name relative to ``out`` -> figure
-        (:func:`~bayeshyst.report.assemble.study_output_figures`: ``figures/*.png``, which
+        (:func:`~bayeshyst.outputs.assemble.study_output_figures`: ``figures/*.png``, which
         the HTML report embeds); none by default.
     html : bool
         Write ``study.html``.
@@ -99,7 +99,7 @@ def write_study_outputs(result: Any, out: str | Path, *,
     files["figures"] = write_figures(out, figures)
     figs = {Path(name).stem: out / name for name in files["figures"]}
     if html:
-        from bayeshyst.report.study_html import study_html
+        from bayeshyst.outputs.study_html import study_html
 
         with atomic_path(out / "study.html") as tmp:
             tmp.write_text(study_html(result, figs), encoding="utf-8")

@@ -1,6 +1,6 @@
 """``study.html``: the self-contained report of a study (``bayeshyst study --report``).
 
-Built only with :mod:`bayeshyst.report.html`, which escapes every piece of text (dataset
+Built only with :mod:`bayeshyst.outputs.html`, which escapes every piece of text (dataset
 names, model specs, error messages can hold anything, ``<script>`` included), shows a
 missing or non-finite number as an em dash, and embeds the figures as base64 PNG: the
 page needs no network and no neighbouring file, and runs no script.
@@ -17,7 +17,7 @@ from pathlib import Path
 from typing import Any
 
 from bayeshyst._version import __version__
-from bayeshyst.report import html as H
+from bayeshyst.outputs import html as H
 
 __all__ = ["SECTIONS", "study_html"]
 
