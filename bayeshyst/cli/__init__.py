@@ -1,0 +1,48 @@
+"""Command line: a thin argparse layer over the public API.
+
+Exit status: 0 success, 2 bad input (one clear line on stderr, nothing written half-way),
+1 internal error. The commands are in :mod:`bayeshyst.cli.commands`, the parser in
+:mod:`bayeshyst.cli.parser`, the option types and the one mapping of options onto
+:class:`~bayeshyst.inference.settings.SamplerSettings` in :mod:`bayeshyst.cli.options`.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+from collections.abc import Sequence
+
+from bayeshyst.cli.options import (
+    EXIT_BAD_INPUT,
+    EXIT_OK,
+    int_at_least,
+    non_negative_float,
+    non_negative_int,
+    positive_int,
+    probability,
+    sampler_settings,
+)
+from bayeshyst.cli.parser import build_parser
+from bayeshyst.errors import DataError, ModelError, ParameterError
+
+__all__ = ["build_parser", "int_at_least", "main", "non_negative_float", "non_negative_int",
+           "positive_int", "probability", "sampler_settings"]
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run the command line; return the exit status."""
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        return int(args.func(args))
+    except (DataError, ParameterError, ModelError) as exc:
+        print(f"bayeshyst {args.command}: error: {exc}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except BrokenPipeError:
+        # the reader went away (``bayeshyst models | head``): not an error; point stdout
+        # at devnull so the interpreter's final flush does not raise again
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return EXIT_OK
+    except KeyboardInterrupt:
+        print(f"bayeshyst {args.command}: interrupted", file=sys.stderr)
+        return 130

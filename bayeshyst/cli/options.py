@@ -1,0 +1,108 @@
+"""The command line's option types and the one mapping of options to sampler settings."""
+
+from __future__ import annotations
+
+import argparse
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+
+from bayeshyst.errors import ParameterError
+from bayeshyst.inference.settings import SamplerSettings
+
+__all__ = ["EXIT_BAD_INPUT", "EXIT_INTERNAL", "EXIT_OK", "effect_list", "int_at_least",
+           "non_negative_float", "non_negative_int", "positive_int", "probability",
+           "sampler_settings"]
+
+#: exit status: success, internal error, bad input
+EXIT_OK, EXIT_INTERNAL, EXIT_BAD_INPUT = 0, 1, 2
+
+
+def int_at_least(minimum: int, what: str) -> Callable[[str], int]:
+    """An argparse type: an integer >= ``minimum`` (``what`` names it in the message)."""
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected {what}, got {text!r}") from None
+        if value < minimum:
+            raise argparse.ArgumentTypeError(f"expected {what}, got {value}")
+        return value
+
+    return parse
+
+
+positive_int = int_at_least(1, "a positive integer")
+non_negative_int = int_at_least(0, "an integer >= 0")
+
+#: The options every sampling command maps onto its :class:`SamplerSettings`, and the
+#: field each one sets (``--quiet`` sets ``progress`` to its negation).
+_SAMPLER_FLAGS = {"seed": "seed", "walkers": "n_walkers", "steps": "max_steps",
+                  "moves": "moves"}
+
+
+def sampler_settings(args: argparse.Namespace, **overrides: Any) -> SamplerSettings:
+    """The one :class:`SamplerSettings` of a command, from its command-line options.
+
+    ``--seed``, ``--walkers`` (``n_walkers``), ``--steps`` (``max_steps``), ``--moves``
+    and ``--quiet`` (``progress = not quiet``) are mapped here and nowhere else; an
+    option the command does not have (``bayeshyst demo`` has no ``--steps``), or left
+    at None, keeps the record's default. ``overrides`` (``checkpoint=...``, a demo's
+    budget) replace what the options give. ``first_chunk`` stays at its default unless
+    the step budget is below it.
+
+    Raises
+    ------
+    ParameterError
+        For values the record rejects (``--steps 5``: fewer steps than a convergence
+        check needs).
+    """
+    values: dict[str, Any] = {}
+    for flag, name in _SAMPLER_FLAGS.items():
+        value = getattr(args, flag, None)
+        if value is not None:
+            values[name] = value
+    if getattr(args, "quiet", None) is not None:
+        values["progress"] = not args.quiet
+    values.update(overrides)
+    if "first_chunk" not in values and "max_steps" in values:
+        values["first_chunk"] = min(SamplerSettings.first_chunk, values["max_steps"])
+    return SamplerSettings(**values)
+
+
+
+def probability(text: str) -> float:
+    """An argparse type: a number strictly between 0 and 1."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number in (0, 1), got {text!r}") from None
+    if not 0.0 < value < 1.0:
+        raise argparse.ArgumentTypeError(f"expected a number in (0, 1), got {value:g}")
+    return value
+
+
+
+def effect_list(text: str) -> tuple[str, ...]:
+    """``creep,delay`` -> ``("creep", "delay")``; ModelError naming an unknown effect."""
+    from bayeshyst.diagnosis import get_effect
+
+    names = [n.strip() for n in text.split(",") if n.strip()]
+    if not names:
+        raise ParameterError(f"--effects: no effect named in {text!r}")
+    for n in names:
+        get_effect(n)  # raises, listing the valid names
+    return tuple(dict.fromkeys(names))
+
+
+def non_negative_float(text: str) -> float:
+    """An argparse type: a finite number >= 0."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number >= 0, got {text!r}") from None
+    if not (np.isfinite(value) and value >= 0):
+        raise argparse.ArgumentTypeError(f"expected a number >= 0, got {text}")
+    return value
+

@@ -1,0 +1,190 @@
+"""The ``bayeshyst`` argument parser: one sub-command per verb."""
+
+from __future__ import annotations
+
+import argparse
+
+from bayeshyst._version import __version__
+from bayeshyst.cli.commands import (
+    cmd_compare,
+    cmd_compensate,
+    cmd_demo,
+    cmd_diagnose,
+    cmd_fit,
+    cmd_models,
+    cmd_report,
+    cmd_study,
+)
+from bayeshyst.cli.options import (
+    non_negative_float,
+    non_negative_int,
+    positive_int,
+    probability,
+)
+from bayeshyst.inference.settings import MOVES
+
+__all__ = ["add_run_options", "build_parser"]
+
+
+def add_run_options(p: argparse.ArgumentParser, out_default: str, steps_help: str) -> None:
+    """Add the options every command that samples shares.
+
+    Data, likelihood, output folder, seed, sampler budget, walkers, moves, and what is
+    printed and drawn.
+    """
+    p.add_argument("data", help="data file (.csv/.txt/.npz/.mat, JSON sidecar optional)")
+    p.add_argument("--likelihood", default="gaussian", help="gaussian (default), student_t or ar1")
+    p.add_argument("--out", default=out_default, help=f"output folder (default {out_default})")
+    p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    p.add_argument("--steps", type=positive_int, default=20_000, help=steps_help)
+    p.add_argument("--walkers", type=positive_int, default=None,
+                   help="walkers per ensemble (default: from the number of parameters the "
+                        "moves propose, max(12, 2 d + 2) structured, max(32, 4 ndim) de "
+                        "and stretch)")
+    p.add_argument("--moves", choices=MOVES, default="structured",
+                   help="sampler moves: structured (default) = exact Gibbs draws of the "
+                        "linear block + adaptive independence + differential evolution; "
+                        "de = emcee's differential-evolution moves on every coordinate, "
+                        "the previous engine, kept as a baseline; stretch = emcee's "
+                        "affine-invariant stretch move")
+    p.add_argument("--json", action="store_true", help="print summary.json to stdout")
+    p.add_argument("--quiet", action="store_true", help="no progress on stderr")
+    p.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The argument parser of the ``bayeshyst`` command."""
+    # argparse itself exits with status 2 on usage errors, as bad input should
+    parser = argparse.ArgumentParser(prog="bayeshyst",
+                     description="Bayesian identification of hysteresis in piezo actuators.")
+    parser.add_argument("--version", action="version", version=f"bayeshyst {__version__}")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+
+    p_models = sub.add_parser("models", help="list the models, their parameters and priors")
+    p_models.add_argument("name", nargs="*", help="only these models")
+    p_models.add_argument("--json", action="store_true", help="print JSON to stdout")
+    p_models.set_defaults(func=cmd_models)
+
+    p_fit = sub.add_parser("fit", help="sample the posterior of one model given data")
+    p_fit.add_argument("--model", required=True,
+                       help="model name or spec string, e.g. bouc_wen+second_order")
+    add_run_options(p_fit, "bayeshyst-fit", "step budget per ensemble (default 20000)")
+    p_fit.add_argument("--no-checkpoint", action="store_true",
+                       help="do not checkpoint to OUT/checkpoint.h5 (and do not resume)")
+    p_fit.set_defaults(func=cmd_fit)
+
+    p_cmp = sub.add_parser("compare", help="rank models per excitation frequency "
+                           "(PSIS-LOO, WAIC, leave-one-frequency-out, BIC, stacking)")
+    p_cmp.add_argument("--models", required=True,
+                       help="comma-separated model specs, e.g. "
+                            "pi_play,bouc_wen,pi_play+second_order,gp,gp_memory")
+    add_run_options(p_cmp, "bayeshyst-compare",
+                     "step budget per ensemble of every fit (default 20000)")
+    p_cmp.add_argument("--jobs", type=positive_int, default=None,
+                       help="worker processes (default: one per core)")
+    p_cmp.add_argument("--no-lofo", action="store_true",
+                       help="skip the leave-one-frequency-out fits")
+    p_cmp.add_argument("--max-refits", type=non_negative_int, default=5,
+                       help="exact refits per fit for cycles with Pareto k > 0.7 (default 5)")
+    p_cmp.add_argument("--gp-train", type=positive_int, default=1000,
+                       help="training-subset size of the GP models (default 1000)")
+    p_cmp.set_defaults(func=cmd_compare)
+
+    p_comp = sub.add_parser("compensate", help="design feedforward commands from the posterior "
+                            "of one model and score their tracking per frequency")
+    p_comp.add_argument("--model", required=True,
+                        help="model name or spec string, e.g. pi_play+second_order")
+    add_run_options(p_comp, "bayeshyst-compensate", "step budget per ensemble (default 20000)")
+    p_comp.add_argument("--reference", default="sine", metavar="sine|triangle|FILE",
+                        help="reference to track: a sine or triangle at every frequency of "
+                             "the data (default sine), or a CSV file with header t,y "
+                             "(s, output unit), tracked once")
+    p_comp.add_argument("--design-draws", type=positive_int, default=24, metavar="N",
+                        help="posterior draws the posterior-aware commands are designed on "
+                             "(default 24)")
+    p_comp.add_argument("--quantile", type=probability, default=0.9, metavar="Q",
+                        help="quantile of |error| over draws the robust command minimises, "
+                             "in (0, 1) (default 0.9)")
+    p_comp.add_argument("--plant", choices=("auto", "posterior"), default="auto",
+                        help="what the commands are run on: auto (default) = the virtual "
+                             "actuator named in the data's sidecar if any, else held-out "
+                             "posterior draws; posterior = always held-out draws")
+    p_comp.add_argument("--no-checkpoint", action="store_true",
+                        help="do not checkpoint to OUT/checkpoint.h5 (and do not resume)")
+    p_comp.set_defaults(func=cmd_compensate)
+
+    p_dg = sub.add_parser("diagnose", help="trace what a model leaves in its residual to a "
+                          "missing effect, add it, refit, and report the error before and after")
+    p_dg.add_argument("--model", required=True,
+                      help="base model name or spec string, e.g. pi_play(n_operators=8)")
+    add_run_options(p_dg, "bayeshyst-diagnose",
+                     "step budget per ensemble of every fit (default 20000)")
+    p_dg.add_argument("--effects", default=None, metavar="A,B,...",
+                      help="candidate effects, comma-separated (default all: creep, "
+                           "rate_dependence, asymmetry, drift, delay, colored_noise)")
+    p_dg.add_argument("--alpha", type=probability, default=0.01,
+                      help="family-wise level of the residual tests (Holm), in (0, 1) "
+                           "(default 0.01)")
+    p_dg.add_argument("--threshold", type=non_negative_float, default=2.0, metavar="T",
+                      help="an effect is kept when the held-out elpd improves by more than "
+                           "T standard errors (default 2)")
+    p_dg.add_argument("--max-rounds", type=positive_int, default=6, metavar="N",
+                      help="most effects added (default 6)")
+    p_dg.add_argument("--no-checkpoint", action="store_true",
+                      help="do not checkpoint to OUT/checkpoints/ (and do not resume)")
+    p_dg.set_defaults(func=cmd_diagnose)
+
+    p_rep = sub.add_parser("report", help="the whole study on one dataset: compare models per "
+                           "frequency, diagnose the best, design feedforward; one HTML report")
+    p_rep.add_argument("--models", default=None,
+                       help="comma-separated model specs (default "
+                            "pi_play,bouc_wen,pi_play+second_order,gp_memory)")
+    add_run_options(p_rep, "bayeshyst-report",
+                     "step budget per ensemble of every fit (default 20000)")
+    p_rep.add_argument("--jobs", type=positive_int, default=None,
+                       help="worker processes of the comparison (default: one per core)")
+    p_rep.add_argument("--no-lofo", action="store_true",
+                       help="skip the leave-one-frequency-out fits")
+    p_rep.add_argument("--max-refits", type=non_negative_int, default=5,
+                       help="exact refits per fit for cycles with Pareto k > 0.7 (default 5)")
+    p_rep.add_argument("--effects", default=None, metavar="A,B,...",
+                       help="candidate effects of the diagnosis (default all)")
+    p_rep.add_argument("--max-rounds", type=positive_int, default=6, metavar="N",
+                       help="most effects the diagnosis adds (default 6)")
+    p_rep.set_defaults(func=cmd_report)
+
+    p_demo = sub.add_parser("demo", help="the whole study (bayeshyst report) on the bundled "
+                            "virtual-actuator data")
+    p_demo.add_argument("--quick", action="store_true",
+                        help="about a minute: 2 models, short chains (nothing converges)")
+    p_demo.add_argument("--out", default="bayeshyst-demo",
+                        help="output folder (default bayeshyst-demo)")
+    p_demo.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    p_demo.add_argument("--json", action="store_true", help="print summary.json to stdout")
+    p_demo.add_argument("--quiet", action="store_true", help="no progress on stderr")
+    p_demo.add_argument("--no-figures", action="store_true", help="skip the figures")
+    p_demo.set_defaults(func=cmd_demo)
+
+    p_st = sub.add_parser("study", help="fit every model to every excitation frequency of "
+                          "every dataset of a study file, on Dask; resumable")
+    p_st.add_argument("study", help="study file (TOML): datasets, models, likelihoods, "
+                                    "sampler settings, seeds")
+    p_st.add_argument("--out", default=None,
+                      help="output folder (default study-<name of the study>)")
+    where = p_st.add_mutually_exclusive_group()
+    where.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                       help="submit to the running Dask scheduler at ADDRESS "
+                            "(tcp://host:port) instead of starting a local cluster")
+    where.add_argument("--workers", type=positive_int, default=None, metavar="N",
+                       help="worker processes of the local cluster (default: one per core)")
+    where.add_argument("--serial", action="store_true",
+                       help="no Dask: run the fits one after the other in this process")
+    p_st.add_argument("--retry-failed", action="store_true",
+                      help="run again the fits whose stored result is a failure")
+    p_st.add_argument("--report", action="store_true", help="also write study.html")
+    p_st.add_argument("--json", action="store_true", help="print summary.json to stdout")
+    p_st.add_argument("--quiet", action="store_true", help="no progress on stderr")
+    p_st.add_argument("--no-figures", action="store_true", help="skip the figures")
+    p_st.set_defaults(func=cmd_study)
+    return parser
+
