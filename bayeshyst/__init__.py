@@ -31,7 +31,7 @@ _LAZY: dict[str, tuple[str, str]] = {
     "Posterior": ("bayeshyst.inference.posterior", "Posterior"),
     "SamplerSettings": ("bayeshyst.inference.settings", "SamplerSettings"),
     "FitResult": ("bayeshyst.inference.fit", "FitResult"),
-    "ComparisonResult": ("bayeshyst.selection.compare", "ComparisonResult"),
+    "ComparisonResult": ("bayeshyst.selection.results", "ComparisonResult"),
     "DiagnosisResult": ("bayeshyst.diagnosis.loop", "DiagnosisResult"),
     "CompensationResult": ("bayeshyst.inverse.compensate", "CompensationResult"),
     "ReportResult": ("bayeshyst.workflow", "ReportResult"),

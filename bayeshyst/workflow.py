@@ -20,7 +20,7 @@ Every stage samples with the same :class:`~bayeshyst.inference.settings.SamplerS
 named by what it fits (:func:`~bayeshyst.selection.tasks.fit_identity`): the
 diagnosis' base fit *is* the comparison's joint fit of the chosen model and is read
 back, not sampled again, and an interrupted report resumes where it stopped. Writing the files
-(HTML, ``summary.json``, netCDF) is :func:`bayeshyst.report.report_outputs.write_report_outputs`.
+(HTML, ``summary.json``, netCDF) is :func:`bayeshyst.outputs.report_outputs.write_report_outputs`.
 """
 
 from __future__ import annotations
@@ -41,7 +41,7 @@ from bayeshyst.inference.settings import SamplerSettings
 from bayeshyst.inverse.compensate import CompensationResult, compensate
 from bayeshyst.likelihoods import get_likelihood
 from bayeshyst.selection import ComparisonResult, check_models, compare_models
-from bayeshyst.selection.tasks import GP_MODELS
+from bayeshyst.selection.tasks import build_spec, is_parametric
 
 __all__ = ["DEFAULT_MODELS", "DEMO_DEFAULT", "DEMO_QUICK", "DemoPlan", "ReportResult",
            "ReportSettings", "bundled_data", "choose_model", "run_report"]
@@ -112,6 +112,7 @@ class ReportSettings:
         get_likelihood(self.likelihood)
 
     def to_dict(self) -> dict[str, Any]:
+        """JSON-ready settings: every field, the sampler's dict, ``effects`` as a list or None."""
         d = asdict(self)
         d["sampler"] = self.sampler.to_dict()
         d["effects"] = None if self.effects is None else list(self.effects)
@@ -183,7 +184,7 @@ def choose_model(comparison: ComparisonResult) -> tuple[str | None, list[str]]:
     """
     notes = []
     ranking = [s for s in comparison.overall.scores if s.error is None]
-    parametric = [s for s in ranking if s.model not in GP_MODELS]
+    parametric = [s for s in ranking if is_parametric(build_spec(s.model))]
     if not parametric:
         return None, ["no parametric model fitted all frequencies jointly, so there is no "
                       "model to diagnose or to invert"]

@@ -66,7 +66,7 @@ def _duration(seconds: float) -> str:
 
 def one_eval_seconds(est) -> float:
     """Time of one marginal-likelihood evaluation with gradient at the fitted optimum."""
-    from bayeshyst._gp_features import blas_limit, log_marginal_likelihood
+    from bayeshyst.gp.kernel import blas_limit, log_marginal_likelihood
 
     z, y = est.gp_.X_train_, est.gp_.y_train_
     best = float("inf")

@@ -26,20 +26,17 @@ from sklearn.exceptions import ConvergenceWarning, NotFittedError
 from sklearn.gaussian_process import GaussianProcessRegressor
 from sklearn.utils.validation import check_is_fitted
 
-from bayeshyst import gp as gp_module
-from bayeshyst._gp_features import (
-    farthest_subset,
-    log_marginal_likelihood,
-    memory_features,
-    stratified_subset,
-)
 from bayeshyst.data import Dataset, Record, load
 from bayeshyst.data import excitation as ex
 from bayeshyst.data.segment import find_reversals
 from bayeshyst.data.virtual import AR1Noise, VirtualActuator
 from bayeshyst.errors import DataError, ParameterError
 from bayeshyst.gp import FREE_RUN_TOLERANCE, GPHysteresis, fit_gp_inverse, records_to_X
+from bayeshyst.gp import model as gp_module
+from bayeshyst.gp.features import farthest_subset, memory_features, stratified_subset
+from bayeshyst.gp.kernel import log_marginal_likelihood
 from bayeshyst.inference.posterior import cycle_units
+from bayeshyst.inference.settings import SamplerSettings
 
 NOISE_UM = 0.04
 #: Hysteresis, 1.5 kHz dynamics and 50 us delay; no creep or drift; white noise.
@@ -619,7 +616,7 @@ def test_every_optimum_collapsing_warns_and_is_not_converged(creeping_1hz, injec
 def test_hyperparameter_sampling_converges_and_finds_the_noise():
     rec = _sine(1, 21, cycles=3, name="hp")
     est = GPHysteresis(features="rate", n_train=100, random_state=0).fit_records(rec)
-    report = est.sample_hyperparameters(n_walkers=16, n_steps=1500, seed=1)
+    report = est.sample_hyperparameters(SamplerSettings(n_walkers=16, max_steps=1500, seed=1))
     print(f"\n{report}")
     assert np.all(report.rhat < 1.05), report
     # log noise variance in standardised units -> noise std in um

@@ -150,7 +150,8 @@ def cmd_compare(args: argparse.Namespace) -> int:
     with removed_on_failure(out, results=("posteriors/*.nc",)):
         result = compare_models(data, models, likelihood=args.likelihood, sampler=sampler,
                                 lofo=not args.no_lofo, max_refits=args.max_refits,
-                                gp_n_train=args.gp_train, n_jobs=args.jobs, out_dir=out,
+                                gp_n_train=args.gp_train, gp_sampling=args.gp_sampling,
+                                n_jobs=args.jobs, out_dir=out,
                                 progress=sampler.progress)
         figures = None if args.no_figures else comparison_figures(result)
         summary = write_comparison_outputs(result, out, figures=figures,

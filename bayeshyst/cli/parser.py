@@ -88,6 +88,10 @@ def build_parser() -> argparse.ArgumentParser:
                        help="exact refits per fit for cycles with Pareto k > 0.7 (default 5)")
     p_cmp.add_argument("--gp-train", type=positive_int, default=1000,
                        help="training-subset size of the GP models (default 1000)")
+    p_cmp.add_argument("--gp-sampling", action="store_true",
+                       help="sample the GP models' hyperparameters (same sampler and "
+                            "criteria as every model) and score them mixed over the "
+                            "draws; minutes per GP fit instead of seconds")
     p_cmp.set_defaults(func=cmd_compare)
 
     p_comp = sub.add_parser("compensate", help="design feedforward commands from the posterior "

@@ -1,6 +1,7 @@
 """Model selection per excitation frequency.
 
-- :func:`compare_models` — the comparison a user runs (:mod:`bayeshyst.selection.compare`);
+- :func:`compare_models` — the comparison a user runs (:mod:`bayeshyst.selection.compare`),
+  and its records (:mod:`bayeshyst.selection.results`);
 - :mod:`bayeshyst.selection.tasks` — the public task layer: one fit of a comparison
   (:class:`TaskSpec` → :func:`run_task` → :class:`TaskResult`), its seed, its identity
   (which fits share a posterior) and its predictive scores, for callers that schedule
@@ -12,14 +13,8 @@
 
 from __future__ import annotations
 
-from bayeshyst.selection.compare import (
-    ComparisonResult,
-    FrequencyComparison,
-    ModelScore,
-    check_models,
-    compare_models,
-    split_top_level,
-)
+from bayeshyst.selection.compare import check_models, compare_models, split_top_level
+from bayeshyst.selection.predictor import ParametricPredictor
 from bayeshyst.selection.ranking import (
     RankedModel,
     paired_difference,
@@ -27,6 +22,7 @@ from bayeshyst.selection.ranking import (
     stacking_weights,
     total_and_se,
 )
+from bayeshyst.selection.results import ComparisonResult, FrequencyComparison, ModelScore
 from bayeshyst.selection.tasks import (
     CompareSettings,
     LooScores,
@@ -47,6 +43,7 @@ __all__ = [
     "FrequencyComparison",
     "LooScores",
     "ModelScore",
+    "ParametricPredictor",
     "RankedModel",
     "TaskResult",
     "TaskSpec",
