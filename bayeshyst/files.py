@@ -114,8 +114,10 @@ def jsonable(obj: Any) -> Any:
 
 
 def json_text(obj: Any, *, default: Callable[[Any], Any] = str) -> str:
-    """``obj`` as indented JSON text with a final newline: the one serialiser of the
-    package's JSON files (:func:`write_json`) and of what ``--json`` prints.
+    """``obj`` as indented JSON text with a final newline.
+
+    The one serialiser of the package's JSON files (:func:`write_json`) and of what
+    ``--json`` prints.
 
     Parameters
     ----------
@@ -200,8 +202,11 @@ class RunOutputs:
                    for p in self.created() for pattern in self.results)
 
     def remove_created(self) -> None:
-        """Remove what the run created (never what was there before), then the folder
-        and its parents if the run created them and they are empty."""
+        """Remove what the run created (never what was there before), then the folder.
+
+        The folder and its parents are removed only if the run created them and they are
+        empty.
+        """
         # files and links first, then folders deepest first; rmdir, not rmtree: a
         # folder that is not empty holds something this run did not make
         created = self.created()

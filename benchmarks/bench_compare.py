@@ -110,7 +110,7 @@ def stage(cores: int) -> tuple[str, bool]:
     slow = sorted(fits, key=lambda t: -t.runtime_s)[:3]
     # the baseline: the joint Hammerstein fit with the previous engine, for as long as
     # the whole comparison took, against the structured moves on the same posterior
-    post = Posterior(STAGE_MODELS[1], data)
+    post = Posterior(data, STAGE_MODELS[1])
     rows = []
     for moves, budget in (("structured", settings.max_steps), ("de", settings.max_steps)):
         s = settings.replace(moves=moves, max_steps=budget, progress=False)

@@ -114,7 +114,7 @@ def main(argv: list[str] | None = None) -> int:
 
     load0 = os.getloadavg()[0]
     rec = make_data()
-    post = Posterior("bouc_wen", rec)
+    post = Posterior(rec, "bouc_wen")
     rng = np.random.default_rng(1)
     start = find_map(post, seed=0)  # also compiles every kernel
     z = start.z + 0.01 * rng.standard_normal((64, post.ndim))
@@ -138,7 +138,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"          90 % HDI covers the truth: {cover}", flush=True)
     # pi_play(8) jointly on the bundled five-frequency record (default criteria)
     data = load(ROOT / "data" / "virtual_multifreq.csv")
-    pi = Posterior("pi_play(n_operators=8)", data)
+    pi = Posterior(data, "pi_play(n_operators=8)")
     find_map(pi, seed=0)
     for moves in ("structured", "de"):
         res, wall, t_map = _engine(pi, moves, 400.0, budget)

@@ -24,8 +24,8 @@ from bayeshyst.diagnostics import load_netcdf
 from bayeshyst.errors import ParameterError
 from bayeshyst.inference.posterior import cycle_units
 from bayeshyst.models.base import DataScales
-from bayeshyst.plotting import effect_evidence_figure, plot_effect_evidence
 from bayeshyst.outputs.diagnose_outputs import STEP_COLUMNS, evidence_figures
+from bayeshyst.plotting import effect_evidence_figure, plot_effect_evidence
 
 MODEL = "pi_play(n_operators=3)"
 RUN = ["--model", MODEL, "--steps", "300", "--walkers", "16"]

@@ -56,7 +56,7 @@ def virtual_data(effects: dict, *, seed: int = 0, freqs=(1.0, 20.0, 200.0),
 
 def short_analysis(data: Dataset, model: str, seed: int = 1):
     """Residual tests after a short fit (300 steps)."""
-    post = Posterior(model, data)
+    post = Posterior(data, model)
     res = sample_posterior(post, SamplerSettings(n_walkers=2 * post.ndim + 4, max_steps=300,
                                                  first_chunk=150, seed=seed))
     return analyse_residual(post, res, res.draws(100, seed=seed))

@@ -41,7 +41,7 @@ def two_record_fit():
         y = model.simulate(u, t, theta) + 0.4 + rng.normal(0.0, SIGMA, n)
         recs.append(Record(t=t, u=u, y=y, name=f"f{f:g}", warmup=100,
                            metadata={"frequency_hz": f}))
-    post = Posterior(model, Dataset(tuple(recs), name="two"))
+    post = Posterior(Dataset(tuple(recs), name="two"), model)
     start = find_map(post, seed=0, global_search=False, n_screen=64, n_starts=1)
     res = sample_posterior(post, SamplerSettings(seed=5, max_steps=400, first_chunk=100),
                            start=start)

@@ -234,7 +234,7 @@ def conjugate_fit():
     train = Dataset((_pi_record("a", 2.0, 75, 0, sigma, model, theta),
                      _pi_record("b", 5.0, 60, 1, sigma, model, theta)))
     test = Dataset((_pi_record("c", 3.0, 40, 2, sigma, model, theta),))
-    post = Posterior(model, train).fix("noise.sigma", sigma)
+    post = Posterior(train, model).fix("noise.sigma", sigma)
     conj = conjugate_posterior(post)
     draws = conj.sample(np.random.default_rng(5), 2 * 40 * 50)
     z = np.array([post.space.pack({"p0": d[0], "w": d[1:4], "obs.offset": d[4]})

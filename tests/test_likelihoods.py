@@ -57,7 +57,7 @@ def test_get_likelihood_by_name():
 # ---------------------------------------------------------------- the posterior
 def test_log_prob_is_prior_plus_free_run_likelihood():
     model, rec, _ = pi_data()
-    post = Posterior(model, rec)
+    post = Posterior(rec, model)
     z = post.space.sample_prior(np.random.default_rng(4), 5)
     lp = post.log_prob_batch(z)
     for i in range(5):
@@ -71,7 +71,7 @@ def test_log_prob_is_prior_plus_free_run_likelihood():
 
 def test_units_partition_the_scored_samples_and_sum_to_the_likelihood():
     model, rec, _ = pi_data()
-    post = Posterior(model, rec)
+    post = Posterior(rec, model)
     starts = [u.start for u in post.units]
     stops = [u.stop for u in post.units]
     assert starts[0] == 150 and stops[-1] == rec.n and starts[1:] == stops[:-1]
@@ -84,7 +84,7 @@ def test_units_partition_the_scored_samples_and_sum_to_the_likelihood():
 
 def test_log_prob_never_nan_and_failures_counted():
     model, rec, _ = pi_data()
-    post = Posterior(model, rec)
+    post = Posterior(rec, model)
     z = np.array([[np.nan] * post.ndim, [1e300] * post.ndim, [0.0] * post.ndim])
     lp = post.log_prob_batch(z)
     assert not np.any(np.isnan(lp))
@@ -98,7 +98,7 @@ def test_failed_simulations_are_minus_inf_and_counted():
     t = np.arange(400) * 1e-3
     u = np.sin(2 * np.pi * 5 * t)
     rec = Record(t=t, u=u, y=u + 0.01 * np.cos(2 * np.pi * 5 * t), name="g")
-    post = Posterior(model, rec)
+    post = Posterior(rec, model)
     theta = post.space.unpack(np.zeros(post.ndim))
     bad = {**theta, "b_l": 5.0}  # slope 1 + 2 b x < 0 inside the range: fails
     z = post.space.pack({k: v for k, v in bad.items() if k in post.space.names})
@@ -108,24 +108,24 @@ def test_failed_simulations_are_minus_inf_and_counted():
 
 def test_beta_zero_is_the_prior_and_runs_no_simulation():
     model, rec, _ = pi_data()
-    post = Posterior(model, rec, beta=0.0)
+    post = Posterior(rec, model, beta=0.0)
     z = post.space.sample_prior(np.random.default_rng(0), 4)
     np.testing.assert_array_equal(post.log_prob_batch(z), post.space.log_prior(z))
     with pytest.raises(ParameterError, match="beta"):
-        Posterior(model, rec, beta=1.5)
+        Posterior(rec, model, beta=1.5)
 
 
 def test_offset_added_only_when_the_model_has_none():
     model, rec, _ = pi_data()
-    assert "obs.offset" in Posterior(model, rec).space.names
-    assert "obs.offset" not in Posterior(model, rec, offset=False).space.names
+    assert "obs.offset" in Posterior(rec, model).space.names
+    assert "obs.offset" not in Posterior(rec, model, offset=False).space.names
 
 
 def test_posterior_accepts_dataset_and_spec_string_and_pickles():
     import pickle
 
     _, rec, _ = pi_data()
-    post = Posterior("pi_play+arx", Dataset((rec,), name="d"), "ar1")
+    post = Posterior(Dataset((rec,), name="d"), "pi_play+arx", "ar1")
     assert "static.w" in post.space.names and "noise.phi" in post.space.names
     clone = pickle.loads(pickle.dumps(post))
     z = post.space.sample_prior(np.random.default_rng(0), 2)

@@ -20,7 +20,7 @@ from tests.synthetic import pi_data
 
 def test_map_and_laplace_of_a_linear_model_are_the_conjugate_posterior():
     model, rec, _ = pi_data(n_ops=3, sigma=0.05)
-    post = Posterior(model, rec).fix("noise.sigma", 0.05)
+    post = Posterior(rec, model).fix("noise.sigma", 0.05)
     exact = conjugate_posterior(post)
     for seed in (0, 1):
         m = find_map(post, seed=seed)
@@ -36,7 +36,7 @@ def test_gauss_newton_matches_the_finite_difference_hessian_at_a_bouc_wen_map():
     u = 75.0 - 75.0 * np.cos(2 * np.pi * t) * np.exp(-0.3 * t)
     truth = {"k": 0.3, "alpha": 0.12, "beta": 0.004, "gamma": 0.001, "n": 1.3}
     y = get("bouc_wen").simulate(u, t, truth) + np.random.default_rng(0).normal(0, 0.05, t.size)
-    post = Posterior("bouc_wen", Record(t=t, u=u, y=y, name="bw", warmup=200))
+    post = Posterior(Record(t=t, u=u, y=y, name="bw", warmup=200), "bouc_wen")
     m = find_map(post, seed=0)
     theta = m.theta
     sd = np.sqrt(np.diag(m.covariance))
@@ -69,7 +69,7 @@ def _aliased_delay():
 
 def test_starts_in_different_basins_are_settled_and_say_so():
     model, rec, period = _aliased_delay()
-    post = Posterior(model, rec)
+    post = Posterior(rec, model)
     good = find_map(post, seed=0, global_search=False)
     d_good = good.theta["delay.d"]
     assert abs(d_good - 0.2 * period) < 0.01 * period
@@ -114,7 +114,7 @@ def test_global_search_reaches_a_mode_far_in_the_prior_tail():
     from bayeshyst.inference.optimize import _global_search
 
     model, rec, f_n = _resonance_in_the_prior_tail()
-    post = Posterior(model, rec)
+    post = Posterior(rec, model)
     structure = LinearStructure.of(post)
     for seed in (0, 1, 2):
         rng = np.random.default_rng(seed)
@@ -132,7 +132,7 @@ def _offset_mode_missed():
     from dataclasses import replace
 
     _, rec, _ = pi_data(n_ops=2, n=600)
-    post = Posterior(get("pi_play", n_operators=2), rec)
+    post = Posterior(rec, get("pi_play", n_operators=2))
     true_map = find_map(post, seed=0)
     z = true_map.z.copy()
     j = int(np.arange(post.ndim)[post.space.slice_of("obs.offset")][0])

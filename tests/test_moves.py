@@ -123,7 +123,7 @@ def test_linear_design_reproduces_every_linear_model_and_composite():
                                   "pi_play(n_operators=2)+second_order"])
 def test_structure_likelihood_matches_the_simulated_one(spec, likelihood):
     _, rec, _ = pi_data(n_ops=3, n=800)
-    post = Posterior(spec, rec, likelihood)
+    post = Posterior(rec, spec, likelihood)
     s = LinearStructure(post)
     z = post.space.sample_prior(np.random.default_rng(1), 8)
     ref = post.log_prob_batch(z) - post.space.log_prior(z)
@@ -142,7 +142,7 @@ def test_structure_statistics_do_not_depend_on_the_batch(spec):
     # cached Grams and recomputed ones must agree to the bit (resume identity); Bouc-Wen's
     # design [u, 1] is shared by the walkers (another code path)
     _, rec, _ = pi_data(n_ops=2, n=800)
-    post = Posterior(spec, rec, "ar1")
+    post = Posterior(rec, spec, "ar1")
     z = post.space.sample_prior(np.random.default_rng(2), 7)
     whole = LinearStructure(post)._compute(z)
     for j in range(7):
@@ -159,7 +159,7 @@ def test_statistics_cache_keeps_every_walker_of_a_call_when_it_trims(monkeypatch
 
     monkeypatch.setattr(L, "_CACHE_SIZE", 4)
     _, rec, _ = pi_data(n_ops=2, n=600)
-    post = Posterior("pi_play(n_operators=2)+second_order", rec)
+    post = Posterior(rec, "pi_play(n_operators=2)+second_order")
     s = LinearStructure(post)
     z = post.space.sample_prior(np.random.default_rng(5), 9)
     s.stats(z[:3])
@@ -172,7 +172,7 @@ def test_statistics_cache_keeps_every_walker_of_a_call_when_it_trims(monkeypatch
 
 def test_conditional_and_marginal_are_the_conjugate_posterior():
     model, rec, _ = pi_data(n_ops=3, sigma=0.05)
-    post = Posterior(model, rec).fix("noise.sigma", 0.05)
+    post = Posterior(rec, model).fix("noise.sigma", 0.05)
     exact = conjugate_posterior(post)
     s = LinearStructure(post)
     z = post.space.sample_prior(np.random.default_rng(3), 1)
@@ -186,7 +186,7 @@ def test_conditional_and_marginal_are_the_conjugate_posterior():
 
 def test_ar1_conditional_and_marginal_match_a_dense_whitening():
     model, rec = _ar1_record()
-    post = Posterior(model, rec, "ar1").fix("noise.sigma", 0.05).fix("noise.phi", 0.8)
+    post = Posterior(rec, model, "ar1").fix("noise.sigma", 0.05).fix("noise.phi", 0.8)
     mean, cov, log_ev = _dense_gls(post, 0.05, 0.8)
     s = LinearStructure(post)
     z = post.space.sample_prior(np.random.default_rng(4), 1)
@@ -201,7 +201,7 @@ def test_ar1_conditional_and_marginal_match_a_dense_whitening():
 # ------------------------------------------------------------ the Gibbs move alone
 def test_gibbs_move_alone_reproduces_the_conjugate_posterior_gaussian():
     model, rec, _ = pi_data(n_ops=3, sigma=0.05)
-    post = Posterior(model, rec).fix("noise.sigma", 0.05)
+    post = Posterior(rec, model).fix("noise.sigma", 0.05)
     exact = conjugate_posterior(post)
     res = sample_posterior(post, SamplerSettings(seed=2, max_steps=2000))
     assert res.converged, res.convergence
@@ -211,7 +211,7 @@ def test_gibbs_move_alone_reproduces_the_conjugate_posterior_gaussian():
 
 def test_gibbs_move_alone_reproduces_the_conjugate_posterior_ar1():
     model, rec = _ar1_record()
-    post = Posterior(model, rec, "ar1").fix("noise.sigma", 0.05).fix("noise.phi", 0.8)
+    post = Posterior(rec, model, "ar1").fix("noise.sigma", 0.05).fix("noise.phi", 0.8)
     mean, cov, _ = _dense_gls(post, 0.05, 0.8)
     res = sample_posterior(post, SamplerSettings(seed=3, max_steps=2000))
     assert res.converged, res.convergence
@@ -251,7 +251,7 @@ def test_noise_posterior_matches_grid_integration_of_the_exact_evidence():
     # sigma and phi free, the weights integrated out exactly: the marginal posterior of
     # (sigma, phi) on a grid is the oracle for every move of the structured sampler
     model, rec = _ar1_record(n=400, phi=0.7, sigma=0.05, seed=1)
-    post = Posterior(model, rec, "ar1")
+    post = Posterior(rec, model, "ar1")
     s0 = rec.scored.start or 0
     x = model.regressors(rec.u, rec.t, dict(post.model_space.fixed))[s0:]
     x = np.column_stack([x, np.ones(x.shape[0])])

@@ -60,7 +60,7 @@ def _labels_and_truth(space, truth):
 
 @functools.lru_cache(maxsize=4)
 def _bw_fit(seed):
-    post = Posterior("bouc_wen", bw_record(seed, n=1200))
+    post = Posterior(bw_record(seed, n=1200), "bouc_wen")
     return post, sample_posterior(post, SamplerSettings(seed=seed, max_steps=8000,
                                                         n_walkers=WALKERS))
 
@@ -102,8 +102,8 @@ def _check_coverage(stats_list):
 def _bw_stats(seeds):
     out = []
     for seed in seeds:
-        post, res = _bw_fit(seed) if seed == 0 else (Posterior("bouc_wen",
-                                                              bw_record(seed, n=1200)), None)
+        post, res = _bw_fit(seed) if seed == 0 else (Posterior(bw_record(seed, n=1200),
+                                                              "bouc_wen"), None)
         out.append(_fit_stats(post, {**BW_TRUTH, "obs.offset": 0.0, "noise.sigma": 0.05}, seed,
                               res))
     return out, post.ndim
@@ -161,7 +161,7 @@ def _duhem_stats(seeds):
     out = []
     for seed in seeds:
         model, space, rec, truth = duhem_case(seed)
-        post = Posterior(model, rec, space=space, offset=False)
+        post = Posterior(rec, model, space=space, offset=False)
         out.append(_fit_stats(post, {**truth, "noise.sigma": 0.05}, seed))
     return out, post.ndim
 

@@ -224,7 +224,7 @@ def test_report_samples_the_base_models_joint_posterior_once(
     out = tmp_path / "out"
     result = run_report(data, (model,), settings=settings, out_dir=out)
     assert result.chosen_model == model and result.seed == 4
-    base = Posterior(model, data, "gaussian")
+    base = Posterior(data, model, "gaussian")
     # the joint posterior of the base model: one run of n_ensembles ensembles, in total
     joint = [f for f in fresh if f[1] == len(data) and f[0] == base.model.name
              and f[2] == str(base.held_out)]

@@ -74,7 +74,7 @@ def test_prior_only_sampling_reproduces_the_prior():
     # beta = 0: the sampler must return the prior; this checks every transform and
     # log-Jacobian on the way (K-S per parameter against the prior's cdf)
     model, rec, _ = pi_data()
-    post = Posterior(model, rec, beta=0.0)
+    post = Posterior(rec, model, beta=0.0)
     start = find_map(post, seed=0, global_search=False, n_screen=64, n_starts=1)
     # start from the prior itself: the Laplace ball of a flat-ish prior is the prior
     res = sample_posterior(post, SamplerSettings(seed=1, max_steps=3000, first_chunk=500),
@@ -88,7 +88,7 @@ def test_prior_only_sampling_reproduces_the_prior():
 
 def test_emcee_agrees_with_the_conjugate_posterior_of_pi_weights():
     model, rec, theta = pi_data(n_ops=3, sigma=0.05)
-    fixed = Posterior(model, rec).fix("noise.sigma", 0.05)  # known sigma, as the closed form
+    fixed = Posterior(rec, model).fix("noise.sigma", 0.05)  # known sigma, as the closed form
     exact = conjugate_posterior(fixed)
     res = sample_posterior(fixed, SamplerSettings(seed=2, max_steps=8000, first_chunk=1000))
     assert res.converged, res.convergence
@@ -110,7 +110,7 @@ def test_emcee_agrees_with_the_conjugate_posterior_of_pi_weights():
 
 def _small_run(checkpoint=None, seed=5, moves="structured", model=None):
     model_, rec, _ = pi_data(n_ops=2, n=600, warmup=100)
-    post = Posterior(model or model_, rec)
+    post = Posterior(rec, model or model_)
     start = find_map(post, seed=0, global_search=False, n_screen=64, n_starts=1)
     return sample_posterior(post, SamplerSettings(seed=seed, max_steps=400, first_chunk=100,
                                                   checkpoint=checkpoint, min_ess=1e9,
@@ -173,18 +173,18 @@ def test_fit_sampler_names_a_fit_by_what_it_is_and_its_seed(tmp_path):
 
     model, rec, _ = pi_data(n_ops=2, n=600, warmup=100)
     base = SamplerSettings(max_steps=200)
-    a = fit_sampler(Posterior(model, rec), base, 1, tmp_path)
-    again = fit_sampler(Posterior("pi_play(n_operators=2)", rec), base, 1, tmp_path)
-    other_seed = fit_sampler(Posterior(model, rec), base, 2, tmp_path)
+    a = fit_sampler(Posterior(rec, model), base, 1, tmp_path)
+    again = fit_sampler(Posterior(rec, "pi_play(n_operators=2)"), base, 1, tmp_path)
+    other_seed = fit_sampler(Posterior(rec, model), base, 2, tmp_path)
     assert a.checkpoint == again.checkpoint and a.seed == again.seed  # same posterior
     assert other_seed.checkpoint != a.checkpoint and other_seed.seed != a.seed
-    assert fit_identity(Posterior(model, rec, "ar1"), base) != fit_identity(
-        Posterior(model, rec), base)
+    assert fit_identity(Posterior(rec, model, "ar1"), base) != fit_identity(
+        Posterior(rec, model), base)
     # a second seed into the same folder is another run, not a clash with the first
     for s in (a, other_seed):
-        post = Posterior(model, rec)
+        post = Posterior(rec, model)
         sample_posterior(post, s, start=find_map(post, seed=0, n_starts=1))
     assert len(list(tmp_path.glob("*.h5"))) == 2
     # the de engine's walker floor applies to every command fitting that posterior
-    de = fit_sampler(Posterior(model, rec), base.replace(moves="de", n_walkers=4), 1, tmp_path)
-    assert de.n_walkers == 2 * Posterior(model, rec).ndim + 2
+    de = fit_sampler(Posterior(rec, model), base.replace(moves="de", n_walkers=4), 1, tmp_path)
+    assert de.n_walkers == 2 * Posterior(rec, model).ndim + 2

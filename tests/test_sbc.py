@@ -42,7 +42,7 @@ def _reference(spec: str) -> Posterior:
     """The fixed prior: the model's default priors for a typical 0-150 V / 0-40 um loop."""
     t, u = _design()
     y = 40.0 * (u - u.min()) / np.ptp(u)  # only its range matters (prior scales)
-    return Posterior(get(spec), Record(t=t, u=u, y=y, name="reference", warmup=40))
+    return Posterior(Record(t=t, u=u, y=y, name="reference", warmup=40), get(spec))
 
 
 def _replicate(ref: Posterior, seed: int) -> tuple[np.ndarray, np.ndarray]:
@@ -59,7 +59,7 @@ def _replicate(ref: Posterior, seed: int) -> tuple[np.ndarray, np.ndarray]:
             break
     y = (traj.y[0] + theta["obs.offset"]
          + theta["noise.sigma"] * rng.standard_normal(t.size))
-    post = Posterior(ref.model, Record(t=t, u=u, y=y, name="sbc", warmup=40)).with_priors(space)
+    post = Posterior(Record(t=t, u=u, y=y, name="sbc", warmup=40), ref.model).with_priors(space)
     res = sample_posterior(post, SamplerSettings(seed=seed, max_steps=MAX_STEPS))
     draws = res.draws(N_DRAWS, seed=seed)
     return np.sum(draws < z_true[None, :], axis=0), z_true

@@ -108,7 +108,7 @@ def test_heldout_density_equals_analytic_gaussian_predictive():
     train = Dataset((_pi_record("a", 2.0, 75, 0, sigma, model, theta),
                      _pi_record("b", 5.0, 60, 1, sigma, model, theta)))
     test = Dataset((_pi_record("c", 3.0, 40, 2, sigma, model, theta),))
-    post = Posterior(model, train).fix("noise.sigma", sigma)
+    post = Posterior(train, model).fix("noise.sigma", sigma)
     conj = conjugate_posterior(post)
     draws = conj.sample(np.random.default_rng(5), 6000)
     z = np.array([post.space.pack({"p0": d[0], "w": d[1:4], "obs.offset": d[4]})
@@ -136,7 +136,7 @@ def test_holding_out_drops_exactly_those_cycles():
     theta = {"p0": 0.1, "w": np.array([0.05, 0.03, 0.02]), "r": r}
     data = Dataset((_pi_record("a", 2.0, 75, 0, 0.05, model, theta),
                     _pi_record("b", 5.0, 60, 1, 0.05, model, theta)))
-    post = Posterior(model, data)
+    post = Posterior(data, model)
     z = post.space.sample_prior(np.random.default_rng(0), 16)
     units = post.log_likelihood_units(z)
     lp0 = np.atleast_1d(post.space.log_prior(z))

@@ -23,6 +23,9 @@ import pytest
 
 from bayeshyst.errors import ParameterError
 from bayeshyst.inference.settings import SamplerSettings
+from bayeshyst.outputs.assemble import study_output_figures
+from bayeshyst.outputs.study_html import SECTIONS, study_html
+from bayeshyst.outputs.study_outputs import write_study_outputs
 from bayeshyst.plotting.study import (
     best_model_figure,
     model_colors,
@@ -31,9 +34,6 @@ from bayeshyst.plotting.study import (
     scores_vs_frequency_figure,
     study_figures,
 )
-from bayeshyst.outputs.assemble import study_output_figures
-from bayeshyst.outputs.study_html import SECTIONS, study_html
-from bayeshyst.outputs.study_outputs import write_study_outputs
 from bayeshyst.selection.tasks import CompareSettings
 from bayeshyst.study.rows import TABLE_COLUMNS, failed_row
 from bayeshyst.study.run import StudyResult

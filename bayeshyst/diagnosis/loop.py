@@ -372,7 +372,7 @@ def _warm_start(post: Posterior, previous: DiagnosisFit, added: dict[str, Any],
 def _fit(data: Dataset, model: HysteresisModel, likelihood: str, label: str,
          st: DiagnosisSettings, checkpoint_dir: Path | None,
          warm: tuple[DiagnosisFit, dict[str, Any]] | None = None) -> DiagnosisFit:
-    post = Posterior(model, data, likelihood)
+    post = Posterior(data, model, likelihood)
     # the seed, checkpoint and walkers follow from what is fitted: the base fit of a report
     # is the comparison's joint fit (same posterior, same settings, same checkpoint folder)
     sampler = fit_sampler(post, st.sampler, st.seed, checkpoint_dir)

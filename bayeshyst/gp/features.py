@@ -225,8 +225,10 @@ def gather_memory(s: np.ndarray, y_ref: np.ndarray, direction: np.ndarray, ref1:
 
 
 def stratified_subset(n: int, m: int, rng: np.random.Generator) -> np.ndarray:
-    """Time-stratified random subset: one sample drawn uniformly from each of ``m``
-    consecutive, equally long strata of the ``n`` candidates.
+    """Time-stratified random subset of (at most) ``m`` of the ``n`` candidates.
+
+    One sample is drawn uniformly from each of ``m`` consecutive, equally long strata of
+    the ``n`` candidates.
 
     Every cycle and every record gets training points in proportion to its length,
     and no two points are closer than one stratum apart on average.

@@ -125,8 +125,10 @@ class HyperparameterTarget:
                                 for p in self.space.params])
 
     def z_of(self, theta: np.ndarray) -> np.ndarray:
-        """``z`` (d + 2,) of log hyperparameters ``theta`` (d + 2,), pulled inside the
-        bounds by a millionth of their log interval."""
+        """``z`` (d + 2,) of log hyperparameters ``theta`` (d + 2,).
+
+        ``theta`` is first pulled inside the bounds by a millionth of their log interval.
+        """
         out, i = np.empty(self.ndim), 0
         for p in self.space.params:
             lo, hi = p.prior.support
@@ -160,9 +162,12 @@ class HyperparameterTarget:
 
     # ------------------------------------------------------------------ start
     def _value_and_grad(self, z: np.ndarray) -> tuple[float, np.ndarray]:
-        """``-log p(z)`` and its gradient: the analytic gradient of the marginal
-        likelihood through the logit (``dtheta/dz = w s(z) s(-z)``) plus that of its
-        log-Jacobian (``1 - 2 s(z)``), ``s`` the logistic function."""
+        """``-log p(z)`` and its gradient.
+
+        The gradient is the analytic gradient of the marginal likelihood through the logit
+        (``dtheta/dz = w s(z) s(-z)``) plus that of its log-Jacobian (``1 - 2 s(z)``),
+        ``s`` the logistic function.
+        """
         theta = self.theta(z)[0]
         lml, grad = log_marginal_likelihood(theta, self.kind, self.z_train, self.y_train)
         lp = float(self.space.log_prior(z))
@@ -174,8 +179,10 @@ class HyperparameterTarget:
         return -(lml + lp), -(grad * width * s * (1.0 - s) + 1.0 - 2.0 * s)
 
     def start_at(self, theta: np.ndarray) -> MAPResult:
-        """The sampler's start: the mode in ``z`` of the basin of ``theta`` (the kept
-        optimum of the marginal likelihood, (d + 2,)) and its Laplace covariance.
+        """The sampler's start: the mode in ``z`` of the basin of ``theta``, and its covariance.
+
+        ``theta`` (d + 2,) is the kept optimum of the marginal likelihood; the covariance is
+        the Laplace covariance at the mode.
 
         L-BFGS from ``theta`` on ``-log p(z)`` with its analytic gradient; the Hessian by
         central differences of that gradient, its eigenvalues floored at
@@ -251,9 +258,11 @@ class HyperparameterReport:
         return self.samples.std(axis=0)
 
     def _chains(self) -> tuple[np.ndarray, np.ndarray]:
-        """Log hyperparameters with walkers as chains (chains, S, p) and with ensembles
-        as chains (E, S * W, p), as :func:`~bayeshyst.inference.convergence.assess`
-        forms them."""
+        """Log hyperparameters with walkers as chains and with ensembles as chains.
+
+        Shapes (chains, S, p) and (E, S * W, p) respectively, as
+        :func:`~bayeshyst.inference.convergence.assess` forms them.
+        """
         ch = self.sampling.chains  # (E, S, W, p) of z
         e, s, w, p = ch.shape
         theta = self.target.theta(ch.reshape(-1, p)).reshape(e, s, w, p)
@@ -261,8 +270,10 @@ class HyperparameterReport:
 
     @property
     def rhat(self) -> np.ndarray:
-        """Rank-normalised split R-hat of each log hyperparameter, (d + 2,): the larger of
-        walkers-as-chains and ensembles-as-chains (the sampler's criterion)."""
+        """Rank-normalised split R-hat of each log hyperparameter, (d + 2,).
+
+        The larger of walkers-as-chains and ensembles-as-chains (the sampler's criterion).
+        """
         walkers, ensembles = self._chains()
         return np.array([max(rhat(walkers[:, :, i]), rhat(ensembles[:, :, i]))
                          for i in range(walkers.shape[2])])

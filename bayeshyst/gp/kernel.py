@@ -69,8 +69,10 @@ def blas_limit(m: int) -> Iterator[None]:
 
 
 def small_blas(method: Callable[..., Any]) -> Callable[..., Any]:
-    """Run a fitted estimator's method under :func:`blas_limit` of its training-set size
-    (``self._train["y"].size``; multi-threaded before a fit)."""
+    """Run a fitted estimator's method under :func:`blas_limit` of its training-set size.
+
+    The size is ``self._train["y"].size``; before a fit the method runs multi-threaded.
+    """
     @functools.wraps(method)
     def wrapper(self: Any, *args: Any, **kwargs: Any) -> Any:
         train = getattr(self, "_train", None)
@@ -82,9 +84,11 @@ def small_blas(method: Callable[..., Any]) -> Callable[..., Any]:
 
 def _kernel_parts(theta: np.ndarray, kind: str, a: np.ndarray,
                   b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Correlation ``k`` (without the amplitude) and ``-dk/d(r^2) * 2`` between scaled
-    inputs ``a`` (n, d) and ``b`` (m, d), for the gradient with respect to log
-    length-scales."""
+    """Correlation ``k`` (without the amplitude) and ``-dk/d(r^2) * 2`` of scaled inputs.
+
+    Both between scaled inputs ``a`` (n, d) and ``b`` (m, d); the second is for the
+    gradient with respect to log length-scales.
+    """
     sq = cdist(a, b, "sqeuclidean")
     if kind == "rbf":
         k = np.exp(-0.5 * sq)
@@ -150,8 +154,9 @@ def log_marginal_likelihood(theta: np.ndarray, kind: str, z: np.ndarray, y: np.n
 
 def make_kernel(kind: str, d: int, length_scale: float | np.ndarray, signal_variance: float,
                 noise_level: float):
-    """``ConstantKernel * RBF|Matern(nu=2.5) (ARD, d length-scales) + WhiteKernel`` with
-    the initial values given and :data:`BOUNDS`.
+    """The kernel ``ConstantKernel * RBF|Matern(nu=2.5) (ARD, d length-scales) + WhiteKernel``.
+
+    With the initial values given and :data:`BOUNDS`.
 
     Raises
     ------

@@ -222,9 +222,11 @@ class GPHysteresis(FreeRun, RegressorMixin, BaseEstimator):
     def _features(self, lay: dict, s: np.ndarray, y_ref: np.ndarray | None,
                   rows: np.ndarray | slice = slice(None),
                   raw: bool = False) -> tuple[np.ndarray, np.ndarray]:
-        """Features of ``rows`` (standardised unless ``raw``) and the output offset of
-        the target (``y_r1`` for the memory variants, else 0). ``y_ref[0]`` must hold
-        the anchor value."""
+        """Features of ``rows`` and the output offset of the target.
+
+        The features are standardised unless ``raw``; the offset is ``y_r1`` for the
+        memory variants, else 0. ``y_ref[0]`` must hold the anchor value.
+        """
         base = lay["base"][rows]
         if self.features == "rate":
             f, off = base, np.zeros(base.shape[0])
@@ -390,8 +392,10 @@ class GPHysteresis(FreeRun, RegressorMixin, BaseEstimator):
 
     def _free_run_ratio(self, state: Conditioned, recs: list[SignalRecord], lays: list[dict],
                         z_all: np.ndarray, y_all: np.ndarray) -> float:
-        """Free-run RMSE over the training candidates divided by the teacher-forced RMSE
-        over the same samples (both floored at :data:`_RMSE_FLOOR` standardised units).
+        """Free-run RMSE over the training candidates divided by the teacher-forced RMSE.
+
+        The teacher-forced RMSE is over the same samples; both are floored at
+        :data:`_RMSE_FLOOR` standardised units.
 
         The marginal likelihood is that of the teacher-forced regression: it never
         sees the model's own outputs fed back at the reversals, so a maximum can be an

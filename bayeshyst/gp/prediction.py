@@ -189,8 +189,10 @@ class FreeRun:
     def _per_unit(recs: list[SignalRecord], layout: Callable[[SignalRecord], dict],
                   block: Callable[[int, SignalRecord, dict, list], np.ndarray], method: str,
                   covariance: str) -> UnitLogDensity:
-        """Collect ``block(k, rec, layout, spans) -> (S, n_spans)`` over the records'
-        cycle units and mix the draws per unit."""
+        """Collect ``block(k, rec, layout, spans) -> (S, n_spans)`` and mix draws per unit.
+
+        ``block`` is collected over the records' cycle units.
+        """
         units, cols = [], []
         for k, rec in enumerate(recs):
             spans = cycle_units(rec.source)

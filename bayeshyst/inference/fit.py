@@ -200,7 +200,7 @@ def fit_model(
         As :class:`Posterior` (edited priors; observation offset on/off).
     """
     sampler = SamplerSettings() if sampler is None else sampler
-    post = Posterior(model, data, likelihood, space=space, offset=offset)
+    post = Posterior(data, model, likelihood, space=space, offset=offset)
     res = sample_posterior(post, sampler)
     overall, per, means = tracking_errors(post, res.draws(n_prediction_draws,
                                                           seed=sampler.seed))

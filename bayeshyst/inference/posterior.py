@@ -131,10 +131,11 @@ class Posterior:
 
     Parameters
     ----------
-    model : HysteresisModel or str
-        The forward model, or a model spec string (``"bouc_wen+second_order"``).
     data : Dataset or Record
         Measured records; each is simulated from its first sample.
+    model : HysteresisModel or str
+        The forward model, or a model spec string (``"bouc_wen+second_order"``). Data
+        first, then model, as in every verb (``fit``, ``compare``, ``diagnose``, ...).
     likelihood : Likelihood or str
         ``"gaussian"`` (default), ``"student_t"`` or ``"ar1"``.
     space : ParamSpace, optional
@@ -157,8 +158,8 @@ class Posterior:
 
     def __init__(
         self,
-        model: HysteresisModel | str,
         data: Dataset | Record,
+        model: HysteresisModel | str,
         likelihood: Likelihood | str = "gaussian",
         *,
         space: ParamSpace | None = None,
@@ -168,6 +169,11 @@ class Posterior:
         if not (np.isfinite(beta) and 0.0 <= beta <= 1.0):
             raise ParameterError(f"beta (likelihood power) must be in [0, 1], got {beta}")
         self.beta = float(beta)
+        if isinstance(model, Dataset | Record) and not isinstance(data, Dataset | Record):
+            # the order before 0.1: refused in words rather than swapped behind the
+            # caller's back
+            raise ParameterError("Posterior(data, model, ...): the data come first, then the "
+                                 f"model; got a {type(model).__name__} as the model")
         self.model = get_model(model) if isinstance(model, str) else model
         if isinstance(data, Record):
             data = Dataset((data,), name=data.name)

@@ -162,9 +162,13 @@ class Predictor(Protocol):
         """Prediction of every record of ``data`` (full length), from its inputs alone."""
 
     def log_density_units(self, data: Dataset | Record) -> UnitLogDensity:
-        """Log predictive density of each cycle of ``data`` given the fitted data
-        (``data`` held out, or the fitted data themselves: in-sample)."""
+        """Log predictive density of each cycle of ``data`` given the fitted data.
+
+        ``data`` is held out, or the fitted data themselves (in-sample).
+        """
 
     def loo_units(self, data: Dataset | Record) -> UnitLogDensity:
-        """Leave-one-cycle-out log predictive density of each cycle of the fitted
-        data (``data`` must be the data the model was fitted to)."""
+        """Leave-one-cycle-out log predictive density of each cycle of the fitted data.
+
+        ``data`` must be the data the model was fitted to.
+        """

@@ -201,8 +201,9 @@ class SamplingResult:
 
 
 def chunk_boundaries(first: int, max_steps: int) -> list[int]:
-    """Step counts at which convergence is assessed: ``first``, then growing by a quarter
-    (at least ``first // 2`` steps apart).
+    """Step counts at which convergence is assessed: ``first``, then growing by a quarter.
+
+    Consecutive checks are at least ``first // 2`` steps apart.
 
     A fixed function of the settings, so resumed runs stop where uninterrupted ones do.
     Checks a quarter apart waste at most a fifth of a run that converges between two
@@ -215,14 +216,18 @@ def chunk_boundaries(first: int, max_steps: int) -> list[int]:
 
 
 def adaptation_points(warmup: int) -> list[int]:
-    """Step counts at which the independence proposal is re-fitted: a quarter, half,
-    three quarters and all of the warm-up (none without one)."""
+    """Step counts at which the independence proposal is re-fitted during the warm-up.
+
+    A quarter, half, three quarters and all of the warm-up (none without one).
+    """
     return sorted({warmup * k // 4 for k in (1, 2, 3, 4)} - {0})
 
 
 def extension_points(warmup: int, max_steps: int) -> list[int]:
-    """Where a warm-up whose proposal still moves too few walkers may be extended:
-    twice, four, eight ... times the warm-up, up to half the budget."""
+    """Where a warm-up whose proposal still moves too few walkers may be extended.
+
+    Twice, four, eight ... times the warm-up, up to half the budget.
+    """
     out = []
     b = 2 * warmup
     while warmup > 0 and b <= max_steps // 2:
@@ -239,8 +244,10 @@ MIN_MOVE_RATE = 0.65
 
 
 def _move_rate(chain: np.ndarray, idx: np.ndarray) -> float:
-    """Fraction of consecutive walker-steps in ``chain`` (S, W, ndim) that changed the
-    coordinates ``idx``."""
+    """Fraction of consecutive walker-steps in ``chain`` that changed the coordinates ``idx``.
+
+    ``chain`` has shape (S, W, ndim).
+    """
     if chain.shape[0] < 2 or idx.size == 0:
         return 1.0
     return float(np.mean(np.any(np.diff(chain[:, :, idx], axis=0) != 0, axis=2)))
@@ -277,8 +284,11 @@ def _fingerprint(post: Posterior, settings: SamplerSettings, n_walkers: int,
 def _initial_positions(post: Posterior, start: MAPResult, initial: np.ndarray | None,
                        n_ens: int, n_walkers: int, rngs: list[np.random.Generator]
                        ) -> list[np.ndarray]:
-    """Each ensemble's starting walkers: the given ones (walkers without finite density
-    replaced by Laplace draws; resampled to the ensemble size), else Laplace draws."""
+    """Each ensemble's starting walkers: the given ones, else Laplace draws.
+
+    Of the given walkers, those without finite density are replaced by Laplace draws, and
+    the rest resampled to the ensemble size.
+    """
     out = []
     for e in range(n_ens):
         rng = rngs[e]
@@ -301,8 +311,10 @@ MAP_SLACK = 1.0
 
 
 def _best_draw(samplers: list, n_steps: int) -> tuple[float, np.ndarray]:
-    """The highest log density among the first ``n_steps`` steps of every ensemble, and
-    the walker position that reached it."""
+    """The highest log density among the first ``n_steps`` steps of every ensemble.
+
+    Returned with the walker position that reached it.
+    """
     best_lp, where = -math.inf, None
     for sampler, _ in samplers:
         lp = sampler.get_log_prob()[:n_steps]
@@ -315,9 +327,11 @@ def _best_draw(samplers: list, n_steps: int) -> tuple[float, np.ndarray]:
 
 def _missed_mode(report: ConvergenceReport, samplers: list, start: MAPResult
                  ) -> ConvergenceReport:
-    """Name the likely cause of a run that did not converge when walkers found higher
-    density than the MAP: the search missed the main mode, the chains started elsewhere
-    and are still migrating (or stuck between modes)."""
+    """Name the likely cause when a non-converged run's walkers found density above the MAP.
+
+    The cause: the search missed the main mode, the chains started elsewhere and are still
+    migrating (or stuck between modes).
+    """
     best, _ = _best_draw(samplers, report.n_steps)
     if not best > start.log_prob + MAP_SLACK:
         return report
@@ -351,9 +365,11 @@ def _write_run_meta(checkpoint: Any, fingerprint: dict[str, Any], start: MAPResu
 
 def _attempt_rngs(seed: int, n_ens: int, attempt: int,
                   seeds: list[np.random.SeedSequence]) -> list[np.random.Generator]:
-    """Each ensemble's generator for an attempt: the run's own streams first, then
-    streams fixed by (seed, attempt), so a resumed restart starts where the
-    uninterrupted one did."""
+    """Each ensemble's generator for an attempt.
+
+    The run's own streams first, then streams fixed by (seed, attempt), so a resumed
+    restart starts where the uninterrupted one did.
+    """
     if attempt == 0:
         return [np.random.default_rng(seeds[e]) for e in range(n_ens)]
     return [np.random.default_rng(s)
@@ -363,8 +379,10 @@ def _attempt_rngs(seed: int, n_ens: int, attempt: int,
 def _ensembles(post: Posterior, settings: SamplerSettings, target: StructuredTarget,
                start: MAPResult, initial: np.ndarray | None, n_walkers: int,
                rngs: list[np.random.Generator]) -> tuple[list, list, list]:
-    """The emcee samplers of one attempt (resumed from the checkpoint where it has steps),
-    their move statistics and independence moves."""
+    """The emcee samplers of one attempt, their move statistics and independence moves.
+
+    The samplers are resumed from the checkpoint where it has steps.
+    """
     ndim = post.ndim
     other = target.other_idx
     samplers, stats, indeps = [], [], []
@@ -406,9 +424,11 @@ def _ensembles(post: Posterior, settings: SamplerSettings, target: StructuredTar
 
 def _advance(samplers: list, indeps: list, other: np.ndarray, settings: SamplerSettings,
              start: MAPResult, bar: Any, *, can_restart: bool) -> _Advance:
-    """Run one attempt's ensembles chunk by chunk: adapt the proposal during warm-up,
-    assess convergence at the checks, and stop early when a walker shows the start was
-    not the mode (``can_restart``)."""
+    """Run one attempt's ensembles chunk by chunk.
+
+    Adapt the proposal during warm-up, assess convergence at the checks, and stop early
+    when a walker shows the start was not the mode (``can_restart``).
+    """
     ndim = start.z.size
     warmup = settings.warmup_steps if any(i is not None for i in indeps) else 0
     adapt_at = set(adaptation_points(warmup))

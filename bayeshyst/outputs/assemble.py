@@ -156,8 +156,9 @@ def study_output_figures(result: Any) -> dict[str, Any]:
 
 # ----------------------------------------------------------------------------- report
 def joint_tasks(result: ReportResult) -> list[Any]:
-    """The comparison's fits of each model to all frequencies jointly that saved a
-    posterior, in the comparison's order.
+    """The comparison's joint fits that saved a posterior, in the comparison's order.
+
+    A joint fit is one of a model to all frequencies jointly.
 
     Parameters
     ----------

@@ -1,5 +1,7 @@
-"""What ``bayeshyst compare`` writes: ``summary.json``, ``comparison.csv``,
-``comparison.txt`` and the figure ``compare.png``.
+"""What ``bayeshyst compare`` writes: the summary, the comparison table and its figure.
+
+The files are ``summary.json``, ``comparison.csv``, ``comparison.txt`` and the figure
+``compare.png``.
 
 The posteriors of the fits (``posteriors/<model>__<scope>_<frequency>.nc``) and their
 resumable sampler checkpoints (``checkpoints/``) are written by the fits themselves; the
@@ -93,8 +95,7 @@ def _csv_text(result: ComparisonResult) -> str:
 def write_comparison_outputs(result: ComparisonResult, out_dir: str | Path, *,
                              figures: Mapping[str, Any] | None = None,
                              data_path: str | None = None) -> dict[str, Any]:
-    """Write the comparison's files into ``out_dir`` (each atomically, ``summary.json``
-    last).
+    """Write the comparison's files into ``out_dir`` (each atomically, ``summary.json`` last).
 
     Parameters
     ----------

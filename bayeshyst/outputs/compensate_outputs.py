@@ -1,6 +1,8 @@
-"""What ``bayeshyst compensate`` writes: ``summary.json``, ``compensation.csv``,
-``compensation.txt``, ``curves.npz``, the figure ``compensate.png`` and, given the fit
-behind the design, its posterior ``posterior.nc``.
+"""What ``bayeshyst compensate`` writes: summary, tables, curves, figure and posterior.
+
+The files are ``summary.json``, ``compensation.csv``, ``compensation.txt``,
+``curves.npz``, the figure ``compensate.png`` and, given the fit behind the design, its
+posterior ``posterior.nc``.
 
 Every file is written atomically, and ``summary.json`` last: a run that fails half-way
 leaves no summary that claims outputs which do not exist. The resumable sampler
@@ -130,9 +132,10 @@ def write_compensation_outputs(result: CompensationResult, out_dir: str | Path, 
                                posterior: str | None = None,
                                figures: Mapping[str, Any] | None = None,
                                data_path: str | None = None) -> dict[str, Any]:
-    """Write the compensation's files into ``out_dir`` (each atomically, ``summary.json``
-    last): ``compensation.csv``, ``compensation.txt``, ``curves.npz``, ``posterior.nc``
-    when ``idata`` is given, the figures, ``summary.json``.
+    """Write the compensation's files into ``out_dir`` (each atomically, ``summary.json`` last).
+
+    The files: ``compensation.csv``, ``compensation.txt``, ``curves.npz``,
+    ``posterior.nc`` when ``idata`` is given, the figures, ``summary.json``.
 
     Parameters
     ----------
@@ -192,9 +195,11 @@ def write_compensation_outputs(result: CompensationResult, out_dir: str | Path, 
 
 
 def written_files(summary: dict[str, Any]) -> list[str]:
-    """The files :func:`write_compensation_outputs` wrote, from the summary it returned,
-    in the order written (``summary.json`` last); a posterior saved elsewhere is not
-    among them."""
+    """The files :func:`write_compensation_outputs` wrote, from the summary it returned.
+
+    In the order written (``summary.json`` last); a posterior saved elsewhere is not
+    among them.
+    """
     f = summary["files"]
     saved_here = f["posterior"] == "posterior.nc"
     return [f["table"], f["text"], f["curves"], *(["posterior.nc"] if saved_here else []),

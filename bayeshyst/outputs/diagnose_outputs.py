@@ -1,5 +1,6 @@
-"""What ``bayeshyst diagnose`` writes: the summary, the steps table, the posteriors of the
-base and final models, and the figures.
+"""What ``bayeshyst diagnose`` writes: the summary, the steps table, posteriors, figures.
+
+The posteriors are those of the base and final models.
 
 The writer only writes: the posteriors are the InferenceData each fit of the diagnosis
 carries (:attr:`DiagnosisFit.idata`, made when its leave-one-cycle-out elpd was
@@ -45,11 +46,13 @@ def _slug(name: str) -> str:
 
 
 def evidence_figures(result: DiagnosisResult) -> list[tuple[str, EffectTest]]:
-    """``(file name, test)`` of every evidence figure
-    :func:`~bayeshyst.outputs.assemble.diagnosis_figures` builds:
+    """``(file name, test)`` of every evidence figure of the diagnosis.
+
+    :func:`~bayeshyst.outputs.assemble.diagnosis_figures` builds these:
     ``evidence_<effect>.png`` for every effect tested on the base model's residual, and
     ``evidence_round<k>_<effect>.png`` for the test behind each step accepted in a later
-    round ``k``. Skipped tests have no evidence and no figure."""
+    round ``k``. Skipped tests have no evidence and no figure.
+    """
     out = [(f"evidence_{_slug(t.effect)}.png", t) for t in result.base.analysis.tests
            if t.skipped is None]
     for step in result.steps:

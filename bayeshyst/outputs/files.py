@@ -24,8 +24,10 @@ __all__ = ["atomic_path", "csv_cell", "json_text", "jsonable", "nonfinite_fields
 
 
 def csv_cell(value: Any) -> Any:
-    """A CSV cell: empty for None and non-finite numbers (no "nan" in tables), plain
-    ``bool``/``float`` for numpy scalars, anything else as is."""
+    """A CSV cell: empty for None and non-finite numbers (no "nan" in tables).
+
+    Plain ``bool``/``float`` for numpy scalars, anything else as is.
+    """
     if value is None:
         return ""
     if isinstance(value, bool | np.bool_):
@@ -68,8 +70,10 @@ def nonfinite_fields(obj: Any, prefix: str = "") -> list[str]:
 
 def write_rows_csv(path: str | Path, columns: Sequence[str],
                    rows: Iterable[Mapping[str, Any]]) -> Path:
-    """Write ``rows`` (dicts) under ``columns`` as CSV, atomically; missing keys, None
-    and non-finite numbers become empty cells (never "nan"). Returns the path."""
+    """Write ``rows`` (dicts) under ``columns`` as CSV, atomically; return the path.
+
+    Missing keys, None and non-finite numbers become empty cells (never "nan").
+    """
     buf = io.StringIO()
     writer = csv.writer(buf, lineterminator="\n")
     writer.writerow(columns)

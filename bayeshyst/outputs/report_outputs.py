@@ -1,5 +1,6 @@
-"""What ``bayeshyst report`` (and ``bayeshyst demo``) writes: one self-contained HTML
-report, ``summary.json`` and every posterior as netCDF.
+"""What ``bayeshyst report`` (and ``bayeshyst demo``) writes.
+
+One self-contained HTML report, ``summary.json`` and every posterior as netCDF.
 
 Layout of ``out``::
 
@@ -432,8 +433,11 @@ def _warnings(result: ReportResult, sel: dict[str, Any], dg: dict[str, Any] | No
 
 
 def _as_written(summary: dict[str, Any]) -> dict[str, Any]:
-    """A stage's summary as its ``summary.json`` holds it (plain types, ``null`` for
-    non-finite numbers): what the report's own summary and HTML are built from."""
+    """A stage's summary as its ``summary.json`` holds it.
+
+    Plain types, ``null`` for non-finite numbers: what the report's own summary and HTML
+    are built from.
+    """
     return json.loads(json_text(summary))
 
 

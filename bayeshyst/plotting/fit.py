@@ -1,5 +1,7 @@
-"""Figures in the data's own space: measured loops with the posterior's predictive band,
-residuals of the posterior-mean prediction, and the measured loops per frequency.
+"""Figures in the data's own space: loops with predictive bands, residuals, loops per frequency.
+
+Measured loops with the posterior's predictive band, residuals of the posterior-mean
+prediction, and the measured loops per frequency.
 
 Each ``*_figure`` function returns the Figure (drawn into the caller's empty figure when
 given one); each ``plot_*`` function builds it and writes it as PNG (atomically, see

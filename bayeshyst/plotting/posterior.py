@@ -1,5 +1,7 @@
-"""Figures in parameter space: traces with rank plots, and corner plots (of a sampling
-result, or of draws given as arrays, e.g. read from a saved netCDF).
+"""Figures in parameter space: traces with rank plots, and corner plots.
+
+Corner plots of a sampling result, or of draws given as arrays (e.g. read from a saved
+netCDF).
 
 Each ``*_figure`` function returns the Figure (drawn into the caller's empty figure when
 given one); each ``plot_*`` function builds it and writes it as PNG (atomically, see
@@ -226,8 +228,11 @@ def _limits(x: np.ndarray) -> tuple[float, float]:
 def _corner_grid(fig: Figure | None, x: np.ndarray, labels: list[str],
                  axis_labels: list[str], best: list[float] | None, prob: float,
                  bins: int) -> Figure:
-    """Corner plot of draws ``x`` (n, k): HDI-shaded histograms on the diagonal, 2-D
-    histograms with 50/90 % contours below it, ``best`` (if given) in red."""
+    """Corner plot of draws ``x`` (n, k).
+
+    HDI-shaded histograms on the diagonal, 2-D histograms with 50/90 % contours below it,
+    ``best`` (if given) in red.
+    """
     k = len(labels)
     fig = new_figure(fig, max(4.0, 2.1 * k), max(4.0, 2.1 * k) + 0.6)
     axes = fig.subplots(k, k, squeeze=False)

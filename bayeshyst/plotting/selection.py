@@ -1,6 +1,7 @@
-"""Figures of the analyses above one fit: model selection per frequency, feedforward
-compensation, and the residual diagnosis (residuals before and after, the evidence
-behind each effect's test).
+"""Figures of the analyses above one fit: model selection, compensation and diagnosis.
+
+Model selection per frequency, feedforward compensation, and the residual diagnosis
+(residuals before and after, the evidence behind each effect's test).
 
 Each ``*_figure`` function returns the Figure (drawn into the caller's empty figure, or
 for the one-panel evidence figure into the caller's axes, when given); each ``plot_*``
@@ -43,7 +44,7 @@ __all__ = ["COMPENSATION_MAX_ROWS", "compensation_figure", "diagnosis_residuals_
 
 # ------------------------------------------------------------------ model comparison
 def model_comparison_figure(result: Any, *, fig: Figure | None = None) -> Figure:
-    """elpd (relative to the best), tracking error and held-out elpd against frequency.
+    """Scores against frequency: elpd (relative to the best), tracking error, held-out elpd.
 
     Per-cycle values (elpd / number of cycles) make frequencies with different numbers
     of cycles comparable; fits that did not converge are marked with a red x and named

@@ -1,5 +1,6 @@
-"""Figures of a study (``bayeshyst study``): the best model per dataset and frequency,
-and the scores against frequency.
+"""Figures of a study (``bayeshyst study``): best models and scores.
+
+The best model per dataset and frequency, and the scores against frequency.
 
 Built like every figure of :mod:`bayeshyst.plotting` (object-oriented matplotlib on an
 Agg canvas, no pyplot). Each model keeps one colour in both figures
@@ -45,8 +46,9 @@ _FAILED_GREY = "0.82"
 
 # --------------------------------------------------------------------------- helpers
 def model_colors(models: Sequence[str]) -> dict[str, str]:
-    """One fixed colour per model, in the order given (tab10, tab20, then a sampled
-    continuous map for more than 20 models).
+    """One fixed colour per model, in the order given.
+
+    Colours from tab10, tab20, then a sampled continuous map for more than 20 models.
 
     Parameters
     ----------
@@ -71,8 +73,11 @@ def model_colors(models: Sequence[str]) -> dict[str, str]:
 
 
 def _plain(s: Any, limit: int = _LABEL_CHARS) -> str:
-    """A name as figure text: shortened, and with ``$`` escaped so that matplotlib never
-    reads it as mathtext (a dataset named ``$\\x$`` must not break the drawing)."""
+    r"""A name as figure text: shortened, and with ``$`` escaped.
+
+    The escape keeps matplotlib from ever reading it as mathtext (a dataset named
+    ``$\x$`` must not break the drawing).
+    """
     s = str(s)
     if len(s) > limit:
         s = s[: limit - 1] + "…"

@@ -149,7 +149,7 @@ def _shared_fits(data: Dataset, tasks: list[TaskSpec],
             if not is_parametric(model):  # a GP samples no posterior of records
                 continue
             train, _ = split_data(data, spec)
-            post = Posterior(model, train, settings.likelihood)
+            post = Posterior(train, model, settings.likelihood)
         except (DataError, ModelError, ParameterError, ValueError):
             continue
         out[spec] = fit_identity(post, settings.sampler)

@@ -116,17 +116,22 @@ class ParametricPredictor:
         return self.sampling.draws(self.n_draws, seed=self.seed)
 
     def _on(self, data: Dataset | Record) -> tuple[Posterior, np.ndarray]:
-        """The posterior's model on ``data`` (same model space and offset) and the draws
-        in its coordinates."""
+        """The posterior's model on ``data`` and the draws in its coordinates.
+
+        The model on ``data`` has the same model space and offset.
+        """
         post = self.posterior
-        test = Posterior(post.model, _dataset(data), post.likelihood, space=post.model_space,
+        test = Posterior(_dataset(data), post.model, post.likelihood, space=post.model_space,
                          offset=post.offset)
         return test, transfer_draws(post, test, self._draws())
 
     def predict_records(self, data: Dataset | Record) -> list[Prediction]:
-        """Mean and standard deviation over draws of the noise-free simulation of every
-        record (offset included; failed draws left out), and the noise's marginal
-        standard deviation (root mean of :func:`noise_variance` over the draws)."""
+        """Mean and sd over draws of every record's noise-free simulation, and the noise sd.
+
+        The simulation includes the offset, and failed draws are left out. The noise's
+        marginal standard deviation is the root mean of :func:`noise_variance` over the
+        draws.
+        """
         test, z = self._on(data)
         noise = float(np.sqrt(np.mean(noise_variance(test, z))))
         out = []
@@ -136,9 +141,11 @@ class ParametricPredictor:
         return out
 
     def log_density_units(self, data: Dataset | Record) -> UnitLogDensity:
-        """``log mean_s p(y_c | theta_s)`` of every cycle ``c`` of ``data``, each cycle's
-        samples taken jointly under the likelihood (the unit of the comparison's LOFO
-        score, :func:`bayeshyst.selection.tasks.heldout_log_density`)."""
+        """``log mean_s p(y_c | theta_s)`` of every cycle ``c`` of ``data``.
+
+        Each cycle's samples are taken jointly under the likelihood (the unit of the
+        comparison's LOFO score, :func:`bayeshyst.selection.tasks.heldout_log_density`).
+        """
         test, z = self._on(data)
         per_draw = test.log_likelihood_units(z)
         counts = np.array([u.stop - u.start for u in test.units])

@@ -126,17 +126,21 @@ def build_spec(spec: str, *, n_train: int = 1000,
 
 
 def is_parametric(model: object) -> bool:
-    """Whether a built model (:func:`build_spec`) is a parametric forward model -- one a
-    :class:`~bayeshyst.inference.posterior.Posterior` samples, with parameters to
-    diagnose and an inverse -- rather than a predictor fitted to data (the GP, a
-    :class:`~bayeshyst.inference.protocols.Predictor` only)."""
+    """Whether a built model (:func:`build_spec`) is a parametric forward model.
+
+    A parametric forward model is one a :class:`~bayeshyst.inference.posterior.Posterior`
+    samples, with parameters to diagnose and an inverse, rather than a predictor fitted
+    to data (the GP, a :class:`~bayeshyst.inference.protocols.Predictor` only).
+    """
     return isinstance(model, HysteresisModel)
 
 
 @dataclass(frozen=True)
 class TaskSpec:
-    """One fit: ``model`` on ``scope`` data; ``frequency_hz`` is the frequency fitted
-    (``"frequency"``) or held out (``"lofo"``), ``None`` for ``"joint"``.
+    """One fit: ``model`` on ``scope`` data.
+
+    ``frequency_hz`` is the frequency fitted (``"frequency"``) or held out (``"lofo"``),
+    ``None`` for ``"joint"``.
 
     ``group`` distinguishes "records of unknown frequency" (``frequency_hz`` None,
     ``group`` True) from "all records" (``group`` False).
@@ -159,8 +163,10 @@ class TaskSpec:
 
 
 def derived_seed(seed: int, key: str) -> int:
-    """A seed that depends only on the user's seed and a job's identity ``key`` (not on
-    the order or the process the job runs in): same seed, same numbers."""
+    """A seed that depends only on the user's seed and a job's identity ``key``.
+
+    Not on the order or the process the job runs in: same seed, same numbers.
+    """
     ss = np.random.SeedSequence([int(seed), zlib.crc32(key.encode())])
     return int(ss.generate_state(1)[0])
 
@@ -264,8 +270,10 @@ def _units_meta(data: Dataset) -> tuple[np.ndarray, tuple[str, ...]]:
 
 
 def fit_identity(post: Posterior, sampler: SamplerSettings) -> str:
-    """What a fit is, as 16 hex digits: model, likelihood, priors, offset, data values
-    (not file names), held-out cycles and the sampler settings but their seed.
+    """What a fit is, as 16 hex digits.
+
+    The digits hash the model, likelihood, priors, offset, data values (not file names),
+    held-out cycles and the sampler settings but their seed.
 
     Two commands that fit the same posterior with the same settings (the comparison's
     joint fit and the diagnosis' base fit of a report) get the same identity, hence the
@@ -285,8 +293,10 @@ def fit_identity(post: Posterior, sampler: SamplerSettings) -> str:
 
 def fit_sampler(post: Posterior, sampler: SamplerSettings, seed: int,
                 store: Path | None) -> SamplerSettings:
-    """The settings of one fit: its seed derived from ``seed`` and the fit's identity,
-    its checkpoint ``store/<identity>-<seed>.h5`` (none without a store).
+    """The settings of one fit: its own seed and its checkpoint.
+
+    The seed is derived from ``seed`` and the fit's identity; the checkpoint is
+    ``store/<identity>-<seed>.h5`` (none without a store).
 
     With emcee's own moves a user-given walker count is raised to ``2 ndim + 2`` (they
     need at least twice the dimension; an augmented model has more parameters), here
@@ -317,7 +327,7 @@ def heldout_log_density(post: Posterior, test: Dataset, z: np.ndarray
     Returns the pointwise values (n_cycles,), the test posterior (same model space and
     offset, the test records) and the draws in its coordinates.
     """
-    test_post = Posterior(post.model, test, post.likelihood, space=post.model_space,
+    test_post = Posterior(test, post.model, post.likelihood, space=post.model_space,
                           offset=post.offset)
     zt = transfer_draws(post, test_post, z)
     return _logmeanexp(test_post.log_likelihood_units(zt)), test_post, zt
@@ -401,7 +411,7 @@ def _run_parametric(data: Dataset, spec: TaskSpec, settings: CompareSettings, se
                     out_dir: Path | None) -> TaskResult:
     t0 = time.perf_counter()
     train, test = split_data(data, spec)
-    post = Posterior(spec.model, train, settings.likelihood)
+    post = Posterior(train, spec.model, settings.likelihood)
     sampler = fit_sampler(post, settings.sampler, seed,
                           None if out_dir is None else out_dir / "checkpoints")
     res = sample_posterior(post, sampler)
@@ -439,8 +449,9 @@ def _run_parametric(data: Dataset, spec: TaskSpec, settings: CompareSettings, se
 
 def _run_gp(gp: GPHysteresis, data: Dataset, spec: TaskSpec, settings: CompareSettings,
             seed: int) -> TaskResult:
-    """Fit the GP ``gp`` (unfitted, from :func:`build_spec`) to the task's data and score
-    it; with ``settings.gp_sampling`` its hyperparameters are sampled first (sampler
+    """Fit the GP ``gp`` (unfitted, from :func:`build_spec`) to the task's data and score it.
+
+    With ``settings.gp_sampling`` its hyperparameters are sampled first (sampler
     ``settings.sampler`` with the task's ``seed``), so the scores mix over their
     posterior.
 

@@ -104,8 +104,11 @@ def write_record(path: Path, record: dict[str, Any], task: StudyTask) -> None:
 
 
 def read_record(path: Path, task: StudyTask) -> dict[str, Any] | None:
-    """The stored record of ``task``, or None when there is none or it is not this
-    task's (unreadable, or written for other inputs: then the fit runs again)."""
+    """The stored record of ``task``, or None when there is none or it is not this task's.
+
+    A record is not this task's when it is unreadable or written for other inputs; then
+    the fit runs again.
+    """
     try:
         rec = json.loads(path.read_text(encoding="utf-8"))
     except (OSError, ValueError):

@@ -157,8 +157,11 @@ def plan_study(study: Study) -> tuple[list[PlannedData], list[StudyTask | dict[s
 @contextmanager
 def _dask_client(scheduler: str | None, n_workers: int | None,
                  client: Any) -> Iterator[tuple[Any, str]]:
-    """A ``distributed.Client``: the caller's, one connected to ``scheduler``, or one of
-    a new LocalCluster with ``n_workers`` single-threaded worker processes."""
+    """A ``distributed.Client``: the caller's, one connected to ``scheduler``, or a new one.
+
+    The new one is of a new LocalCluster with ``n_workers`` single-threaded worker
+    processes.
+    """
     if client is not None:
         yield client, f"the given client ({client.scheduler.address})"
         return
@@ -226,8 +229,11 @@ def _worker_stack() -> dict[str, str]:
 
 
 def _check_workers(client: Any, say: Callable[[str], None]) -> None:
-    """Refuse a cluster whose workers cannot import bayeshyst; warn when their versions
-    differ from the client's (the same seeds give the same numbers only on one stack)."""
+    """Refuse a cluster whose workers cannot import bayeshyst; warn when versions differ.
+
+    Warn when the workers' versions differ from the client's: the same seeds give the
+    same numbers only on one stack.
+    """
     if not client.scheduler_info().get("workers"):
         say("no workers connected yet: the fits wait until workers join")
         return
@@ -257,8 +263,7 @@ def run_study(
     progress: bool = True,
     on_result: Callable[[dict[str, Any], Any], None] | None = None,
 ) -> StudyResult:
-    """Run every fit of ``study`` that is not done yet, and gather the table and the
-    model selection across datasets.
+    """Run every pending fit of ``study``; gather the table and model selection across datasets.
 
     Each fit's posterior and record are stored under ``out_dir/fits/`` as it completes
     (what a rerun resumes from). The study's tables, figures and ``summary.json`` are
