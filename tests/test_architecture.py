@@ -29,7 +29,7 @@ LAYERS: tuple[tuple[str, ...], ...] = (
     ("errors", "files", "_version"),
     ("data",),
     ("params",),
-    ("models", "likelihoods"),
+    ("models", "likelihoods", "discrepancy"),
     ("inference",),
     ("diagnostics", "gp"),
     ("selection", "inverse"),

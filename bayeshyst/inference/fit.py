@@ -14,6 +14,15 @@ from typing import Any
 import numpy as np
 
 from bayeshyst.data.record import Dataset, Record
+from bayeshyst.discrepancy import Discrepancy
+from bayeshyst.inference.calibration import (
+    Calibration,
+    FrequencyBudget,
+    check_calibration,
+    uncertainty_budget,
+)
+from bayeshyst.inference.discrepancy_fit import DiscrepancyScales, attach_discrepancy
+from bayeshyst.inference.optimize import find_map
 from bayeshyst.inference.posterior import Posterior
 from bayeshyst.inference.sampling import SamplingResult, sample_posterior
 from bayeshyst.inference.settings import SamplerSettings
@@ -134,6 +143,13 @@ class FitResult:
         What the fitting code noticed (non-convergence, failed simulations, LOO notes).
     idata : arviz.InferenceData, optional
         The thinned posterior with its log-likelihood, when one was built.
+    discrepancy_scales : DiscrepancyScales, optional
+        The model discrepancy's fixed scales, when the fit has one.
+    calibration : Calibration, optional
+        The leave-cycles-out calibration check, when it was run.
+    budget : tuple of FrequencyBudget
+        The predictive variance split into noise, parameters and discrepancy, per
+        excitation frequency.
     """
 
     posterior: Posterior
@@ -144,6 +160,9 @@ class FitResult:
     pointwise_elpd: np.ndarray | None = field(default=None, repr=False)
     warnings: tuple[str, ...] = ()
     idata: Any = field(default=None, repr=False)
+    discrepancy_scales: DiscrepancyScales | None = field(default=None, repr=False)
+    calibration: Calibration | None = field(default=None, repr=False)
+    budget: tuple[FrequencyBudget, ...] = field(default=(), repr=False)
 
     @property
     def model(self) -> HysteresisModel:
@@ -168,6 +187,10 @@ class FitResult:
     def __str__(self) -> str:
         lines = [str(self.sampling), "tracking error of the posterior mean:", str(self.overall)]
         lines += [str(e) for e in self.per_frequency if e.frequency_hz is not None]
+        if self.budget:
+            lines += ["uncertainty budget of the predictive:", *[str(b) for b in self.budget]]
+        if self.calibration is not None:
+            lines.append(str(self.calibration))
         lines += [f"warning: {w}" for w in self.warnings]
         return "\n".join(lines)
 
@@ -181,6 +204,8 @@ def fit_model(
     n_prediction_draws: int = 200,
     space: ParamSpace | None = None,
     offset: bool | None = None,
+    discrepancy: str | Discrepancy | None = None,
+    calibration: bool = False,
 ) -> FitResult:
     """Posterior of ``model`` given ``data``, sampled to convergence (or the budget).
 
@@ -196,12 +221,27 @@ def fit_model(
         (default :class:`SamplerSettings`). Same seed, same result.
     n_prediction_draws : int
         Posterior draws averaged for the mean prediction and its errors.
-    space, offset
-        As :class:`Posterior` (edited priors; observation offset on/off).
+    space, offset, discrepancy
+        As :class:`Posterior` (edited priors; observation offset on/off; a model
+        discrepancy ``"gp"`` or none).
+    calibration : bool
+        Run the leave-cycles-out calibration check
+        (:func:`~bayeshyst.inference.calibration.check_calibration`: one more posterior
+        run without the last cycle of every record). The CLI always does.
     """
     sampler = SamplerSettings() if sampler is None else sampler
     post = Posterior(data, model, likelihood, space=space, offset=offset)
+    scales = None
+    if discrepancy is not None and discrepancy != "none":
+        # anchored at the MAP without it, its scales by type-II MAP, then fixed
+        start = find_map(post, seed=np.random.default_rng(sampler.seed))
+        post, scales = attach_discrepancy(post, start, discrepancy)
     res = sample_posterior(post, sampler)
-    overall, per, means = tracking_errors(post, res.draws(n_prediction_draws,
-                                                          seed=sampler.seed))
-    return FitResult(post, res, overall, per, means)
+    z = res.draws(n_prediction_draws, seed=sampler.seed)
+    overall, per, means = tracking_errors(post, z)
+    budget = uncertainty_budget(post, z)
+    check = (check_calibration(post, res.draws(4 * n_prediction_draws, seed=sampler.seed),
+                               sampler) if calibration else None)
+    return FitResult(post, res, overall, per, means,
+                     warnings=() if check is None else check.warnings,
+                     discrepancy_scales=scales, calibration=check, budget=tuple(budget))

@@ -37,6 +37,7 @@ from typing import Any
 import numpy as np
 from scipy import special
 
+from bayeshyst.discrepancy import DISC
 from bayeshyst.inference.posterior import NOISE, OBS, Posterior
 from bayeshyst.models.base import LinearDesign
 from bayeshyst.params import Identity, Normal
@@ -209,7 +210,11 @@ class LinearStructure:
         self.model_names = tuple(n for n in model_lin if n in free)
         offset = f"{OBS}.offset"
         self.has_offset = post.offset and offset in free
-        names = self.model_names + ((offset,) if self.has_offset else ())
+        xi = f"{DISC}.xi"
+        #: the discrepancy's basis columns join the block (last) when its xi is free
+        self.has_basis = post.discrepancy is not None and xi in free
+        names = (self.model_names + ((offset,) if self.has_offset else ())
+                 + ((xi,) if self.has_basis else ()))
         if not names:
             raise ValueError(f"{post!r} has no free linear parameter")
         if self.model_names and not hasattr(model, "linear_design"):
@@ -223,10 +228,13 @@ class LinearStructure:
         #: coordinates the moves propose (everything but the linear block)
         self.other_idx = np.flatnonzero(mask)
         noise_free = {n for n in space.names if n.startswith(NOISE + ".")}
-        #: coordinates the design depends on (the model's free nonlinear parameters)
+        #: coordinates the design depends on (the model's free nonlinear parameters); the
+        #: discrepancy's amplitudes and lengths only scale its fixed basis columns, so they
+        #: rescale cached Grams instead of asking for a new simulation
         self.design_idx = np.array([i for i in self.other_idx
-                                    if not _owner(space, i).startswith((NOISE + ".",))
+                                    if not _owner(space, i).startswith((NOISE + ".", DISC + "."))
                                     and _owner(space, i) != offset], dtype=int)
+        self.m_basis = post.discrepancy.size if self.has_basis else 0
         self.sigma_name = f"{NOISE}.sigma"
         self.phi_name = f"{NOISE}.phi"
         self.sigma_free = self.sigma_name in noise_free
@@ -250,8 +258,11 @@ class LinearStructure:
         #: whether the conditional Gaussian is the exact conditional posterior
         self.exact = exact
         self.p = self.m0.size
+        #: columns of the simulated design (model, offset); the basis follows them
+        self.p_design = self.p - self.m_basis
         self.lagged = kind == "ar1"
         self._records = post._records
+        self._basis_grams: dict[tuple, np.ndarray] = {}
         self._composite_base = None
         self._constant: LinearStats | None = None
         self._cache: OrderedDict[bytes, tuple] = OrderedDict()
@@ -278,6 +289,9 @@ class LinearStructure:
         """Centre the Grams at the linear coordinates of ``z`` (ndim,) (clears caches)."""
         beta = self.beta_of(np.asarray(z, dtype=float)[None, :])[0]
         if np.all(np.isfinite(beta)):
+            # the basis coefficients stay referenced at 0 (their prior mean): the
+            # reference residual must not depend on the basis' scales
+            beta[self.p_design:] = 0.0
             self.beta_ref = beta
         self._cache.clear()
         self._constant = None
@@ -292,6 +306,8 @@ class LinearStructure:
         if self.design_idx.size == 0:
             return True
         z = self.post.space.sample_prior(np.random.default_rng(0), 2)
+        if self.p_design == 0:
+            return True
         rows, _ = self.designs(z)
         return all(phi.shape[0] == 1 for phi, _ in rows)
 
@@ -397,10 +413,11 @@ class LinearStructure:
         # einsum without BLAS: every walker's residual is summed in the same order
         # whatever the batch, so cached and recomputed Grams agree to the bit
         with np.errstate(invalid="ignore", over="ignore"):
+            ref = self.beta_ref[:self.p_design]
             if self._shared_design:  # one product for every walker
-                return (rec["y"] - np.einsum("np,p->n", phi[0], self.beta_ref,
+                return (rec["y"] - np.einsum("np,p->n", phi[0], ref,
                                              optimize=False))[None, :] - const
-            fit = np.einsum("wnp,p->wn", phi, self.beta_ref, optimize=False)
+            fit = np.einsum("wnp,p->wn", phi, ref, optimize=False)
             return rec["y"][None, :] - const - fit
 
     def _compute(self, z: np.ndarray) -> LinearStats:
@@ -416,11 +433,13 @@ class LinearStructure:
         cross = np.zeros((w, q, q)) if self.lagged else None
         prev = np.zeros((w, q, q)) if self.lagged else None
         n = n_first = 0
-        for rec, (phi, const) in zip(self._records, rows, strict=True):
+        for i, (rec, (phi, const)) in enumerate(zip(self._records, rows, strict=True)):
             r = self._reference_residual(rec, phi, const)
             failed |= ~np.all(np.isfinite(r), axis=1)
             keep = rec["keep"] if rec["keep"] is not None else np.ones(r.shape[1], dtype=bool)
-            if self._shared_design and np.all(np.isfinite(phi)):
+            if self.has_basis:
+                f, l0, c, pv = self._grams_with_basis(i, phi, r, keep)
+            elif self._shared_design and np.all(np.isfinite(phi)):
                 f, l0, c, pv = _grams_shared(phi[0], r, keep, self.lagged)
             else:
                 f, l0, c, pv = _grams(_stacked(np.broadcast_to(phi, (w, *phi.shape[1:])), r),
@@ -461,7 +480,13 @@ class LinearStructure:
             # Grams from the same designs (no second simulation): the projected beta
             beta = self.conditional(self._stats_of(rows, failed.copy()), z).mean
         res_parts, des_parts = [], []
+        scale = self.column_scale(z) if self.has_basis else None
         for rec, (phi, const) in zip(self._records, rows, strict=True):
+            if scale is not None:  # the scaled basis columns complete the design
+                basis = rec["basis"][rec["s0"]:]
+                phi = np.concatenate([np.broadcast_to(phi, (z.shape[0], *phi.shape[1:])),
+                                      basis[None, :, :] * scale[:, None, self.p_design:]],
+                                     axis=2)
             with np.errstate(invalid="ignore", over="ignore"):
                 e = rec["y"][None, :] - const - np.einsum("wnp,wp->wn", np.broadcast_to(
                     phi, (z.shape[0], *phi.shape[1:])), beta)
@@ -490,7 +515,7 @@ class LinearStructure:
             if self._constant is None:
                 self._constant = self._compute(z[:1])
             idx = np.zeros(z.shape[0], dtype=int)
-            return self._constant.take(idx)
+            return self._scaled(self._constant.take(idx), z)
         keys = [z[j, self.design_idx].tobytes() for j in range(z.shape[0])]
         todo = [j for j, k in enumerate(keys) if k not in self._cache]
         # one entry per distinct key (DE proposals can repeat a point)
@@ -514,11 +539,90 @@ class LinearStructure:
             self._cache.move_to_end(k)
         while len(self._cache) > _CACHE_SIZE:
             self._cache.popitem(last=False)
-        return LinearStats(
+        return self._scaled(LinearStats(
             np.stack([e[0] for e in entries]), np.stack([e[1] for e in entries]),
             None if not self.lagged else np.stack([e[2] for e in entries]),
             None if not self.lagged else np.stack([e[3] for e in entries]),
-            entries[0][5], entries[0][6], np.array([e[4] for e in entries]))
+            entries[0][5], entries[0][6], np.array([e[4] for e in entries])), z)
+
+    # ------------------------------------------------------------------ discrepancy basis
+    def column_scale(self, z: np.ndarray) -> np.ndarray:
+        """Scale of every linear column (W, P): 1, and the basis' spectral scales."""
+        out = np.ones((z.shape[0], self.p))
+        if self.has_basis:
+            space = self.post.space
+            theta = {}
+            for name in self.post._disc_names:
+                short = name[len(DISC) + 1:]
+                if short == "xi":
+                    continue
+                if name in space.fixed:
+                    theta[short] = np.full(z.shape[0], float(space.fixed[name]))
+                else:
+                    with np.errstate(over="ignore"):
+                        theta[short] = space[name].transform.inverse(
+                            z[:, space.slice_of(name).start])
+            out[:, self.p_design:] = self.post.discrepancy.column_scale(theta)
+        return out
+
+    def _scaled(self, st: LinearStats, z: np.ndarray) -> LinearStats:
+        """Grams of the unscaled basis turned into those of the scaled one."""
+        if not self.has_basis:
+            return st
+        s = np.concatenate([self.column_scale(z), np.ones((z.shape[0], 1))], axis=1)
+        bad = ~np.all(np.isfinite(s), axis=1)
+        s = np.where(bad[:, None], 1.0, s)
+        outer = s[:, :, None] * s[:, None, :]
+        return LinearStats(st.first * outer, st.lag0 * outer,
+                           None if st.cross is None else st.cross * outer,
+                           None if st.prev is None else st.prev * outer,
+                           st.n, st.n_first, st.failed | bad)
+
+    def _basis_gram(self, rec_index: int, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        """``B[a]^T B[b]`` (m, m) of one record's basis rows ``a``, ``b``, cached."""
+        key = (rec_index, a.tobytes(), b.tobytes())
+        if key not in self._basis_grams:
+            basis = self._records[rec_index]["basis"][self._records[rec_index]["s0"]:]
+            self._basis_grams[key] = basis[a].T @ basis[b]
+        return self._basis_grams[key]
+
+    def _grams_with_basis(self, rec_index: int, phi: np.ndarray, r: np.ndarray,
+                          keep: np.ndarray) -> tuple[np.ndarray, np.ndarray,
+                                                     np.ndarray | None, np.ndarray | None]:
+        """:func:`_grams` of ``[phi, B, r]`` with the basis ``B`` unscaled (W, Q, Q).
+
+        The basis is the same for every walker: its own products are computed once per
+        record and sample set, its products with the walkers' columns one product per
+        walker (values independent of the batch, as in :func:`_grams_shared`).
+        """
+        w = r.shape[0]
+        basis = self._records[rec_index]["basis"][self._records[rec_index]["s0"]:]
+        pd = self.p_design
+        q = self.p + 1
+        phi = np.broadcast_to(phi, (w, *phi.shape[1:]))
+        x = _stacked(phi, r)  # (W, N, pd + 1): the walkers' own columns
+        ix = np.r_[np.arange(pd), self.p]
+        ib = np.arange(pd, self.p)
+
+        def gram(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+            out = np.empty((w, q, q))
+            xa, xb = x[:, a], x[:, b]
+            out[:, ix[:, None], ix[None, :]] = xa.transpose(0, 2, 1) @ xb
+            ba, bb = basis[a], basis[b]
+            out[:, ib[:, None], ix[None, :]] = np.stack([ba.T @ xb[j] for j in range(w)])
+            out[:, ix[:, None], ib[None, :]] = np.stack([xa[j].T @ bb for j in range(w)])
+            out[:, ib[:, None], ib[None, :]] = self._basis_gram(rec_index, a, b)[None]
+            return out
+
+        first = gram(np.array([0]), np.array([0])) if keep[0] else np.zeros((w, q, q))
+        idx = np.flatnonzero(keep[1:]) + 1
+        if idx.size == 0:
+            zero = np.zeros((w, q, q))
+            return first, zero, (zero if self.lagged else None), (zero if self.lagged else None)
+        lag0 = gram(idx, idx)
+        if not self.lagged:
+            return first, lag0, None, None
+        return first, lag0, gram(idx, idx - 1), gram(idx - 1, idx - 1)
 
     def held_out_log_predictive(self, z: np.ndarray, *, chunk: int = 64) -> np.ndarray:
         """Held-out ``log p(y_c | y_-c, z_n)`` of every cycle ``c``, shape (W, n_units).
@@ -547,6 +651,16 @@ class LinearStructure:
         return out
 
     def _held_out_chunk(self, z: np.ndarray, n_units: int) -> np.ndarray:
+        return self.held_out_from_units(self.unit_grams(z, n_units), z)
+
+    def unit_grams(self, z: np.ndarray, n_units: int | None = None) -> tuple:
+        """Per-cycle Grams (unscaled basis) of the walkers ``z``: what the held-out terms need.
+
+        They depend on ``z`` only through the design (the model's coordinates), so a
+        search over the noise or the discrepancy's scales computes them once and calls
+        :meth:`held_out_from_units` for each candidate.
+        """
+        n_units = self.post.n_units if n_units is None else n_units
         w, q = z.shape[0], self.p + 1
         shape = (n_units, w, q, q)
         first, lag0 = np.zeros(shape), np.zeros(shape)
@@ -555,10 +669,11 @@ class LinearStructure:
         n_unit = np.zeros(n_units, dtype=int)
         n_first = np.zeros(n_units, dtype=int)
         rows, failed = self.designs(z)
-        for rec, (phi, const) in zip(self._records, rows, strict=True):
+        for i, (rec, (phi, const)) in enumerate(zip(self._records, rows, strict=True)):
             r = self._reference_residual(rec, phi, const)
             failed |= ~np.all(np.isfinite(r), axis=1)
-            x = _stacked(np.broadcast_to(phi, (w, *phi.shape[1:])), r)
+            x = (None if self.has_basis else
+                 _stacked(np.broadcast_to(phi, (w, *phi.shape[1:])), r))
             keep = rec["keep"] if rec["keep"] is not None else np.ones(r.shape[1], dtype=bool)
             bounds = [*rec["unit_starts"], r.shape[1]]
             for j in range(len(bounds) - 1):
@@ -568,12 +683,26 @@ class LinearStructure:
                 mask &= keep
                 if not mask.any():
                     continue
-                f, l0, c, pv = _grams(x, mask, self.lagged)
+                f, l0, c, pv = (self._grams_with_basis(i, phi, r, mask) if x is None
+                                else _grams(x, mask, self.lagged))
                 first[u], lag0[u] = f, l0
                 if self.lagged:
                     cross[u], prev[u] = c, pv
                 n_unit[u] = int(np.count_nonzero(mask))
                 n_first[u] = int(mask[0])
+        return first, lag0, cross, prev, n_unit, n_first, failed
+
+    def held_out_from_units(self, grams: tuple, z: np.ndarray) -> np.ndarray:
+        """Held-out ``log p(y_c | y_-c, z_n)`` (W, n_units) from :meth:`unit_grams`."""
+        first, lag0, cross, prev, n_unit, n_first, failed = grams
+        w, q, n_units = z.shape[0], self.p + 1, n_unit.size
+        if self.has_basis:  # the unit Grams are linear in the scaled columns
+            outer = self._scaled(LinearStats(np.ones((w, q, q)), np.ones((w, q, q)), None, None,
+                                             0, 0, failed), z)
+            failed = outer.failed
+            first, lag0 = first * outer.first[None], lag0 * outer.first[None]
+            if self.lagged:
+                cross, prev = cross * outer.first[None], prev * outer.first[None]
         tot = LinearStats(first.sum(axis=0), lag0.sum(axis=0),
                           cross.sum(axis=0) if self.lagged else None,
                           prev.sum(axis=0) if self.lagged else None,

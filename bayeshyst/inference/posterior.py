@@ -21,6 +21,7 @@ import numpy as np
 
 from bayeshyst.data.record import Dataset, Record
 from bayeshyst.data.segment import cycle_labels
+from bayeshyst.discrepancy import DISC, Discrepancy, make_discrepancy
 from bayeshyst.errors import DataError, ParameterError, SimulationError
 from bayeshyst.likelihoods import Likelihood, get_likelihood
 from bayeshyst.models import get as get_model
@@ -148,12 +149,16 @@ class Posterior:
     beta : float
         Power of the likelihood, ``p(z) L(z)^beta``: 1 is the posterior, 0 the prior
         alone (no simulation is run), values between temper it.
+    discrepancy : {"none", "gp"} or Discrepancy, optional
+        A model-discrepancy term ``delta`` added to the model output
+        (:mod:`bayeshyst.discrepancy`): ``"gp"`` builds the reduced-rank GP over the
+        loop's coordinates for this data; None or ``"none"``: no discrepancy.
 
     Notes
     -----
     Parameter names: the model's (``k``, ``alpha``; ``static.w`` for compositions),
-    ``obs.offset`` and ``noise.<name>``. The object is picklable (for process pools);
-    its evaluation counters are per process.
+    ``obs.offset``, ``disc.<name>`` and ``noise.<name>``. The object is picklable (for
+    process pools); its evaluation counters are per process.
     """
 
     def __init__(
@@ -165,6 +170,7 @@ class Posterior:
         space: ParamSpace | None = None,
         offset: bool | None = None,
         beta: float = 1.0,
+        discrepancy: str | Discrepancy | None = None,
     ) -> None:
         if not (np.isfinite(beta) and 0.0 <= beta <= 1.0):
             raise ParameterError(f"beta (likelihood power) must be in [0, 1], got {beta}")
@@ -191,9 +197,13 @@ class Posterior:
             parts.append(ParamSpace((Param(
                 "offset", Normal(centre, sd), unit=data[0].units.get("y", ""),
                 description="observation offset added to the model output"),)).prefixed(OBS))
+        self.discrepancy = make_discrepancy(discrepancy, data)
+        if self.discrepancy is not None:
+            parts.append(self.discrepancy.param_space().prefixed(DISC))
         parts.append(self.likelihood.param_space(data).prefixed(NOISE))
         self.space = ParamSpace.concat(parts)
         self._model_names = self.model_space.all_names
+        self._disc_names = tuple(n for n in self.space.all_names if n.startswith(DISC + "."))
         self._noise_names = tuple(n for n in self.space.all_names if n.startswith(NOISE + "."))
         self.units: list[Unit] = []
         self._records = []
@@ -207,7 +217,10 @@ class Posterior:
                 "u": np.ascontiguousarray(rec.u), "t": np.ascontiguousarray(rec.t),
                 "y": np.ascontiguousarray(rec.y[s0:]), "s0": s0,
                 "unit_starts": np.array([a - s0 for a, _ in spans]), "unit_first": first,
-                "keep": None,
+                "keep": None, "frequency_hz": rec.frequency_hz,
+                # the discrepancy's basis over the whole record (N, m), fixed by the data
+                "basis": (None if self.discrepancy is None else np.ascontiguousarray(
+                    self.discrepancy.basis(rec.u, rec.t, rec.frequency_hz))),
             })
         self.held_out: tuple[int, ...] = ()
         self._n_evals = 0
@@ -319,6 +332,8 @@ class Posterior:
         temper = "" if self.beta == 1.0 else f", beta={self.beta}"
         if self.held_out:
             temper += f", held_out={list(self.held_out)}"
+        if self.discrepancy is not None:
+            temper += ", discrepancy='gp'"
         return (f"Posterior(model={self.model.name!r}, likelihood={self.likelihood.name!r}, "
                 f"records={len(self.data)}, ndim={self.ndim}{temper})")
 
@@ -328,6 +343,23 @@ class Posterior:
         noise = {k[len(NOISE) + 1:]: theta[k] for k in self._noise_names}
         off = theta.get(f"{OBS}.offset", 0.0) if self.offset else 0.0
         return model_theta, noise, off
+
+    def discrepancy_coefficients(self, z: np.ndarray) -> np.ndarray | None:
+        """Basis coefficients ``s * xi`` (W, m) of ``W`` points, None without a discrepancy."""
+        if self.discrepancy is None:
+            return None
+        z = np.atleast_2d(np.asarray(z, dtype=float))
+        theta = self.space.unpack(z)
+        return self.discrepancy.coefficients(
+            {k[len(DISC) + 1:]: np.broadcast_to(np.asarray(theta[k], float),
+                                                (z.shape[0], *np.shape(theta[k])[1:]))
+             for k in self._disc_names})
+
+    def _delta(self, rec: dict, coef: np.ndarray | None) -> np.ndarray | float:
+        # delta over the whole record (W, N); 0 without a discrepancy
+        if coef is None:
+            return 0.0
+        return coef @ rec["basis"].T
 
     def _pointwise(self, z: np.ndarray,
                    inside: np.ndarray) -> tuple[list[np.ndarray], np.ndarray]:
@@ -345,9 +377,12 @@ class Posterior:
         out = []
         off = np.asarray(off, dtype=float).reshape(-1, 1) if self.offset else 0.0
         noise = {k: np.asarray(v, dtype=float) for k, v in noise.items()}
+        coef = self.discrepancy_coefficients(zi)
         for rec in self._records:
             traj = self.model.run_batch(rec["u"], rec["t"], model_theta)
             yhat = traj.y[:, rec["s0"]:] + off
+            if coef is not None:
+                yhat = yhat + self._delta(rec, coef)[:, rec["s0"]:]
             with np.errstate(invalid="ignore", over="ignore"):
                 pw = self.likelihood.pointwise(rec["y"] - yhat, noise)
             failed |= traj.failed | ~np.all(np.isfinite(pw), axis=1)
@@ -429,8 +464,15 @@ class Posterior:
         return theta, np.broadcast_to(np.asarray(off, dtype=float).ravel(),
                                       (z.shape[0],)).copy()
 
-    def predict(self, z: np.ndarray) -> list[np.ndarray]:
+    def predict(self, z: np.ndarray, *, discrepancy: bool = True) -> list[np.ndarray]:
         """Noise-free predictions (offset included) for ``W`` points, per record.
+
+        Parameters
+        ----------
+        z : ndarray, shape (W, ndim)
+        discrepancy : bool
+            Include the discrepancy ``delta`` (the statistical model's mean); False gives
+            the physical model alone.
 
         Returns
         -------
@@ -440,5 +482,13 @@ class Posterior:
         z = np.atleast_2d(np.asarray(z, dtype=float))
         model_theta, _, off = self._split_theta(self.space.unpack(z))
         off = np.asarray(off, dtype=float).reshape(-1, 1) if self.offset else 0.0
-        return [self.model.run_batch(r["u"], r["t"], model_theta).y + off
+        coef = self.discrepancy_coefficients(z) if discrepancy else None
+        return [self.model.run_batch(r["u"], r["t"], model_theta).y + off + self._delta(r, coef)
                 for r in self._records]
+
+    def discrepancy_draws(self, z: np.ndarray) -> list[np.ndarray] | None:
+        """The discrepancy ``delta`` (W, N_record) per record, None without one."""
+        coef = self.discrepancy_coefficients(z)
+        if coef is None:
+            return None
+        return [np.asarray(self._delta(r, coef)) for r in self._records]

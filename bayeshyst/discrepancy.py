@@ -1,0 +1,372 @@
+"""Model discrepancy: a reduced-rank Gaussian process over the loop's own coordinates.
+
+The statistical model becomes ``y = f(u; theta) + delta(x) + eps`` (Kennedy & O'Hagan
+2001): ``f`` is the hysteresis model, ``eps`` the sensor noise, and ``delta`` what the
+model family cannot represent, as a smooth function of where on the loop a sample is,
+
+``x = (u_n, b, rho)``:
+
+* ``u_n`` -- the input scaled to ``[-1, 1]`` over the training data's range;
+* ``b = d tanh(|u - u_r| / (u_half / 2))`` -- the direction of travel ``d`` (+1 up,
+  -1 down, the last move's sign during holds) times how far the input has travelled
+  since its last reversal ``u_r``: 0 at a reversal, so ``delta`` is continuous where
+  a branch starts (a bare ``d`` would put a step of ``2 delta_b`` there), and
+  saturating at 1 a quarter of the range later. It is the position on the branch.
+  Where a branch *ends* (the next reversal is not known causally) ``b`` is still near
+  ``+-1``: continuity there is left to the data, which pull ``delta_b`` to zero at the
+  loop's tips where the branches meet;
+* ``rho`` -- the record's excitation frequency, ``log10 f`` scaled to ``[-1, 1]`` over
+  the training frequencies (the loop's rate); 0 and unused with one frequency.
+
+``delta(x) = delta_c(u_n, rho) + b delta_b(u_n, rho)`` with two independent zero-mean
+squared-exponential GPs (amplitudes ``amplitude`` and ``branch_amplitude``, shared
+length-scales ``length`` in ``u_n`` and ``rate_length`` in ``rho``): a common shape
+error (asymmetry, saturation) and a loop-width error that vanishes at reversals.
+
+**Reduced rank** (Solin & Särkkä 2020, Hilbert-space approximation): on ``[-L, L]``
+the SE kernel is ``k(x, x') ~ sum_j S(sqrt(lambda_j)) phi_j(x) phi_j(x')`` with
+``phi_j(x) = L^-1/2 sin(pi j (x + L) / 2L)``, ``lambda_j = (pi j / 2L)^2`` and the
+spectral density ``S(w) = sqrt(2 pi) l exp(-l^2 w^2 / 2)`` (times the squared
+amplitude); products of these in ``u_n`` and ``rho``. So
+``delta = B(x) (s(amplitudes, lengths) * xi)`` with a fixed basis ``B`` (N, m),
+column scales ``s`` and **standardised coefficients** ``xi ~ N(0, I)``: the
+coefficients are a linear block with a Gaussian prior (sampled exactly by the
+posterior's linear-block move, cost O(N m)), the amplitudes and lengths are ordinary
+nonlinear parameters. ``L = 2.5`` (the data span ``[-1, 1]``; a closer boundary
+depresses the variance near the data's ends, tested) and ``m_u = 16`` basis functions
+hold the approximation for ``length >= 1.75 L / m_u = 0.27`` (Riutort-Mayol et al.
+2023), where the length prior puts 94 % of its mass.
+
+**Confounding with theta.** ``delta`` can mimic the model's parameters; two things keep
+``theta`` meaning what it says. (1) Orthogonality to the model's sensitivities
+(Plumlee 2017, in its linearised form): the basis is projected, over the training
+samples, off the span of ``[1, u_n]`` and of ``d f / d theta`` at a reference point
+(:class:`Anchor`, the MAP of the model without discrepancy), so whatever the model can
+explain by moving ``theta`` stays with ``theta`` and ``delta`` keeps only what no
+parameter change reaches; the same projection is applied wherever the basis is
+evaluated (a feedforward command). (2) Priors that keep ``delta`` small and smooth:
+half-normal amplitudes of scale 5 % of the output span and length-scales of median
+half the input range.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from bayeshyst.errors import ParameterError
+from bayeshyst.params import HalfNormal, LogNormal, Normal, Param, ParamSpace
+
+__all__ = ["DISC", "DISCREPANCY_KINDS", "Anchor", "Discrepancy", "make_discrepancy"]
+
+#: Prefix of the discrepancy's parameters in a posterior's space.
+DISC = "disc"
+#: What ``--discrepancy`` accepts.
+DISCREPANCY_KINDS = ("none", "gp")
+#: Half-width of the basis domain over data scaled to [-1, 1].
+_L = 2.5
+#: Amplitude prior scale, as a fraction of the output span.
+_AMPLITUDE_SHARE = 0.05
+
+
+def _sine_basis(x: np.ndarray, m: int) -> tuple[np.ndarray, np.ndarray]:
+    """Eigenfunctions (N, m) of the Laplacian on [-L, L] and their sqrt-eigenvalues (m,)."""
+    j = np.arange(1, m + 1)
+    w = math.pi * j / (2.0 * _L)
+    return np.sin(w[None, :] * (np.asarray(x, float)[:, None] + _L)) / math.sqrt(_L), w
+
+
+def _log_spectral(w: np.ndarray, length: np.ndarray) -> np.ndarray:
+    """Log S(w) of the unit-variance 1-D SE kernel, (W, m) for lengths (W,)."""
+    ell = np.asarray(length, float)[:, None]
+    return 0.5 * math.log(2.0 * math.pi) + np.log(ell) - 0.5 * (ell * w[None, :]) ** 2
+
+
+def branch_coordinate(u: np.ndarray, half: float) -> np.ndarray:
+    """``b = d tanh(|u - u_r| / (half / 2))`` (N,): direction times travel since the reversal.
+
+    ``d`` is the sign of the last move larger than 1e-9 of ``half`` (+1 before the
+    first one), ``u_r`` the input where the direction last changed (the first sample
+    before any change).
+    """
+    u = np.asarray(u, float)
+    n = u.size
+    out = np.zeros(n)
+    tol = 1e-9 * half
+    d, u_r = 1.0, u[0] if n else 0.0
+    for k in range(1, n):  # a short python loop over N: run once per record, not per draw
+        du = u[k] - u[k - 1]
+        if abs(du) > tol:
+            s = 1.0 if du > 0 else -1.0
+            if s != d:
+                d, u_r = s, u[k - 1]
+        out[k] = d * math.tanh(abs(u[k] - u_r) / (0.5 * half))
+    return out
+
+
+@dataclass(frozen=True, eq=False)
+class Anchor:
+    """The model and reference point whose sensitivities the discrepancy is kept off.
+
+    Attributes
+    ----------
+    model : HysteresisModel
+    space : ParamSpace
+        The model's parameter space (its free parameters are differentiated).
+    z : ndarray, shape (space.ndim,)
+        The reference point in the space's unconstrained coordinates.
+    """
+
+    model: Any
+    space: ParamSpace
+    z: np.ndarray
+
+    def sensitivities(self, u: np.ndarray, t: np.ndarray) -> np.ndarray:
+        """``d f / d z`` (N, k) by central differences at :attr:`z` on an input ``u`` (N,).
+
+        Columns whose difference is not finite (a simulation failed) are left out: the
+        projection then spares that direction, it does not fail.
+        """
+        k = self.z.size
+        if k == 0:
+            return np.empty((np.size(u), 0))
+        h = 1e-4 * np.maximum(1.0, np.abs(self.z))
+        pts = np.concatenate([self.z[None, :] + np.diag(h), self.z[None, :] - np.diag(h)])
+        theta = self.space.unpack(pts)
+        y = self.model.run_batch(np.asarray(u, float), np.asarray(t, float), theta).y
+        jac = ((y[:k] - y[k:]) / (2.0 * h[:, None])).T
+        return jac[:, np.all(np.isfinite(jac), axis=0)]
+
+
+@dataclass(frozen=True, eq=False)
+class Discrepancy:
+    """A reduced-rank GP discrepancy ``delta(u_n, b, rho)`` (see the module docstring).
+
+    Build it with :meth:`for_data`, which fixes the scalings and the orthogonalisation
+    from the training records; the same object then evaluates the basis on new inputs
+    (a feedforward command) in the same coordinates.
+
+    Attributes
+    ----------
+    n_input : int
+        Basis functions in ``u_n`` per component.
+    n_rate : int
+        Basis functions in ``rho`` (1 when the data have one frequency).
+    u_centre, u_half : float
+        Input scaling (input unit): ``u_n = (u - u_centre) / u_half``.
+    rate_centre, rate_half : float
+        ``rho = (log10 f - rate_centre) / rate_half`` (``rate_half`` 0: one frequency).
+    y_span : float
+        Output span of the training data (output unit): the amplitude prior's scale.
+    y_unit : str
+    anchor : Anchor or None
+        Model and reference point whose sensitivities the basis is projected off.
+    detrend : ndarray, shape (k, m)
+        Coefficients of each basis column on ``[1, u_n, df/dz]`` over the training
+        samples, subtracted from the basis wherever it is evaluated.
+    """
+
+    n_input: int = 16
+    n_rate: int = 1
+    u_centre: float = 0.0
+    u_half: float = 1.0
+    rate_centre: float = 0.0
+    rate_half: float = 0.0
+    y_span: float = 1.0
+    y_unit: str = ""
+    anchor: Anchor | None = field(default=None, repr=False)
+    detrend: np.ndarray | None = field(default=None, repr=False)
+
+    # ------------------------------------------------------------------ construction
+    @classmethod
+    def for_data(cls, data: Any, *, n_input: int = 16, n_rate: int = 3,
+                 anchor: Anchor | None = None) -> Discrepancy:
+        """The discrepancy for a Dataset (scalings and orthogonalisation from its records).
+
+        Parameters
+        ----------
+        data : Dataset
+            Training records (every sample counts for the scalings, the scored ones for
+            the orthogonalisation).
+        n_input : int
+            Basis functions in the input per component (>= 4).
+        n_rate : int
+            Most basis functions in the frequency; used only with >= 2 frequencies
+            (then ``min(n_rate, number of frequencies)``).
+        anchor : Anchor, optional
+            Project the basis off the model's sensitivities there too (default: off
+            ``[1, u_n]`` only).
+        """
+        if int(n_input) < 4 or int(n_rate) < 1:
+            raise ParameterError(f"discrepancy: n_input >= 4 and n_rate >= 1 expected, got "
+                                 f"{n_input}, {n_rate}")
+        records = list(data)
+        u = np.concatenate([np.asarray(r.u, float) for r in records])
+        y = np.concatenate([np.asarray(r.y, float) for r in records])
+        u_lo, u_hi = float(u.min()), float(u.max())
+        if not u_hi > u_lo:
+            raise ParameterError("discrepancy: the input is constant; nothing to model")
+        freqs = sorted({float(r.frequency_hz) for r in records
+                        if r.frequency_hz is not None and r.frequency_hz > 0})
+        if len(freqs) >= 2:
+            lo, hi = math.log10(freqs[0]), math.log10(freqs[-1])
+            rate_centre, rate_half, nr = 0.5 * (lo + hi), 0.5 * (hi - lo), min(n_rate, len(freqs))
+        else:
+            rate_centre, rate_half, nr = 0.0, 0.0, 1
+        units = dict(getattr(records[0], "units", None) or {})
+        base = cls(int(n_input), int(nr), 0.5 * (u_lo + u_hi), 0.5 * (u_hi - u_lo),
+                   rate_centre, rate_half, float(np.ptp(y)) or 1.0, str(units.get("y", "")),
+                   anchor)
+        # orthogonalise over the scored samples of the training data; the minimum-norm
+        # least squares makes ``trend @ coef`` the orthogonal projection even when the
+        # sensitivities are collinear with [1, u_n] (a gain parameter is)
+        rows, trend = [], []
+        for r in records:
+            s0 = r.scored.start or 0
+            rows.append(base.raw_basis(r.u, r.frequency_hz)[s0:])
+            trend.append(base._trend(r.u, r.t)[s0:])
+        b, a = np.concatenate(rows), np.concatenate(trend)
+        coef, *_ = np.linalg.lstsq(a, b, rcond=1e-10)
+        return cls(base.n_input, base.n_rate, base.u_centre, base.u_half, base.rate_centre,
+                   base.rate_half, base.y_span, base.y_unit, anchor, coef)
+
+    def _trend(self, u: np.ndarray, t: np.ndarray) -> np.ndarray:
+        """The directions the basis is kept off, (N, k): ``[1, u_n, df/dz]``."""
+        cols = [np.ones(np.size(u)), self.scaled_input(u)]
+        out = np.column_stack(cols)
+        if self.anchor is not None:
+            jac = self.anchor.sensitivities(u, t)
+            # scaled to unit rms so that the least squares' cut-off treats them alike
+            rms = np.sqrt(np.mean(jac**2, axis=0))
+            out = np.column_stack([out, jac / np.where(rms > 0, rms, 1.0)])
+        return out
+
+    # ------------------------------------------------------------------ coordinates
+    @property
+    def size(self) -> int:
+        """Number of basis functions ``m`` (both components)."""
+        return 2 * self.n_input * self.n_rate
+
+    @property
+    def has_rate(self) -> bool:
+        """Whether ``delta`` depends on the excitation frequency."""
+        return self.n_rate > 1
+
+    def scaled_input(self, u: np.ndarray) -> np.ndarray:
+        """``u_n`` (N,) of an input (input unit)."""
+        return (np.asarray(u, float) - self.u_centre) / self.u_half
+
+    def rate_coordinate(self, frequency_hz: float | None) -> float:
+        """``rho`` of an excitation frequency (0 without one, or with one training frequency).
+
+        Raises ParameterError outside the basis domain (2.5 times the training range):
+        the reduced-rank basis does not extrapolate.
+        """
+        if not self.has_rate or frequency_hz is None or not frequency_hz > 0:
+            return 0.0
+        rho = (math.log10(frequency_hz) - self.rate_centre) / self.rate_half
+        if abs(rho) > _L:
+            lo = 10 ** (self.rate_centre - self.rate_half)
+            hi = 10 ** (self.rate_centre + self.rate_half)
+            raise ParameterError(f"discrepancy: frequency {frequency_hz:g} Hz is too far "
+                                 f"outside the training frequencies [{lo:g}, {hi:g}] Hz")
+        return rho
+
+    def raw_basis(self, u: np.ndarray, frequency_hz: float | None) -> np.ndarray:
+        """The basis before orthogonalisation, (N, m): common columns, then branch columns."""
+        un = self.scaled_input(u)
+        if np.any(np.abs(un) > _L):
+            raise ParameterError(f"discrepancy: input reaches {float(np.max(np.abs(un))):.3g} "
+                                 f"half-ranges from the training centre; the basis covers {_L}")
+        pu, _ = _sine_basis(un, self.n_input)
+        # one frequency: no rate factor at all (a lone sine of the rate would scale the
+        # kernel by 1/L)
+        pr = (_sine_basis(np.array([self.rate_coordinate(frequency_hz)]), self.n_rate)[0]
+              if self.has_rate else np.ones((1, 1)))
+        common = (pu[:, :, None] * pr[0][None, None, :]).reshape(un.size, -1)
+        b = branch_coordinate(u, self.u_half)
+        return np.concatenate([common, b[:, None] * common], axis=1)
+
+    def basis(self, u: np.ndarray, t: np.ndarray, frequency_hz: float | None) -> np.ndarray:
+        """The basis ``B`` (N, m) on an input ``u`` (N,) at times ``t`` (s) and a frequency."""
+        raw = self.raw_basis(u, frequency_hz)
+        if self.detrend is None:
+            return raw
+        trend = self._trend(u, t)
+        if trend.shape[1] != self.detrend.shape[0]:
+            # a sensitivity that was finite on the training data failed here
+            raise ParameterError("discrepancy: the model's sensitivities cannot be computed "
+                                 "on this input (a simulation failed)")
+        return raw - trend @ self.detrend
+
+    # ------------------------------------------------------------------ parameters
+    def param_space(self) -> ParamSpace:
+        """``xi`` (m,), ``amplitude``, ``branch_amplitude``, ``length`` [, ``rate_length``]."""
+        amp = _AMPLITUDE_SHARE * self.y_span
+        params = [
+            Param("xi", Normal(0.0, 1.0), shape=(self.size,), unit="1",
+                  description="standardised basis coefficients of the discrepancy"),
+            Param("amplitude", HalfNormal(amp), unit=self.y_unit,
+                  description="sd of the discrepancy common to both branches"),
+            Param("branch_amplitude", HalfNormal(amp), unit=self.y_unit,
+                  description="sd of the discrepancy that differs between branches"),
+            Param("length", LogNormal.from_median(0.5, 0.4), unit="1",
+                  description="length-scale in the input scaled to [-1, 1]"),
+        ]
+        if self.has_rate:
+            params.append(Param("rate_length", LogNormal.from_median(1.0, 0.5), unit="1",
+                                description="length-scale in log frequency scaled to [-1, 1]"))
+        return ParamSpace(tuple(params))
+
+    def column_scale(self, theta: Mapping[str, Any]) -> np.ndarray:
+        """Scales ``s`` (W, m) of the basis columns: ``sqrt`` of the spectral densities.
+
+        ``theta`` holds ``amplitude``, ``branch_amplitude``, ``length`` (and
+        ``rate_length``) as arrays (W,) or scalars; ``delta = B (s * xi)``.
+        """
+        amp = np.atleast_1d(np.asarray(theta["amplitude"], float)).ravel()
+        amp_b = np.atleast_1d(np.asarray(theta["branch_amplitude"], float)).ravel()
+        ell = np.atleast_1d(np.asarray(theta["length"], float)).ravel()
+        w = amp.size
+        _, wu = _sine_basis(np.zeros(1), self.n_input)
+        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+            log_s = _log_spectral(wu, ell)[:, :, None]  # (W, m_u, 1)
+            if self.has_rate:
+                _, wr = _sine_basis(np.zeros(1), self.n_rate)
+                ell_r = np.atleast_1d(np.asarray(theta["rate_length"], float)).ravel()
+                log_s = log_s + _log_spectral(wr, ell_r)[:, None, :]
+            root = np.exp(0.5 * log_s).reshape(w, -1)
+            return np.concatenate([amp[:, None] * root, amp_b[:, None] * root], axis=1)
+
+    def coefficients(self, theta: Mapping[str, Any]) -> np.ndarray:
+        """Basis coefficients ``s * xi`` (W, m)."""
+        xi = np.asarray(theta["xi"], float).reshape(-1, self.size)
+        return self.column_scale(theta) * xi
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready description (what summary.json records)."""
+        return {"kind": "gp", "basis_functions": self.size, "input_basis": self.n_input,
+                "rate_basis": self.n_rate, "input_centre": self.u_centre,
+                "input_half_range": self.u_half,
+                "rate_log10_hz": ([self.rate_centre - self.rate_half,
+                                   self.rate_centre + self.rate_half] if self.has_rate else None),
+                "amplitude_prior_sd": _AMPLITUDE_SHARE * self.y_span}
+
+
+def make_discrepancy(kind: str | Discrepancy | None, data: Any) -> Discrepancy | None:
+    """``None`` for ``"none"``/None, :meth:`Discrepancy.for_data` for ``"gp"``; else an error.
+
+    ``"gp"`` here is kept off ``[1, u_n]`` only; :func:`~bayeshyst.inference.
+    discrepancy_fit.attach_discrepancy` adds the model's sensitivities at its MAP.
+    """
+    if kind is None or isinstance(kind, Discrepancy):
+        return kind
+    if kind == "none":
+        return None
+    if kind == "gp":
+        return Discrepancy.for_data(data)
+    raise ParameterError(f"discrepancy must be one of {DISCREPANCY_KINDS}, got {kind!r}")

@@ -1,0 +1,233 @@
+"""The model discrepancy (reduced-rank GP) and the calibration statistics, against oracles."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy import stats
+
+from bayeshyst.data import Dataset
+from bayeshyst.discrepancy import Anchor, Discrepancy
+from bayeshyst.inference.calibration import (
+    band_coverage,
+    binomial_range,
+    effective_size,
+    pit_values,
+    uncertainty_budget,
+)
+from bayeshyst.inference.fit import fit_model
+from bayeshyst.inference.linear import LinearStructure
+from bayeshyst.inference.optimize import find_map
+from bayeshyst.inference.posterior import Posterior
+from bayeshyst.inference.settings import SamplerSettings
+from tests.synthetic import pi_data
+
+
+@pytest.fixture(scope="module")
+def pi():
+    return pi_data(n=1500)
+
+
+# ------------------------------------------------------------------ the basis
+
+
+def test_reduced_rank_basis_reproduces_the_squared_exponential_kernel():
+    # oracle: the SE kernel itself; Solin & Sarkka's approximation with 24 functions on
+    # [-1.5, 1.5] is accurate to ~1e-7 of the variance for a length-scale of 0.5 inside
+    # the data's [-1, 1]
+    rec = pi_data(n=600)[1]
+    disc = Discrepancy(n_input=24, u_centre=75.0, u_half=70.0)
+    u = np.linspace(5.0, 145.0, 41)  # monotone: the branch coordinate is >= 0
+    basis = disc.raw_basis(u, None)
+    s = disc.column_scale({"amplitude": 1.0, "branch_amplitude": 0.0, "length": 0.5})[0]
+    k_approx = (basis * s**2) @ basis.T
+    un = disc.scaled_input(u)
+    k_exact = np.exp(-0.5 * (un[:, None] - un[None, :]) ** 2 / 0.25)
+    assert np.max(np.abs(k_approx - k_exact)) < 2e-3
+    assert rec.n == 600
+
+
+def test_branch_coordinate_is_zero_at_reversals_and_signed_by_direction():
+    disc = Discrepancy(u_centre=0.0, u_half=1.0)
+    t = np.linspace(0.0, 2.0, 401)
+    u = np.sin(2 * np.pi * t)  # reversals at t = 0.25, 0.75, ...
+    basis = disc.raw_basis(u, None)
+    m = disc.n_input
+    ratio = basis[:, m:] / np.where(basis[:, :m] == 0, np.nan, basis[:, :m])
+    b = np.nanmedian(ratio, axis=1)  # the branch columns are b times the common ones
+    rising = np.r_[True, np.diff(u) > 0]  # the direction of the last move
+    assert np.all(b[5:][rising[5:]] >= -1e-12) and np.all(b[5:][~rising[5:]] <= 1e-12)
+    k_rev = int(np.argmin(u[:300]))  # the minimum: the new branch starts at b ~ 0
+    assert abs(b[k_rev + 1]) < 0.05 and abs(b[k_rev]) > 0.9
+
+
+def test_basis_is_orthogonal_to_the_model_sensitivities_at_the_anchor(pi):
+    model, rec, _ = pi
+    data = Dataset((rec,))
+    post = Posterior(data, model)
+    z_model = np.concatenate([post.space.sample_prior(np.random.default_rng(0), 1)[0][
+        post.space.slice_of(n)] for n in post.model_space.names])
+    anchor = Anchor(model, post.model_space, z_model)
+    disc = Discrepancy.for_data(data, anchor=anchor)
+    s0 = rec.scored.start or 0
+    basis = disc.basis(rec.u, rec.t, rec.frequency_hz)[s0:]
+    # oracle: sensitivities by an independent central difference of simulate
+    theta0 = post.model_space.unpack(z_model)
+    h = 1e-5
+    cols = [np.ones(rec.n - s0), rec.u[s0:]]
+    for j in range(z_model.size):
+        zp, zm = z_model.copy(), z_model.copy()
+        zp[j] += h
+        zm[j] -= h
+        yp = model.simulate(rec.u, rec.t, post.model_space.unpack(zp))
+        ym = model.simulate(rec.u, rec.t, post.model_space.unpack(zm))
+        cols.append(((yp - ym) / (2 * h))[s0:])
+    sens = np.column_stack(cols)
+    sens /= np.linalg.norm(sens, axis=0)
+    cos = sens.T @ basis / np.linalg.norm(basis, axis=0)
+    assert np.max(np.abs(cos)) < 1e-4
+    assert theta0  # the anchor's point is a valid parameter vector
+
+
+# ------------------------------------------------------------------ linear block
+
+
+@pytest.mark.parametrize("likelihood", ["gaussian", "ar1"])
+def test_linear_block_with_the_basis_matches_the_dense_gaussian(pi, likelihood):
+    # oracle: the marginal of y with every linear coefficient integrated out, written as
+    # one dense multivariate normal (AR(1): its Toeplitz covariance)
+    model, rec, _ = pi
+    post = Posterior(rec, model, likelihood, discrepancy="gp")
+    s = LinearStructure(post)
+    z = post.space.sample_prior(np.random.default_rng(3), 3)
+    lp = post.log_prob_batch(z) - post.space.log_prior(z)
+    assert np.allclose(lp, s.log_likelihood(s.stats(z), z), rtol=1e-9, atol=1e-6)
+    sig, phi = s.noise(z)
+    rows, _ = s.designs(z)
+    scale = s.column_scale(z)
+    (phi_d, const), r = rows[0], post._records[0]
+    basis = r["basis"][r["s0"]:]
+    n = basis.shape[0]
+    for j in range(2):
+        x = np.concatenate([np.broadcast_to(phi_d, (3, *phi_d.shape[1:]))[j],
+                            basis * scale[j, s.p_design:]], axis=1)
+        c = np.broadcast_to(const, (3, n))[j]
+        lag = np.abs(np.arange(n)[:, None] - np.arange(n)[None, :])
+        noise_cov = sig[j] ** 2 * (phi[j] ** lag if likelihood == "ar1" else np.eye(n))
+        cov = noise_cov + x @ np.diag(s.s0**2) @ x.T
+        dense = stats.multivariate_normal(c + x @ s.m0, cov).logpdf(r["y"])
+        assert s.log_marginal(s.stats(z[j:j + 1]), z[j:j + 1])[0] == pytest.approx(dense, rel=1e-9,
+                                                                                   abs=1e-6)
+
+
+def test_held_out_terms_with_the_basis_equal_refits_of_the_algebra(pi):
+    # oracle: log p(y) - log p(y without cycle c), each from its own posterior
+    model, rec, _ = pi
+    post = Posterior(rec, model, discrepancy="gp")
+    assert post.n_units >= 3
+    s = LinearStructure(post)
+    z = post.space.sample_prior(np.random.default_rng(4), 2)
+    ho = s.held_out_log_predictive(z)
+    full = s.log_marginal(s.stats(z), z)
+    for u in range(post.n_units):
+        s_u = LinearStructure(post.holding_out([u]))
+        assert np.allclose(ho[:, u], full - s_u.log_marginal(s_u.stats(z), z), atol=1e-6)
+
+
+# ------------------------------------------------------------------ fits
+
+
+def test_well_specified_fit_keeps_the_parameter_intervals(pi):
+    # the generator is the model: delta's amplitude must cover 0, the parameters'
+    # 90 % intervals stay within 10 % of the fit without it and cover the truth
+    model, rec, truth = pi
+    settings = SamplerSettings(seed=2)
+    plain = fit_model(rec, model, sampler=settings)
+    disc = fit_model(rec, model, sampler=settings, discrepancy="gp")
+    assert plain.converged and disc.converged
+    z0, z1 = plain.sampling.draws(4000, seed=0), disc.sampling.draws(4000, seed=0)
+    t0, t1 = plain.posterior.space.unpack(z0), disc.posterior.space.unpack(z1)
+    for name in ("p0", "w"):
+        q0 = np.quantile(t0[name], [0.05, 0.95], axis=0)
+        q1 = np.quantile(t1[name], [0.05, 0.95], axis=0)
+        width0, width1 = q0[1] - q0[0], q1[1] - q1[0]
+        assert np.all(np.abs(width1 / width0 - 1.0) < 0.10), (name, width0, width1)
+        assert np.all((q1[0] <= truth[name]) & (truth[name] <= q1[1])), name
+    # delta is small next to the noise: its sd over draws and samples
+    delta = disc.posterior.discrepancy_draws(z1[:500])[0]
+    sigma = float(np.median(t1["noise.sigma"]))
+    assert float(np.sqrt(np.mean(delta**2))) < 0.5 * sigma
+    assert disc.discrepancy_scales is not None
+    budget = disc.budget[0]
+    assert budget.dominant == "noise"
+
+
+def test_budget_without_discrepancy_is_noise_and_parameters(pi):
+    model, rec, _ = pi
+    fit = fit_model(rec, model, sampler=SamplerSettings(seed=5))
+    z = fit.sampling.draws(300, seed=1)
+    (b,) = uncertainty_budget(fit.posterior, z)
+    sigma = fit.posterior.space.unpack(z)["noise.sigma"]
+    assert b.discrepancy == 0.0
+    assert b.noise == pytest.approx(float(np.mean(sigma**2)), rel=1e-12)
+    # oracle for the parameters' share: the variance of the predictions over draws
+    pred = fit.posterior.predict(z)[0][:, rec.scored.start or 0:]
+    assert b.parameters == pytest.approx(float(np.mean(np.var(pred, axis=0))), rel=1e-9)
+
+
+def test_discrepancy_scales_are_found_from_held_out_cycles(pi):
+    model, rec, _ = pi
+    post0 = Posterior(rec, model)
+    start = find_map(post0, seed=np.random.default_rng(0))
+    from bayeshyst.inference.discrepancy_fit import attach_discrepancy
+    post, scales = attach_discrepancy(post0, start)
+    assert set(scales.values) == {"disc.amplitude", "disc.branch_amplitude", "disc.length"}
+    assert all(n in post.space.fixed for n in scales.values)
+    assert "disc.xi" in post.space.names
+    # on well-specified data a discrepancy buys no held-out density worth the name
+    assert scales.evidence < 5.0
+
+
+# ------------------------------------------------------------------ calibration statistics
+
+
+def test_pit_of_draws_from_the_predictive_is_uniform():
+    # oracle: y drawn from the predictive itself -> PIT ~ U(0, 1); KS at 1 % over 5
+    # seeds (a false alarm in any seed has probability ~5 %)
+    for seed in range(5):
+        rng = np.random.default_rng(seed)
+        mu = rng.normal(size=2000)
+        y = mu + rng.normal(size=2000)
+        y_rep = mu[None, :] + rng.normal(size=(400, 2000))
+        pit = pit_values(y, y_rep, rng)
+        assert stats.kstest(pit, "uniform").pvalue > 0.01
+        # coverage of the central bands: binomial with n = 2000 independent trials
+        for level in (0.5, 0.9):
+            lo, hi = binomial_range(2000, level, mass=0.999)
+            assert lo <= float(np.mean(band_coverage(pit, level))) <= hi
+
+
+def test_pit_of_an_overconfident_predictive_piles_up_at_the_ends():
+    rng = np.random.default_rng(0)
+    y = rng.normal(size=3000) * 3.0
+    pit = pit_values(y, rng.normal(size=(400, 3000)), rng)
+    assert float(np.mean(band_coverage(pit, 0.9))) < 0.5
+
+
+def test_effective_size_of_an_ar1_series():
+    # oracle: n (1 - rho) / (1 + rho) for an AR(1) series of coefficient rho
+    rho, n = 0.8, 200_000
+    rng = np.random.default_rng(1)
+    e = rng.normal(size=n)
+    x = np.empty(n)
+    x[0] = e[0]
+    for k in range(1, n):
+        x[k] = rho * x[k - 1] + np.sqrt(1 - rho**2) * e[k]
+    assert effective_size(x) == pytest.approx(n * (1 - rho) / (1 + rho), rel=0.1)
+    assert effective_size(rng.normal(size=5000)) == pytest.approx(5000, rel=0.1)
+
+
+def test_binomial_range_is_the_binomial_quantiles():
+    lo, hi = binomial_range(100, 0.9)
+    assert (lo, hi) == (stats.binom.ppf(0.025, 100, 0.9) / 100,
+                        stats.binom.ppf(0.975, 100, 0.9) / 100)
