@@ -204,3 +204,36 @@ def test_a_number_that_is_not_finite_is_written_as_null_and_named_in_warnings(tm
                          parse_constant=refuse)
     assert written["rmse"] is None and written["max_error"] is None
     assert written["warnings"] == summary["warnings"]
+
+
+def test_fit_checks_calibration_and_writes_the_budget(fitted):
+    # the calibration check runs in every CLI fit: the last cycle held out, coverage
+    # and PIT per frequency; the budget's shares add up to one
+    _, out = fitted
+    summary = json.loads((out / "summary.json").read_text())
+    cal = summary["calibration"]
+    assert cal["held_out"] and cal["per_frequency"]
+    (row,) = cal["per_frequency"]
+    assert row["frequency_hz"] == 3.0
+    assert 0.0 <= row["coverage_50"] <= row["coverage_90"] <= 1.0
+    assert sum(row["pit_histogram"]) == pytest.approx(1.0)
+    lo, hi = row["expected_90"]
+    assert row["calibrated"] == (lo <= row["coverage_90"] <= hi
+                                 and row["expected_50"][0] <= row["coverage_50"]
+                                 <= row["expected_50"][1])
+    (budget,) = summary["uncertainty_budget"]
+    assert sum(budget["shares"].values()) == pytest.approx(1.0)
+    assert budget["discrepancy_var"] == 0.0 and summary["discrepancy"] is None
+
+
+def test_fit_with_a_discrepancy_records_it(data_csv, tmp_path):
+    out = tmp_path / "disc"
+    code = main(["fit", str(data_csv), "--model", "pi_play", "--out", str(out), "--seed", "1",
+                 "--discrepancy", "gp", "--no-calibration", "--quiet", "--no-figures"])
+    assert code == 0
+    summary = json.loads((out / "summary.json").read_text())
+    disc = summary["discrepancy"]
+    assert disc["kind"] == "gp" and disc["basis_functions"] == 32  # 16 x 2, one frequency
+    assert {"amplitude", "branch_amplitude", "length"} <= set(disc)
+    assert summary["calibration"] is None
+    assert "disc.xi" in summary["linear_block"]

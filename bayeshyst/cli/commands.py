@@ -110,7 +110,8 @@ def cmd_fit(args: argparse.Namespace) -> int:
               f"({len(data)} record(s), {data.n_samples} samples)", file=sys.stderr)
     sampler = sampler_settings(args, checkpoint=checkpoint)
     with removed_on_failure(out) as outputs:
-        fit = fit_model(data, model, likelihood, sampler=sampler)
+        fit = fit_model(data, model, likelihood, sampler=sampler,
+                        discrepancy=args.discrepancy, calibration=not args.no_calibration)
         # the sampled chains are the result: should writing fail, their checkpoint stays
         # and the rerun resumes from it instead of sampling again
         outputs.keep()

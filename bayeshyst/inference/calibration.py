@@ -10,9 +10,9 @@ measurement, per excitation frequency:
   as a 10-bin histogram;
 * the coverage of the central 50 % and 90 % predictive bands, ``|PIT - 1/2| <= p/2``,
   with the range a calibrated predictive gives 95 % of the time: binomial on the
-  **effective** number of independent samples, ``n / (1 + 2 sum rho_k)`` of the
-  coverage indicator's autocorrelation (a cycle of a thousand strongly correlated
-  samples is not a thousand trials). Outside that range the check warns.
+  **effective** number of independent samples, ``n / (1 + 2 sum rho_k)`` of the PIT
+  series' autocorrelation (a cycle of a thousand strongly correlated samples is not a
+  thousand trials). Outside that range the check warns.
 
 **Uncertainty budget.** The predictive variance of each scored sample splits into the
 sensor noise ``E[sigma^2]``, the parameters' share ``Var_theta f`` and the
@@ -23,13 +23,15 @@ between the two is left out and reported as the remainder), averaged per frequen
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
 from scipy import stats
 
 from bayeshyst.data.record import frequency_key, frequency_label
+from bayeshyst.inference.linear import LinearStructure
+from bayeshyst.inference.optimize import MAPResult, conditional_mode
 from bayeshyst.inference.posterior import NOISE, Posterior
 from bayeshyst.inference.sampling import sample_posterior
 from bayeshyst.inference.settings import SamplerSettings
@@ -236,7 +238,7 @@ def _holdout_units(post: Posterior) -> list[int]:
 
 
 def check_calibration(post: Posterior, draws: np.ndarray, sampler: SamplerSettings, *,
-                      n_draws: int = 400) -> Calibration:
+                      start: MAPResult | None = None, n_draws: int = 400) -> Calibration:
     """Leave-cycles-out calibration check (see the module docstring).
 
     Parameters
@@ -247,15 +249,28 @@ def check_calibration(post: Posterior, draws: np.ndarray, sampler: SamplerSettin
         Its draws: the refit's ensembles start from them.
     sampler : SamplerSettings
         Settings of the refit (its seed also seeds the predictive draws).
+    start : MAPResult, optional
+        The fit's start: the refit starts near it instead of searching (with a linear
+        block; otherwise the refit searches its own MAP).
     n_draws : int
         Predictive draws per held-out sample.
     """
+    # the refit writes no checkpoint: the fit's own file must not be taken for it
+    sampler = replace(sampler, checkpoint=None, progress=False)
     units = _holdout_units(post)
     if not units:
         return Calibration([], (), True, ("no record has two whole cycles: calibration was "
                                           "not checked",))
     held = post.holding_out(units)
-    res = sample_posterior(held, sampler, initial=draws)
+    begin = None
+    structure = LinearStructure.of(held, reference=start.z) if start is not None else None
+    if structure is not None:
+        # the full fit's mode, its linear block and noise moved to the held-out data's:
+        # a fresh MAP search would differentiate every coefficient
+        z0 = conditional_mode(held, structure, start.z)
+        begin = replace(start, z=z0, theta=held.space.unpack(z0),
+                        log_prob=float(held.log_prob(z0)))
+    res = sample_posterior(held, sampler, initial=draws, start=begin)
     rng = np.random.default_rng(sampler.seed)
     z = res.draws(n_draws, seed=sampler.seed)
     reps = predictive_draws(held, z, rng)
@@ -277,13 +292,15 @@ def check_calibration(post: Posterior, draws: np.ndarray, sampler: SamplerSettin
         pits = groups[key]
         allp = np.concatenate(pits)
         ok = np.isfinite(allp)
-        cov, rng_, n_eff = {}, {}, 0.0
+        # the effective number of independent samples from the PIT series itself: an
+        # indicator that is constant over a cycle (every sample inside) has no
+        # estimable autocorrelation, the PIT values behind it do
+        n_eff = sum(effective_size(p[np.isfinite(p)]) for p in pits)
+        cov, rng_ = {}, {}
         for level in LEVELS:
             inds = [band_coverage(p[np.isfinite(p)], level) for p in pits]
-            n_eff_level = sum(effective_size(x) for x in inds)
             cov[level] = float(np.mean(np.concatenate(inds))) if ok.any() else math.nan
-            rng_[level] = binomial_range(n_eff_level, level)
-            n_eff = n_eff_level if level == LEVELS[-1] else n_eff
+            rng_[level] = binomial_range(n_eff, level)
         hist, _ = np.histogram(allp[ok], bins=PIT_BINS, range=(0.0, 1.0))
         per.append(FrequencyCalibration(freq_of[key], int(ok.sum()), n_eff, cov, rng_,
                                         tuple(float(h) for h in hist / max(1, ok.sum()))))

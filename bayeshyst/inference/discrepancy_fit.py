@@ -34,7 +34,7 @@ from scipy import optimize
 from bayeshyst.discrepancy import DISC, Anchor, Discrepancy, make_discrepancy
 from bayeshyst.errors import ParameterError
 from bayeshyst.inference.linear import LinearStructure
-from bayeshyst.inference.optimize import MAPResult
+from bayeshyst.inference.optimize import MAPResult, conditional_mode
 from bayeshyst.inference.posterior import NOISE, Posterior
 
 __all__ = ["DiscrepancyScales", "attach_discrepancy"]
@@ -78,8 +78,8 @@ def _hyper_names(post: Posterior) -> list[str]:
 
 
 def attach_discrepancy(post0: Posterior, start: MAPResult,
-                       kind: str | Discrepancy | None = "gp"
-                       ) -> tuple[Posterior, DiscrepancyScales | None]:
+                       kind: str | Discrepancy | None = "gp", *, fix_noise: bool = True
+                       ) -> tuple[Posterior, DiscrepancyScales | None, MAPResult]:
     """``post0`` with a discrepancy anchored at ``start``, its scales fixed.
 
     Parameters
@@ -90,15 +90,22 @@ def attach_discrepancy(post0: Posterior, start: MAPResult,
         Its MAP (the anchor and the point the scales are optimised at).
     kind : {"gp", "none"} or Discrepancy
         ``"none"`` returns ``post0`` unchanged.
+    fix_noise : bool
+        Hold the noise at its held-out optimum too (default). Sampled in-sample, sigma
+        shrinks to what the discrepancy leaves of the *training* cycles and the bands
+        are too narrow on new ones (measured: held-out 90 % bands covered 36-69 %
+        with Bouc-Wen on the bundled virtual actuator).
 
     Returns
     -------
     posterior : Posterior
         With ``disc.xi`` free and the scales fixed.
     scales : DiscrepancyScales or None
+    start : MAPResult
+        Where to start sampling ``posterior`` (``start`` itself without a discrepancy).
     """
     if kind is None or kind == "none":
-        return post0, None
+        return post0, None, start
     if post0.discrepancy is not None:
         raise ParameterError("attach_discrepancy: the posterior has a discrepancy already")
     if post0.likelihood.name not in ("gaussian", "ar1") or post0.beta != 1.0:
@@ -173,9 +180,44 @@ def attach_discrepancy(post0: Posterior, start: MAPResult,
                             options={"xatol": 1e-4, "fatol": 1e-4, "maxiter": 500})
     lm, lm_off = loo(zz), -float(off.fun)
     fixed = post
-    for n, v in values.items():
+    held_noise = {n: float(np.asarray(theta[n]).ravel()[0]) for n in noise}
+    for n, v in {**values, **(held_noise if fix_noise else {})}.items():
         fixed = fixed.fix(n, v)
-    return fixed, DiscrepancyScales(values, lm, lm_off)
+    return fixed, DiscrepancyScales(values, lm, lm_off), _start(fixed, post, zz, post0, start)
+
+
+def _start(fixed: Posterior, post: Posterior, z_full: np.ndarray, post0: Posterior,
+           start0: MAPResult) -> MAPResult:
+    """The sampler's start on ``fixed``, built instead of searched for.
+
+    The coordinates shared with ``post0`` keep their MAP and its Laplace covariance (the
+    basis is orthogonal to the model's sensitivities there, so they barely move); the
+    coefficients take their exact conditional mean and covariance given the rest (the
+    linear block's algebra), the noise the value the scale search found. A fresh MAP
+    search over a hundred coefficients costs minutes (measured: the L-BFGS polish
+    differentiates every coordinate) for what the algebra gives exactly.
+    """
+    space = fixed.space
+    z = np.empty(space.ndim)
+    for n in space.names:
+        z[space.slice_of(n)] = z_full[post.space.slice_of(n)]
+    structure = LinearStructure(fixed, reference=z)
+    z = conditional_mode(fixed, structure, z)
+    cond = structure.conditional(structure.stats(z[None]), z[None])
+    cov = np.zeros((space.ndim, space.ndim))
+    shared = [n for n in space.names if n in post0.space.names]
+    for a in shared:
+        for b in shared:
+            cov[space.slice_of(a), space.slice_of(b)] = start0.covariance[
+                post0.space.slice_of(a), post0.space.slice_of(b)]
+    lam_inv = np.linalg.inv(cond.chol[0] @ cond.chol[0].T)
+    m = fixed.discrepancy.size
+    xi = structure.lin_idx[-m:]
+    cov[np.ix_(xi, xi)] = lam_inv[-m:, -m:]
+    lp = float(fixed.log_prob(z))
+    return MAPResult(z, space.unpack(z), lp, cov, start0.laplace_ok, 0, (lp,),
+                     (*start0.notes, "the start with the discrepancy was built from the MAP "
+                                     "without it and the coefficients' exact conditional"))
 
 
 def _log_prior_of(post: Posterior, z: np.ndarray, names: list[str]) -> float:

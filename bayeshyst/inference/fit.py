@@ -231,17 +231,17 @@ def fit_model(
     """
     sampler = SamplerSettings() if sampler is None else sampler
     post = Posterior(data, model, likelihood, space=space, offset=offset)
-    scales = None
+    scales = start = None
     if discrepancy is not None and discrepancy != "none":
-        # anchored at the MAP without it, its scales by type-II MAP, then fixed
+        # anchored at the MAP without it, its scales by held-out prediction, then fixed
         start = find_map(post, seed=np.random.default_rng(sampler.seed))
-        post, scales = attach_discrepancy(post, start, discrepancy)
-    res = sample_posterior(post, sampler)
+        post, scales, start = attach_discrepancy(post, start, discrepancy)
+    res = sample_posterior(post, sampler, start=start)
     z = res.draws(n_prediction_draws, seed=sampler.seed)
     overall, per, means = tracking_errors(post, z)
     budget = uncertainty_budget(post, z)
     check = (check_calibration(post, res.draws(4 * n_prediction_draws, seed=sampler.seed),
-                               sampler) if calibration else None)
+                               sampler, start=res.start) if calibration else None)
     return FitResult(post, res, overall, per, means,
                      warnings=() if check is None else check.warnings,
                      discrepancy_scales=scales, calibration=check, budget=tuple(budget))

@@ -73,6 +73,7 @@ def fit_summary(fit: FitResult, *, data_path: str | None = None,
     if not s.start.laplace_ok:
         warnings.append("the Hessian at the MAP was not positive definite: the posterior is "
                         "flat or ridge-shaped in some direction")
+    warnings.extend(fit.warnings)
     per_f = [{"frequency_hz": e.frequency_hz, "rmse": e.rmse, "nrmse_percent": e.nrmse_percent,
               "max_error": e.max_error, "max_error_percent": e.max_error_percent,
               "n_samples": e.n_samples} for e in fit.per_frequency]
@@ -113,6 +114,12 @@ def fit_summary(fit: FitResult, *, data_path: str | None = None,
             {"name": r.name, "n": r.n, "fs_hz": r.fs, "frequency_hz": r.frequency_hz,
              "warmup": r.warmup, "units": dict(r.units)} for r in post.data]},
         "files": files or {},
+        "discrepancy": (None if post.discrepancy is None else
+                        {**post.discrepancy.to_dict(),
+                         **({} if fit.discrepancy_scales is None
+                            else fit.discrepancy_scales.to_dict())}),
+        "uncertainty_budget": [b.to_dict() for b in fit.budget],
+        "calibration": None if fit.calibration is None else fit.calibration.to_dict(),
         "warnings": warnings,
     }
     # JSON has no inf or NaN: such a number is written as null, and said so here
