@@ -230,19 +230,22 @@ class Discrepancy:
             rows.append(base.raw_basis(r.u, r.frequency_hz)[s0:])
             trend.append(base._trend(r.u, r.t)[s0:])
         b, a = np.concatenate(rows), np.concatenate(trend)
-        coef, *_ = np.linalg.lstsq(a, b, rcond=1e-10)
+        # columns scaled to unit rms over *all* training samples (once: a scale taken
+        # per record or per input would make the map from the trend to the basis
+        # inconsistent, and the basis on a new command wrong) so that the cut-off
+        # treats them alike; the scale is folded into the stored coefficients
+        scale = np.sqrt(np.mean(a**2, axis=0))
+        scale = np.where(scale > 0, scale, 1.0)
+        coef, *_ = np.linalg.lstsq(a / scale, b, rcond=1e-10)
+        coef = coef / scale[:, None]
         return cls(base.n_input, base.n_rate, base.u_centre, base.u_half, base.rate_centre,
                    base.rate_half, base.y_span, base.y_unit, anchor, coef)
 
     def _trend(self, u: np.ndarray, t: np.ndarray) -> np.ndarray:
         """The directions the basis is kept off, (N, k): ``[1, u_n, df/dz]``."""
-        cols = [np.ones(np.size(u)), self.scaled_input(u)]
-        out = np.column_stack(cols)
+        out = np.column_stack([np.ones(np.size(u)), self.scaled_input(u)])
         if self.anchor is not None:
-            jac = self.anchor.sensitivities(u, t)
-            # scaled to unit rms so that the least squares' cut-off treats them alike
-            rms = np.sqrt(np.mean(jac**2, axis=0))
-            out = np.column_stack([out, jac / np.where(rms > 0, rms, 1.0)])
+            out = np.column_stack([out, self.anchor.sensitivities(u, t)])
         return out
 
     # ------------------------------------------------------------------ coordinates

@@ -35,11 +35,13 @@ __all__ = [
 
 #: Probability of the predicted bands (5-95 %).
 BAND = 0.9
+#: Most fixed-point rounds of a design against a model with a discrepancy.
+DISCREPANCY_ROUNDS = 3
 
 
 @dataclass(frozen=True)
 class Draws:
-    """Parameter vectors of a model with their observation offsets.
+    """Parameter vectors of a model with their observation offsets (and discrepancy).
 
     Attributes
     ----------
@@ -47,10 +49,27 @@ class Draws:
         ``name -> array (S, *shape)``, the model's parameters.
     offset : ndarray, shape (S,)
         Observation offsets added to the model output (zeros without one).
+    discrepancy : Discrepancy, optional
+        The fit's model-discrepancy term; its basis is evaluated on each command.
+    delta : ndarray, shape (S, m), optional
+        Each draw's discrepancy coefficients (``s * xi``).
     """
 
     theta: dict[str, np.ndarray]
     offset: np.ndarray
+    discrepancy: Any = None
+    delta: np.ndarray | None = None
+
+    def delta_on(self, u: np.ndarray, t: np.ndarray,
+                 frequency_hz: float | None) -> np.ndarray | float:
+        """The discrepancy ``(S, N)`` of every draw along the command ``u``; 0 without one."""
+        if self.discrepancy is None or self.delta is None:
+            return 0.0
+        return self.delta @ self.discrepancy.basis(u, t, frequency_hz).T
+
+    def without_discrepancy(self) -> Draws:
+        """The same draws with the discrepancy left out (the parameters' share alone)."""
+        return Draws(self.theta, self.offset)
 
     @property
     def size(self) -> int:
@@ -59,9 +78,14 @@ class Draws:
 
 
 def predict_outputs(model: HysteresisModel, u: np.ndarray, t: np.ndarray,
-                    draws: Draws) -> np.ndarray:
-    """Noise-free outputs ``(S, N)`` of every draw driven by ``u`` from rest (failed: NaN)."""
-    return model.run_batch(u, t, draws.theta).y + draws.offset[:, None]
+                    draws: Draws, frequency_hz: float | None = None) -> np.ndarray:
+    """Noise-free outputs ``(S, N)`` of every draw driven by ``u`` from rest (failed: NaN).
+
+    With a discrepancy in ``draws`` it is added, evaluated along ``u`` at
+    ``frequency_hz`` (the reference's).
+    """
+    return (model.run_batch(u, t, draws.theta).y + draws.offset[:, None]
+            + draws.delta_on(u, t, frequency_hz))
 
 
 def tracking_percent(y: np.ndarray, y_d: np.ndarray, stroke: float,
@@ -130,7 +154,8 @@ def design_feedforward(model: HysteresisModel, y_d: Any, t: Any, design: Draws,
                        predict: Draws, *, label: str, objective: str = "mean",
                        quantile: float = 0.9,
                        u_limits: tuple[float, float] = (-np.inf, np.inf),
-                       periodic: bool = False, scored: Any = None) -> Feedforward:
+                       periodic: bool = False, scored: Any = None,
+                       frequency_hz: float | None = None) -> Feedforward:
     """Design a command on ``design`` draws and predict it on ``predict`` draws.
 
     Parameters
@@ -146,13 +171,29 @@ def design_feedforward(model: HysteresisModel, y_d: Any, t: Any, design: Draws,
         Name of the command in reports.
     objective, quantile, u_limits, periodic, scored
         As :func:`~bayeshyst.inverse.numerical.invert`.
+    frequency_hz : float, optional
+        The reference's frequency (where the draws' discrepancy is evaluated).
 
     Returns
     -------
     Feedforward
     """
+    t = np.asarray(t, float)
     inv = invert(model, y_d, t, design.theta, objective=objective, quantile=quantile,
                  u_limits=u_limits, offset=design.offset, periodic=periodic, scored=scored)
-    return Feedforward(label, inv.u, predict_outputs(model, inv.u, np.asarray(t, float),
-                                                     predict), inv)
+    if design.discrepancy is not None and design.delta is not None:
+        # the discrepancy depends on the command: a fixed-point iteration, each round
+        # inverting the model with the discrepancy along the previous command as a known
+        # additive term (it is small and smooth, so two or three rounds settle it)
+        for _ in range(DISCREPANCY_ROUNDS):
+            extra = design.offset[:, None] + design.delta_on(inv.u, t, frequency_hz)
+            new = invert(model, y_d, t, design.theta, objective=objective,
+                         quantile=quantile, u_limits=u_limits, offset=extra,
+                         periodic=periodic, scored=scored)
+            step = float(np.max(np.abs(new.u - inv.u)))
+            inv = new
+            if step <= 1e-6 * (float(np.ptp(inv.u)) or 1.0):
+                break
+    return Feedforward(label, inv.u, predict_outputs(model, inv.u, t, predict, frequency_hz),
+                       inv)
 

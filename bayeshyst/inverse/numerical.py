@@ -370,8 +370,9 @@ def invert(model: HysteresisModel, y_d: Any, t: Any, thetas: Mapping[str, Any], 
     u_limits : (float, float)
         Admissible command range (input unit), e.g. the amplifier's; targets beyond it
         saturate there and are counted in ``n_saturated``.
-    offset : array_like, shape (S,), optional
-        Observation offsets added to each draw's output (``obs.offset``).
+    offset : array_like, shape (S,) or (S, N), optional
+        Observation offsets added to each draw's output (``obs.offset``), or a known
+        additive term per draw and sample (a discrepancy along a command).
     periodic : bool
         ``y_d`` holds whole periods of a periodic reference (dynamics inverted as the
         periodic steady state).
@@ -408,8 +409,14 @@ def invert(model: HysteresisModel, y_d: Any, t: Any, thetas: Mapping[str, Any], 
     if not (np.all(np.isfinite(y_d)) and np.all(np.isfinite(t))):
         raise ParameterError("y_d and t must be finite")
     theta_b, n_draws = model._batch_theta(thetas, batched=True)
-    off = (np.zeros(n_draws) if offset is None
-           else np.broadcast_to(np.asarray(offset, dtype=float).ravel(), (n_draws,)))
+    # (S, 1): one offset per draw; (S, N): a known additive term per draw and sample
+    # (the model discrepancy evaluated along a previous command)
+    off = np.zeros((n_draws, 1)) if offset is None else np.asarray(offset, dtype=float)
+    off = off.reshape(-1, 1) if off.ndim <= 1 else off
+    if off.ndim != 2 or off.shape[0] not in (1, n_draws) or off.shape[1] not in (1, y_d.size):
+        raise ParameterError(f"offset must have shape ({n_draws},) or ({n_draws}, "
+                             f"{y_d.size}), got {np.shape(offset)}")
+    off = np.broadcast_to(off, (n_draws, off.shape[1]))
     first, later, first_name = _stages(model, theta_b)
     labels = [f"{first_name}: per sample"] + [
         s.label if isinstance(s, _BlockStage) else f"{s[0].name}: deconvolution"
@@ -422,7 +429,7 @@ def invert(model: HysteresisModel, y_d: Any, t: Any, thetas: Mapping[str, Any], 
     if mask.shape != y_d.shape or not mask.any():
         raise ParameterError(f"scored must be a boolean mask of shape {y_d.shape} with at "
                              f"least one True, got shape {mask.shape}")
-    target = y_d[None, :] - off[:, None]
+    target = y_d[None, :] - off
     correction = np.zeros_like(y_d)
     active = np.ones(n_draws, dtype=bool)
     total_eval = 0
@@ -440,7 +447,7 @@ def invert(model: HysteresisModel, y_d: Any, t: Any, thetas: Mapping[str, Any], 
                                                  u_scale, ftol, xtol, active)
         total_eval += n_eval
         traj = model.run_batch(u, t, theta_b)
-        y = traj.y + off[:, None]
+        y = traj.y + off
         active &= ~traj.failed
         stat = _objective_value(y, y_d[None, :], active, "mean", quantile)
         err = float(np.max(np.abs(stat[mask])))
