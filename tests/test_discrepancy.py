@@ -248,8 +248,11 @@ def test_feedforward_against_model_plus_discrepancy_meets_the_reference(pi):
     # oracle: the forward model itself -- the designed command, run through every design
     # draw's model *and* discrepancy (an independent evaluation of the basis), averages
     # to the reference; the prediction adds exactly the draws' discrepancy
-    from bayeshyst.inverse.compensate import _as_draws
-    from bayeshyst.inverse.feedforward import design_feedforward, predict_outputs
+    from bayeshyst.inverse.feedforward import Draws, design_feedforward, predict_outputs
+
+    def _as_draws(post, z):
+        theta, offset = post.model_draws(z)
+        return Draws(theta, offset, post.discrepancy, post.discrepancy_coefficients(z))
 
     model, rec, _ = pi
     fit = fit_model(rec, model, sampler=SamplerSettings(seed=3), discrepancy="gp")
