@@ -66,7 +66,7 @@ __all__ = ["DISC", "DISCREPANCY_KINDS", "Anchor", "Discrepancy", "make_discrepan
 #: Prefix of the discrepancy's parameters in a posterior's space.
 DISC = "disc"
 #: What ``--discrepancy`` accepts.
-DISCREPANCY_KINDS = ("none", "gp")
+DISCREPANCY_KINDS = ("none", "hsgp")
 #: Half-width of the basis domain over data scaled to [-1, 1].
 _L = 2.5
 #: Amplitude prior scale, as a fraction of the output span.
@@ -358,7 +358,7 @@ class Discrepancy:
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready description (what summary.json records)."""
-        return {"kind": "gp", "basis_functions": self.size, "input_basis": self.n_input,
+        return {"kind": "hsgp", "basis_functions": self.size, "input_basis": self.n_input,
                 "rate_basis": self.n_rate, "input_centre": self.u_centre,
                 "input_half_range": self.u_half,
                 "rate_log10_hz": ([self.rate_centre - self.rate_half,
@@ -367,15 +367,15 @@ class Discrepancy:
 
 
 def make_discrepancy(kind: str | Discrepancy | None, data: Any) -> Discrepancy | None:
-    """``None`` for ``"none"``/None, :meth:`Discrepancy.for_data` for ``"gp"``; else an error.
+    """``None`` for ``"none"``/None, :meth:`Discrepancy.for_data` for ``"hsgp"``; else an error.
 
-    ``"gp"`` here is kept off ``[1, u_n]`` only; :func:`~bayeshyst.inference.
+    ``"hsgp"`` here is kept off ``[1, u_n]`` only; :func:`~bayeshyst.inference.
     discrepancy_fit.attach_discrepancy` adds the model's sensitivities at its MAP.
     """
     if kind is None or isinstance(kind, Discrepancy):
         return kind
     if kind == "none":
         return None
-    if kind == "gp":
+    if kind == "hsgp":
         return Discrepancy.for_data(data)
     raise ParameterError(f"discrepancy must be one of {DISCREPANCY_KINDS}, got {kind!r}")

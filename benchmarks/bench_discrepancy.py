@@ -1,6 +1,6 @@
 """Cost of the model discrepancy: per likelihood evaluation and per converged fit.
 
-Measured in one run, each with and without ``discrepancy="gp"`` (the reduced-rank GP of
+Measured in one run, each with and without ``discrepancy="hsgp"`` (the reduced-rank GP of
 :mod:`bayeshyst.discrepancy`), the ratio printed against the run without it:
 
 1. log-likelihood evaluations per second of the vectorised ensemble
@@ -61,8 +61,8 @@ def main(argv: list[str] | None = None) -> int:
     rows = []
     for label, data, model in cases:
         evals, fits = {}, {}
-        for disc in ("none", "gp"):
-            post = Posterior(data, model, discrepancy=None if disc == "none" else "gp")
+        for disc in ("none", "hsgp"):
+            post = Posterior(data, model, discrepancy=None if disc == "none" else "hsgp")
             start = find_map(post, seed=0) if disc == "none" else None
             z0 = start.z if start is not None else post.space.sample_prior(
                 np.random.default_rng(0), 1)[0]
@@ -89,9 +89,9 @@ def main(argv: list[str] | None = None) -> int:
                   flush=True)
         rows.append((label, evals, fits))
         print(f"{label:28} ratios gp/none: ensemble evaluation "
-              f"{evals['none'][0] / evals['gp'][0]:.2f}x slower, Gram path "
-              f"{evals['none'][1] / evals['gp'][1]:.2f}x slower, converged fit "
-              f"{fits['gp'][0] / fits['none'][0]:.2f}x the time", flush=True)
+              f"{evals['none'][0] / evals['hsgp'][0]:.2f}x slower, Gram path "
+              f"{evals['none'][1] / evals['hsgp'][1]:.2f}x slower, converged fit "
+              f"{fits['hsgp'][0] / fits['none'][0]:.2f}x the time", flush=True)
     load1 = os.getloadavg()[0]
     if args.write:
         import numba
@@ -108,16 +108,16 @@ def main(argv: list[str] | None = None) -> int:
             "|---|---|---|---|---|---|---|---|",
         ]
         for label, evals, fits in rows:
-            for disc in ("none", "gp"):
+            for disc in ("none", "hsgp"):
                 b, g = evals[disc]
                 w, c, n, r = fits[disc]
                 lines.append(f"| {label} | {disc} | {b:,.0f} | {g:,.0f} | {w:.2f} | {c} | {n} "
                              f"| {r:.4g} |")
         lines.append("")
         lines += [f"- {label}: with the discrepancy an ensemble evaluation is "
-                  f"{evals['none'][0] / evals['gp'][0]:.2f}x slower, the Gram path "
-                  f"{evals['none'][1] / evals['gp'][1]:.2f}x slower, a converged fit takes "
-                  f"{fits['gp'][0] / fits['none'][0]:.2f}x the time."
+                  f"{evals['none'][0] / evals['hsgp'][0]:.2f}x slower, the Gram path "
+                  f"{evals['none'][1] / evals['hsgp'][1]:.2f}x slower, a converged fit takes "
+                  f"{fits['hsgp'][0] / fits['none'][0]:.2f}x the time."
                   for label, evals, fits in rows]
         write_section("discrepancy", "Model discrepancy (cost)", "\n".join(lines))
     return 0

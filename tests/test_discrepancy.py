@@ -97,7 +97,7 @@ def test_linear_block_with_the_basis_matches_the_dense_gaussian(pi, likelihood):
     # oracle: the marginal of y with every linear coefficient integrated out, written as
     # one dense multivariate normal (AR(1): its Toeplitz covariance)
     model, rec, _ = pi
-    post = Posterior(rec, model, likelihood, discrepancy="gp")
+    post = Posterior(rec, model, likelihood, discrepancy="hsgp")
     s = LinearStructure(post)
     z = post.space.sample_prior(np.random.default_rng(3), 3)
     lp = post.log_prob_batch(z) - post.space.log_prior(z)
@@ -123,7 +123,7 @@ def test_linear_block_with_the_basis_matches_the_dense_gaussian(pi, likelihood):
 def test_held_out_terms_with_the_basis_equal_refits_of_the_algebra(pi):
     # oracle: log p(y) - log p(y without cycle c), each from its own posterior
     model, rec, _ = pi
-    post = Posterior(rec, model, discrepancy="gp")
+    post = Posterior(rec, model, discrepancy="hsgp")
     assert post.n_units >= 3
     s = LinearStructure(post)
     z = post.space.sample_prior(np.random.default_rng(4), 2)
@@ -143,7 +143,7 @@ def test_well_specified_fit_keeps_the_parameter_intervals(pi):
     model, rec, truth = pi
     settings = SamplerSettings(seed=2)
     plain = fit_model(rec, model, sampler=settings)
-    disc = fit_model(rec, model, sampler=settings, discrepancy="gp")
+    disc = fit_model(rec, model, sampler=settings, discrepancy="hsgp")
     assert plain.converged and disc.converged
     z0, z1 = plain.sampling.draws(4000, seed=0), disc.sampling.draws(4000, seed=0)
     t0, t1 = plain.posterior.space.unpack(z0), disc.posterior.space.unpack(z1)
@@ -255,7 +255,7 @@ def test_feedforward_against_model_plus_discrepancy_meets_the_reference(pi):
         return Draws(theta, offset, post.discrepancy, post.discrepancy_coefficients(z))
 
     model, rec, _ = pi
-    fit = fit_model(rec, model, sampler=SamplerSettings(seed=3), discrepancy="gp")
+    fit = fit_model(rec, model, sampler=SamplerSettings(seed=3), discrepancy="hsgp")
     post = fit.posterior
     z = fit.sampling.draws(40, seed=0)
     design, predict = _as_draws(post, z[:20]), _as_draws(post, z[20:])

@@ -229,11 +229,11 @@ def test_fit_checks_calibration_and_writes_the_budget(fitted):
 def test_fit_with_a_discrepancy_records_it(data_csv, tmp_path):
     out = tmp_path / "disc"
     code = main(["fit", str(data_csv), "--model", "pi_play", "--out", str(out), "--seed", "1",
-                 "--discrepancy", "gp", "--no-calibration", "--quiet", "--no-figures"])
+                 "--discrepancy", "hsgp", "--no-calibration", "--quiet", "--no-figures"])
     assert code == 0
     summary = json.loads((out / "summary.json").read_text())
     disc = summary["discrepancy"]
-    assert disc["kind"] == "gp" and disc["basis_functions"] == 32  # 16 x 2, one frequency
+    assert disc["kind"] == "hsgp" and disc["basis_functions"] == 32  # 16 x 2, one frequency
     assert {"amplitude", "branch_amplitude", "length"} <= set(disc)
     assert summary["calibration"] is None
     assert "disc.xi" in summary["linear_block"]

@@ -71,9 +71,10 @@ def build_parser() -> argparse.ArgumentParser:
     add_run_options(p_fit, "bayeshyst-fit", "step budget per ensemble (default 20000)")
     p_fit.add_argument("--no-checkpoint", action="store_true",
                        help="do not checkpoint to OUT/checkpoint.h5 (and do not resume)")
-    p_fit.add_argument("--discrepancy", choices=("none", "gp"), default="none",
-                       help="model-discrepancy term: none (default) or gp, a reduced-rank GP "
-                            "over the loop's coordinates (input, branch position, frequency)")
+    p_fit.add_argument("--discrepancy", choices=("none", "hsgp"), default="none",
+                       help="model-discrepancy term: none (default) or hsgp, a reduced-rank "
+                            "(Hilbert-space) GP over the loop's coordinates (input, branch "
+                            "position, frequency)")
     p_fit.add_argument("--no-calibration", action="store_true",
                        help="skip the leave-cycles-out calibration check (one more posterior "
                             "run without the last cycle of every record)")

@@ -78,7 +78,7 @@ def _hyper_names(post: Posterior) -> list[str]:
 
 
 def attach_discrepancy(post0: Posterior, start: MAPResult,
-                       kind: str | Discrepancy | None = "gp", *, fix_noise: bool = True
+                       kind: str | Discrepancy | None = "hsgp", *, fix_noise: bool = True
                        ) -> tuple[Posterior, DiscrepancyScales | None, MAPResult]:
     """``post0`` with a discrepancy anchored at ``start``, its scales fixed.
 
@@ -88,7 +88,7 @@ def attach_discrepancy(post0: Posterior, start: MAPResult,
         Without a discrepancy, Gaussian or AR(1) likelihood at full power.
     start : MAPResult
         Its MAP (the anchor and the point the scales are optimised at).
-    kind : {"gp", "none"} or Discrepancy
+    kind : {"hsgp", "none"} or Discrepancy
         ``"none"`` returns ``post0`` unchanged.
     fix_noise : bool
         Hold the noise at its held-out optimum too (default). Sampled in-sample, sigma
@@ -116,7 +116,7 @@ def attach_discrepancy(post0: Posterior, start: MAPResult,
     z_model = np.concatenate([start.z[space.slice_of(n)] for n in names]) if names \
         else np.zeros(0)
     anchor = Anchor(post0.model, post0.model_space, z_model)
-    disc = (Discrepancy.for_data(post0.data, anchor=anchor) if kind == "gp"
+    disc = (Discrepancy.for_data(post0.data, anchor=anchor) if kind == "hsgp"
             else make_discrepancy(kind, post0.data))
     post = Posterior(post0.data, post0.model, post0.likelihood, space=post0.model_space,
                      offset=post0.offset, discrepancy=disc)

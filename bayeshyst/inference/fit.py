@@ -223,7 +223,7 @@ def fit_model(
         Posterior draws averaged for the mean prediction and its errors.
     space, offset, discrepancy
         As :class:`Posterior` (edited priors; observation offset on/off; a model
-        discrepancy ``"gp"`` or none).
+        discrepancy ``"hsgp"`` or none).
     calibration : bool
         Run the leave-cycles-out calibration check
         (:func:`~bayeshyst.inference.calibration.check_calibration`: one more posterior

@@ -149,9 +149,9 @@ class Posterior:
     beta : float
         Power of the likelihood, ``p(z) L(z)^beta``: 1 is the posterior, 0 the prior
         alone (no simulation is run), values between temper it.
-    discrepancy : {"none", "gp"} or Discrepancy, optional
+    discrepancy : {"none", "hsgp"} or Discrepancy, optional
         A model-discrepancy term ``delta`` added to the model output
-        (:mod:`bayeshyst.discrepancy`): ``"gp"`` builds the reduced-rank GP over the
+        (:mod:`bayeshyst.discrepancy`): ``"hsgp"`` builds the reduced-rank GP over the
         loop's coordinates for this data; None or ``"none"``: no discrepancy.
 
     Notes
@@ -333,7 +333,7 @@ class Posterior:
         if self.held_out:
             temper += f", held_out={list(self.held_out)}"
         if self.discrepancy is not None:
-            temper += ", discrepancy='gp'"
+            temper += ", discrepancy='hsgp'"
         return (f"Posterior(model={self.model.name!r}, likelihood={self.likelihood.name!r}, "
                 f"records={len(self.data)}, ndim={self.ndim}{temper})")
 
