@@ -31,14 +31,6 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def _rate(fn, calls: int, per_call: int) -> float:
-    fn()
-    t0 = time.perf_counter()
-    for _ in range(calls):
-        fn()
-    return calls * per_call / (time.perf_counter() - t0)
-
-
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="fewer repeats")
@@ -52,7 +44,7 @@ def main(argv: list[str] | None = None) -> int:
     from bayeshyst.inference.posterior import Posterior
     from bayeshyst.inference.settings import SamplerSettings
     from benchmarks._results import write_section
-    from benchmarks.bench_inference import make_data
+    from benchmarks.bench_inference import _rate, make_data
 
     load0 = os.getloadavg()[0]
     cases = [("pi_play(8), 5 frequencies", load(ROOT / "data" / "virtual_multifreq.csv"),
