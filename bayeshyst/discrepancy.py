@@ -53,7 +53,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -243,9 +243,7 @@ class Discrepancy:
         scale = np.sqrt(np.mean(a**2, axis=0))
         scale = np.where(scale > 0, scale, 1.0)
         coef, *_ = np.linalg.lstsq(a / scale, b, rcond=PROJECTION_CUTOFF)
-        coef = coef / scale[:, None]
-        return cls(base.n_input, base.n_rate, base.u_centre, base.u_half, base.rate_centre,
-                   base.rate_half, base.y_span, base.y_unit, anchor, coef)
+        return replace(base, detrend=coef / scale[:, None])
 
     def _trend(self, u: np.ndarray, t: np.ndarray) -> np.ndarray:
         """The directions the basis is kept off, (N, k): ``[1, u_n, df/dz]``."""

@@ -651,6 +651,11 @@ class ParamSpace:
         a, b = self._offsets[name]  # type: ignore[attr-defined]
         return slice(a, b)
 
+    def indices(self, names: Iterable[str]) -> np.ndarray:
+        """The ``z`` indices (int array, in the given order) of free parameters ``names``."""
+        parts = [np.arange(self.ndim)[self.slice_of(n)] for n in names]
+        return np.concatenate(parts) if parts else np.zeros(0, dtype=int)
+
     # ----------------------------------------------------------------- z <-> theta
     def _split(self, z: np.ndarray) -> tuple[np.ndarray, bool]:
         z = np.asarray(z, dtype=float)

@@ -278,7 +278,7 @@ def test_feedforward_against_model_plus_discrepancy_meets_the_reference(pi):
     assert np.max(err[away]) < 1e-3 * np.ptp(y_d)
     assert np.max(err[rev]) < 0.02 * np.ptp(y_d)
     y_pred = predict_outputs(model, ff.u, t, predict, 3.0)
-    alone = predict_outputs(model, ff.u, t, predict.without_discrepancy(), 3.0)
+    alone = predict_outputs(model, ff.u, t, Draws(predict.theta, predict.offset), 3.0)
     assert np.allclose(y_pred - alone, post.discrepancy_coefficients(z[20:]) @ basis.T,
                        atol=1e-12)
 

@@ -16,8 +16,9 @@ measurement, per excitation frequency:
 
 **Uncertainty budget.** The predictive variance of each scored sample splits into the
 sensor noise ``E[sigma^2]``, the parameters' share ``Var_theta f`` and the
-discrepancy's ``Var delta`` (posterior variances over draws; the small covariance
-between the two is left out and reported as the remainder), averaged per frequency.
+discrepancy's ``Var delta`` (posterior variances over draws; the covariance between
+the two is left out, so the three add up to the predictive variance only up to it),
+averaged per frequency.
 """
 
 from __future__ import annotations
@@ -30,6 +31,7 @@ import numpy as np
 from scipy import stats
 
 from bayeshyst.data.record import frequency_key, frequency_label
+from bayeshyst.inference.convergence import _autocov
 from bayeshyst.inference.linear import LinearStructure
 from bayeshyst.inference.optimize import MAPResult, conditional_mode
 from bayeshyst.inference.posterior import NOISE, Posterior
@@ -90,10 +92,8 @@ def effective_size(x: np.ndarray) -> float:
     n = x.size
     if n < 3 or np.var(x) == 0:
         return float(n)
-    d = x - x.mean()
-    f = np.fft.rfft(d, 2 * n)
-    acf = np.fft.irfft(f * np.conj(f))[:n]
-    acf = acf / acf[0]
+    acov = _autocov(x[None, :])[0]
+    acf = acov / acov[0]
     tau = 1.0
     for k in range(1, n):
         if acf[k] <= 0:
@@ -229,6 +229,11 @@ def predictive_draws(post: Posterior, z: np.ndarray, rng: np.random.Generator
     return out
 
 
+def _by_frequency(groups: dict, freq_of: dict) -> list:
+    """The group keys in ascending frequency, records without one last."""
+    return sorted(groups, key=lambda k: (freq_of[k] is None, freq_of[k] or 0.0))
+
+
 def _holdout_units(post: Posterior) -> list[int]:
     """The last cycle of every record that has at least two."""
     by_record: dict[str, list[int]] = {}
@@ -276,7 +281,7 @@ def check_calibration(post: Posterior, draws: np.ndarray, sampler: SamplerSettin
     reps = predictive_draws(held, z, rng)
     groups: dict[Any, list[np.ndarray]] = {}
     freq_of: dict[Any, float | None] = {}
-    for _rec_i, (rec, y_rep) in enumerate(zip(post._records, reps, strict=True)):
+    for rec, y_rep in zip(post._records, reps, strict=True):
         s0 = rec["s0"]
         bounds = [*rec["unit_starts"], rec["y"].size]
         for j in range(len(bounds) - 1):
@@ -288,7 +293,7 @@ def check_calibration(post: Posterior, draws: np.ndarray, sampler: SamplerSettin
             groups.setdefault(key, []).append(pit)
             freq_of[key] = rec["frequency_hz"]
     per = []
-    for key in sorted(groups, key=lambda k: (freq_of[k] is None, freq_of[k] or 0.0)):
+    for key in _by_frequency(groups, freq_of):
         pits = groups[key]
         allp = np.concatenate(pits)
         ok = np.isfinite(allp)
@@ -357,8 +362,14 @@ class FrequencyBudget:
                 "dominant": self.dominant}
 
 
-def uncertainty_budget(post: Posterior, z: np.ndarray) -> list[FrequencyBudget]:
-    """The predictive variance budget per excitation frequency over draws ``z`` (S, ndim)."""
+def uncertainty_budget(post: Posterior, z: np.ndarray, *,
+                       parts: tuple[list[np.ndarray], list[np.ndarray] | None] | None = None
+                       ) -> list[FrequencyBudget]:
+    """The predictive variance budget per excitation frequency over draws ``z`` (S, ndim).
+
+    ``parts`` are ``(post.predict(z, discrepancy=False), post.discrepancy_draws(z))``
+    when the caller has simulated them already.
+    """
     theta = post.space.unpack(z)
     sigma = np.asarray(theta.get(f"{NOISE}.sigma", np.nan), float)
     if post.likelihood.name == "student_t" and f"{NOISE}.nu" in theta:
@@ -367,8 +378,8 @@ def uncertainty_budget(post: Posterior, z: np.ndarray) -> list[FrequencyBudget]:
     else:
         var = sigma**2
     noise_var = float(np.nanmean(var))
-    model = post.predict(z, discrepancy=False)
-    deltas = post.discrepancy_draws(z)
+    model, deltas = ((post.predict(z, discrepancy=False), post.discrepancy_draws(z))
+                     if parts is None else parts)
     acc: dict[Any, list[tuple[float, float, int]]] = {}
     freq_of: dict[Any, float | None] = {}
     for i, (rec, f) in enumerate(zip(post._records, model, strict=True)):
@@ -379,7 +390,7 @@ def uncertainty_budget(post: Posterior, z: np.ndarray) -> list[FrequencyBudget]:
         acc.setdefault(key, []).append((float(pv.sum()), float(dv.sum()), pv.size))
         freq_of[key] = rec["frequency_hz"]
     out = []
-    for key in sorted(acc, key=lambda k: (freq_of[k] is None, freq_of[k] or 0.0)):
+    for key in _by_frequency(acc, freq_of):
         n = sum(a[2] for a in acc[key])
         out.append(FrequencyBudget(freq_of[key], noise_var, sum(a[0] for a in acc[key]) / n,
                                    sum(a[1] for a in acc[key]) / n))

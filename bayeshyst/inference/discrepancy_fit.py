@@ -129,7 +129,7 @@ def attach_discrepancy(post0: Posterior, start: MAPResult,
     hyper = _hyper_names(post)
     noise = [n for n in post.space.names if n.startswith(NOISE + ".")]
     free = hyper + noise
-    idx = np.concatenate([np.arange(post.ndim)[post.space.slice_of(n)] for n in free])
+    idx = post.space.indices(free)
     structure = LinearStructure(post, reference=z)
     # the per-cycle Grams depend on the model's coordinates only: computed once, then
     # every candidate scale is a few small Cholesky factorisations
@@ -168,7 +168,7 @@ def attach_discrepancy(post0: Posterior, start: MAPResult,
         if "amplitude" in n:
             p = post.space[n]
             zoff[post.space.slice_of(n)] = p.transform.forward(np.asarray(1e-12 * p.prior.scale()))
-    noise_idx = np.concatenate([np.arange(post.ndim)[post.space.slice_of(n)] for n in noise])
+    noise_idx = post.space.indices(noise)
 
     def neg_off(x: np.ndarray) -> float:
         zn = zoff.copy()

@@ -106,15 +106,16 @@ def errors_by_frequency(
 
 
 def tracking_errors(
-    post: Posterior, z: np.ndarray
+    post: Posterior, z: np.ndarray, predictions: list[np.ndarray] | None = None
 ) -> tuple[TrackingError, list[TrackingError], list[np.ndarray]]:
     """Errors of the mean noise-free prediction over draws ``z`` (M, ndim).
 
     Returns the overall error, one per excitation frequency (sorted; records without
     a frequency are grouped under ``None`` last), and the mean prediction per record.
-    Failed draws (NaN rows) are left out of the mean.
+    Failed draws (NaN rows) are left out of the mean. ``predictions`` (per record,
+    (M, N)) are ``post.predict(z)`` when the caller has them already.
     """
-    preds = post.predict(z)
+    preds = post.predict(z) if predictions is None else predictions
     means = [np.nanmean(p, axis=0) for p in preds]
     overall, per = errors_by_frequency(post.data, means)
     return overall, per, means
@@ -238,8 +239,13 @@ def fit_model(
         post, scales, start = attach_discrepancy(post, start, discrepancy)
     res = sample_posterior(post, sampler, start=start)
     z = res.draws(n_prediction_draws, seed=sampler.seed)
-    overall, per, means = tracking_errors(post, z)
-    budget = uncertainty_budget(post, z)
+    # one simulation of the draws serves the errors (model + discrepancy) and the budget
+    # (the two apart)
+    model_preds, deltas = post.predict(z, discrepancy=False), post.discrepancy_draws(z)
+    preds = (model_preds if deltas is None
+             else [f + d for f, d in zip(model_preds, deltas, strict=True)])
+    overall, per, means = tracking_errors(post, z, preds)
+    budget = uncertainty_budget(post, z, parts=(model_preds, deltas))
     check = (check_calibration(post, res.draws(4 * n_prediction_draws, seed=sampler.seed),
                                sampler, start=res.start) if calibration else None)
     return FitResult(post, res, overall, per, means,

@@ -222,7 +222,7 @@ class LinearStructure:
         self.post = post
         self.kind = kind
         self.names = names
-        self.lin_idx = np.concatenate([np.arange(space.ndim)[space.slice_of(n)] for n in names])
+        self.lin_idx = space.indices(names)
         mask = np.ones(space.ndim, dtype=bool)
         mask[self.lin_idx] = False
         #: coordinates the moves propose (everything but the linear block)
@@ -358,12 +358,13 @@ class LinearStructure:
     def noise(self, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``sigma`` (W,) and ``phi`` (W,; zeros for Gaussian noise) at ``z``."""
         w = z.shape[0]
-        return (self._noise_value(z, self.sigma_name, w),
-                self._noise_value(z, self.phi_name, w) if self.kind == "ar1" else np.zeros(w))
+        return (self._scalar_value(z, self.sigma_name, w),
+                self._scalar_value(z, self.phi_name, w) if self.kind == "ar1" else np.zeros(w))
 
-    def _noise_value(self, z: np.ndarray, name: str, w: int) -> np.ndarray:
-        # one column through its transform (this runs several times per move: a full
-        # unpack of every parameter would cost more than the algebra it feeds)
+    def _scalar_value(self, z: np.ndarray, name: str, w: int) -> np.ndarray:
+        # one scalar parameter's column through its transform, or its fixed value (this
+        # runs several times per move: a full unpack of every parameter would cost more
+        # than the algebra it feeds)
         space = self.post.space
         if name in space.fixed:
             return np.full(w, float(space.fixed[name]))
@@ -550,18 +551,8 @@ class LinearStructure:
         """Scale of every linear column (W, P): 1, and the basis' spectral scales."""
         out = np.ones((z.shape[0], self.p))
         if self.has_basis:
-            space = self.post.space
-            theta = {}
-            for name in self.post._disc_names:
-                short = name[len(DISC) + 1:]
-                if short == "xi":
-                    continue
-                if name in space.fixed:
-                    theta[short] = np.full(z.shape[0], float(space.fixed[name]))
-                else:
-                    with np.errstate(over="ignore"):
-                        theta[short] = space[name].transform.inverse(
-                            z[:, space.slice_of(name).start])
+            theta = {name[len(DISC) + 1:]: self._scalar_value(z, name, z.shape[0])
+                     for name in self.post._disc_names if name != f"{DISC}.xi"}
             out[:, self.p_design:] = self.post.discrepancy.column_scale(theta)
         return out
 

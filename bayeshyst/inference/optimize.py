@@ -440,8 +440,7 @@ def conditional_mode(post: Posterior, structure: Any, z: np.ndarray) -> np.ndarr
     """
     space = post.space
     noise = [n for n in space.names if n.startswith(NOISE + ".")]
-    noise_idx = (np.concatenate([np.arange(space.ndim)[space.slice_of(n)] for n in noise])
-                 if noise else np.zeros(0, dtype=int))
+    noise_idx = space.indices(noise)
 
     def with_block(x: np.ndarray) -> np.ndarray:
         zz = np.asarray(z, dtype=float).copy()

@@ -349,10 +349,15 @@ class Posterior:
         if self.discrepancy is None:
             return None
         z = np.atleast_2d(np.asarray(z, dtype=float))
-        theta = self.space.unpack(z)
+        return self._coefficients(self.space.unpack(z), z.shape[0])
+
+    def _coefficients(self, theta: Mapping[str, Any], w: int) -> np.ndarray | None:
+        # the coefficients (W, m) from an unpacked theta (the callers have one already)
+        if self.discrepancy is None:
+            return None
         return self.discrepancy.coefficients(
             {k[len(DISC) + 1:]: np.broadcast_to(np.asarray(theta[k], float),
-                                                (z.shape[0], *np.shape(theta[k])[1:]))
+                                                (w, *np.shape(theta[k])[1:]))
              for k in self._disc_names})
 
     def _delta(self, rec: dict, coef: np.ndarray | None) -> np.ndarray | float:
@@ -372,12 +377,13 @@ class Posterior:
         zi = z[inside]
         if zi.shape[0] == 0:
             return [], np.zeros(0, dtype=bool)
-        model_theta, noise, off = self._split_theta(self.space.unpack(zi))
+        theta = self.space.unpack(zi)
+        model_theta, noise, off = self._split_theta(theta)
         failed = np.zeros(zi.shape[0], dtype=bool)
         out = []
         off = np.asarray(off, dtype=float).reshape(-1, 1) if self.offset else 0.0
         noise = {k: np.asarray(v, dtype=float) for k, v in noise.items()}
-        coef = self.discrepancy_coefficients(zi)
+        coef = self._coefficients(theta, zi.shape[0])
         for rec in self._records:
             traj = self.model.run_batch(rec["u"], rec["t"], model_theta)
             yhat = traj.y[:, rec["s0"]:] + off
@@ -480,9 +486,10 @@ class Posterior:
             Full records (warm-up included); failed rows are NaN.
         """
         z = np.atleast_2d(np.asarray(z, dtype=float))
-        model_theta, _, off = self._split_theta(self.space.unpack(z))
+        theta = self.space.unpack(z)
+        model_theta, _, off = self._split_theta(theta)
         off = np.asarray(off, dtype=float).reshape(-1, 1) if self.offset else 0.0
-        coef = self.discrepancy_coefficients(z) if discrepancy else None
+        coef = self._coefficients(theta, z.shape[0]) if discrepancy else None
         return [self.model.run_batch(r["u"], r["t"], model_theta).y + off + self._delta(r, coef)
                 for r in self._records]
 

@@ -477,15 +477,15 @@ def compensate(
     if virtual:
         plant_text = (f"virtual actuator ({', '.join(plant.effects)}), the simulator that "
                       "generated the data, noise off")
-        def run_plant(t: np.ndarray, u: np.ndarray, f: float | None) -> np.ndarray:
+        def run_plant(t: np.ndarray, u: np.ndarray) -> np.ndarray:
             return plant.simulate(t, u)[None, :]
     else:
         plants = rest[0]
         plant_text = (f"{plants.size} posterior draws of {model.name} held out from design "
                       "and prediction (no ground truth: this measures how the model's "
                       "uncertainty propagates, not how well it fits the actuator)")
-        def run_plant(t: np.ndarray, u: np.ndarray, f: float | None) -> np.ndarray:
-            return predict_outputs(model, u, t, plants, f)
+        def run_plant(t: np.ndarray, u: np.ndarray) -> np.ndarray:
+            return predict_outputs(model, u, t, plants)
     u_all = np.concatenate([r.u for r in data])
     lo_u, hi_u = float(u_all.min()), float(u_all.max())
     u_limits = (lo_u - u_margin * (hi_u - lo_u), hi_u + u_margin * (hi_u - lo_u))
@@ -530,13 +530,12 @@ def _evaluate(model: HysteresisModel, ref: Reference, group: Dataset, nominal: D
     t, y_d, mask, stroke = ref.t, ref.y_d, ref.scored, ref.stroke
     a, b = _scaled_input(group)
     u_scaled = (y_d - a) / b
-    f = ref.frequency_hz
     commands: dict[str, Feedforward] = {
         "uncompensated": Feedforward("uncompensated", u_scaled,
-                                     predict_outputs(model, u_scaled, t, predict, f)),
+                                     predict_outputs(model, u_scaled, t, predict)),
     }
     common: Mapping[str, Any] = {"u_limits": u_limits, "periodic": ref.periodic,
-                                 "scored": mask, "frequency_hz": f}
+                                 "scored": mask}
     commands["nominal"] = design_feedforward(model, y_d, t, nominal, predict, label="nominal",
                                              **common)
     commands["posterior"] = design_feedforward(model, y_d, t, design, predict,
@@ -547,7 +546,7 @@ def _evaluate(model: HysteresisModel, ref: Reference, group: Dataset, nominal: D
     realised: dict[str, tuple[float, float]] = {}
     over_plants: dict[str, float] = {}
     for label, ff in commands.items():
-        y_plant = run_plant(t, ff.u, f)
+        y_plant = run_plant(t, ff.u)
         nrmse, mx = tracking_percent(y_plant, y_d, stroke, mask)
         realised[label] = (float(nrmse[0]), float(mx[0]))
         over_plants[label] = float(np.mean(nrmse))

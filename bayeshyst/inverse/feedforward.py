@@ -67,10 +67,6 @@ class Draws:
             return 0.0
         return self.delta @ self.discrepancy.basis(u, t, frequency_hz).T
 
-    def without_discrepancy(self) -> Draws:
-        """The same draws with the discrepancy left out (the parameters' share alone)."""
-        return Draws(self.theta, self.offset)
-
     @property
     def size(self) -> int:
         """Number of draws ``S``."""
