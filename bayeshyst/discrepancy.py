@@ -7,21 +7,20 @@ model family cannot represent, as a smooth function of where on the loop a sampl
 ``x = (u_n, b, rho)``:
 
 * ``u_n`` -- the input scaled to ``[-1, 1]`` over the training data's range;
-* ``b = d tanh(|u - u_r| / (u_half / 2))`` -- the direction of travel ``d`` (+1 up,
-  -1 down, the last move's sign during holds) times how far the input has travelled
-  since its last reversal ``u_r``: 0 at a reversal, so ``delta`` is continuous where
-  a branch starts (a bare ``d`` would put a step of ``2 delta_b`` there), and
-  saturating at 1 a quarter of the range later. It is the position on the branch.
-  Where a branch *ends* (the next reversal is not known causally) ``b`` is still near
-  ``+-1``: continuity there is left to the data, which pull ``delta_b`` to zero at the
-  loop's tips where the branches meet;
+* ``b`` -- the position on the branch: the output of one stop (elastic-perfectly-
+  plastic) operator of the input, ``b_k = clip(b_(k-1) + 2 (u_k - u_(k-1)) / u_half,
+  -1, 1)`` from ``b = 0`` at the first sample. It is +1 on a rising branch and -1 on a
+  falling one once the input has travelled half its range since the last reversal,
+  and moves linearly in between: rate-independent, and continuous in time both where a
+  branch starts and where it ends (a bare direction of travel would put a step of
+  ``2 delta_b`` in ``delta`` at every reversal, which no command can follow);
 * ``rho`` -- the record's excitation frequency, ``log10 f`` scaled to ``[-1, 1]`` over
   the training frequencies (the loop's rate); 0 and unused with one frequency.
 
 ``delta(x) = delta_c(u_n, rho) + b delta_b(u_n, rho)`` with two independent zero-mean
 squared-exponential GPs (amplitudes ``amplitude`` and ``branch_amplitude``, shared
 length-scales ``length`` in ``u_n`` and ``rate_length`` in ``rho``): a common shape
-error (asymmetry, saturation) and a loop-width error that vanishes at reversals.
+error (asymmetry, saturation) and a loop-width error that changes sign across a reversal.
 
 **Reduced rank** (Solin & Särkkä 2020, Hilbert-space approximation): on ``[-L, L]``
 the SE kernel is ``k(x, x') ~ sum_j S(sqrt(lambda_j)) phi_j(x) phi_j(x')`` with
@@ -39,14 +38,23 @@ hold the approximation for ``length >= 1.75 L / m_u = 0.27`` (Riutort-Mayol et a
 
 **Confounding with theta.** ``delta`` can mimic the model's parameters; two things keep
 ``theta`` meaning what it says. (1) Orthogonality to the model's sensitivities
-(Plumlee 2017, in its linearised form): the basis is projected, over the training
-samples, off the span of ``[1, u_n]`` and of ``d f / d theta`` at a reference point
-(:class:`Anchor`, the MAP of the model without discrepancy), so whatever the model can
-explain by moving ``theta`` stays with ``theta`` and ``delta`` keeps only what no
-parameter change reaches; the same projection is applied wherever the basis is
-evaluated (a feedforward command). (2) Priors that keep ``delta`` small and smooth:
-half-normal amplitudes of scale 5 % of the output span and length-scales of median
-half the input range.
+(Plumlee 2017, in its linearised, reduced-rank form): over the training samples,
+``delta = B w`` is constrained to be orthogonal to ``[1, u_n]`` and to ``d f / d theta``
+at a reference point (:class:`Anchor`, the MAP of the model without discrepancy), by
+confining the coefficients ``w`` to the null space of ``C = Q^T B`` (``Q`` an
+orthonormal basis of those directions): ``w = (I - V V^T) w0`` with ``V`` the
+row space of ``C``. Whatever the model can explain by moving ``theta`` stays with
+``theta``, and ``delta`` keeps only what no parameter change reaches. The constraint
+acts on the coefficients, not on the basis functions: ``delta`` stays a function of
+``x`` alone, evaluated the same way on any input (a feedforward command) with no
+knowledge of the model's state, and the projector has norm 1, so ``delta`` is never
+larger than its unconstrained prior allows. (Projecting the basis *functions* off the
+sensitivities instead -- the first version -- left columns that were small residues of
+large sines; their coefficients grew to match, the parts cancelled on the training
+records only, and along a feedforward command or a warm-up branch ``delta`` reached
+20 % of the stroke.) (2) Priors that keep ``delta`` small and smooth: half-normal
+amplitudes of scale 5 % of the output span and length-scales of median half the input
+range.
 """
 
 from __future__ import annotations
@@ -71,12 +79,10 @@ DISCREPANCY_KINDS = ("none", "hsgp")
 _L = 2.5
 #: Amplitude prior scale, as a fraction of the output span.
 _AMPLITUDE_SHARE = 0.05
-#: Directions of the (unit-rms) trend weaker than this share of the strongest singular
-#: value are not projected off: along them the parameters are barely identified, and
-#: the projection's coefficients would amplify any difference between a new command and
-#: the training input (measured: with 1e-10, the basis on a feedforward command of the
-#: bundled actuator predicted a 14 % tracking error where the plant showed 3.5 %).
-PROJECTION_CUTOFF = 1e-2
+#: Overlaps with the model's sensitivities below this share of the strongest count as
+#: none (rounding): every other direction is constrained. The constraint has norm 1
+#: whatever its rank, so no direction needs sparing for the sake of new inputs.
+PROJECTION_CUTOFF = 1e-8
 
 
 def _sine_basis(x: np.ndarray, m: int) -> tuple[np.ndarray, np.ndarray]:
@@ -93,24 +99,19 @@ def _log_spectral(w: np.ndarray, length: np.ndarray) -> np.ndarray:
 
 
 def branch_coordinate(u: np.ndarray, half: float) -> np.ndarray:
-    """``b = d tanh(|u - u_r| / (half / 2))`` (N,): direction times travel since the reversal.
+    """The position on the branch ``b`` (N,): a stop operator of ``u`` with range ``[-1, 1]``.
 
-    ``d`` is the sign of the last move larger than 1e-9 of ``half`` (+1 before the
-    first one), ``u_r`` the input where the direction last changed (the first sample
-    before any change).
+    ``b_0 = 0``, ``b_k = clip(b_(k-1) + 2 (u_k - u_(k-1)) / half, -1, 1)``: +1 after the
+    input has risen by ``half`` (input unit), -1 after it has fallen by as much, linear
+    in between; continuous in time, independent of the rate.
     """
     u = np.asarray(u, float)
-    n = u.size
-    out = np.zeros(n)
-    tol = 1e-9 * half
-    d, u_r = 1.0, u[0] if n else 0.0
-    for k in range(1, n):  # a short python loop over N: run once per record, not per draw
-        du = u[k] - u[k - 1]
-        if abs(du) > tol:
-            s = 1.0 if du > 0 else -1.0
-            if s != d:
-                d, u_r = s, u[k - 1]
-        out[k] = d * math.tanh(abs(u[k] - u_r) / (0.5 * half))
+    out = np.zeros(u.size)
+    gain = 2.0 / half
+    b = 0.0
+    for k in range(1, u.size):  # a short python loop over N: run once per record, not per draw
+        b = min(1.0, max(-1.0, b + gain * (u[k] - u[k - 1])))
+        out[k] = b
     return out
 
 
@@ -170,10 +171,12 @@ class Discrepancy:
         Output span of the training data (output unit): the amplitude prior's scale.
     y_unit : str
     anchor : Anchor or None
-        Model and reference point whose sensitivities the basis is projected off.
-    detrend : ndarray, shape (k, m)
-        Coefficients of each basis column on ``[1, u_n, df/dz]`` over the training
-        samples, subtracted from the basis wherever it is evaluated.
+        Model and reference point whose sensitivities ``delta`` is kept orthogonal to
+        (used when the object is built; evaluating the basis does not need it).
+    constraint : ndarray, shape (m, r)
+        Orthonormal directions of the coefficients removed from the basis, ``B = B_raw
+        (I - V V^T)``: those along which ``delta`` would overlap ``[1, u_n, df/dz]``
+        over the training samples.
     """
 
     n_input: int = 16
@@ -185,7 +188,7 @@ class Discrepancy:
     y_span: float = 1.0
     y_unit: str = ""
     anchor: Anchor | None = field(default=None, repr=False)
-    detrend: np.ndarray | None = field(default=None, repr=False)
+    constraint: np.ndarray | None = field(default=None, repr=False)
 
     # ------------------------------------------------------------------ construction
     @classmethod
@@ -204,8 +207,8 @@ class Discrepancy:
             Most basis functions in the frequency; used only with >= 2 frequencies
             (then ``min(n_rate, number of frequencies)``).
         anchor : Anchor, optional
-            Project the basis off the model's sensitivities there too (default: off
-            ``[1, u_n]`` only).
+            Keep ``delta`` orthogonal to the model's sensitivities there too (default:
+            to ``[1, u_n]`` only).
         """
         if int(n_input) < 4 or int(n_rate) < 1:
             raise ParameterError(f"discrepancy: n_input >= 4 and n_rate >= 1 expected, got "
@@ -227,26 +230,26 @@ class Discrepancy:
         base = cls(int(n_input), int(nr), 0.5 * (u_lo + u_hi), 0.5 * (u_hi - u_lo),
                    rate_centre, rate_half, float(np.ptp(y)) or 1.0, str(units.get("y", "")),
                    anchor)
-        # orthogonalise over the scored samples of the training data; the minimum-norm
-        # least squares makes ``trend @ coef`` the orthogonal projection even when the
-        # sensitivities are collinear with [1, u_n] (a gain parameter is)
+        # the constraint over the scored samples of the training data: an orthonormal
+        # basis Q of the directions [1, u_n, df/dz] (each scaled to unit rms so that the
+        # rank decision treats them alike; collinear ones -- a gain parameter is u_n --
+        # dropped), then the coefficient directions whose functions overlap them
         rows, trend = [], []
         for r in records:
             s0 = r.scored.start or 0
             rows.append(base.raw_basis(r.u, r.frequency_hz)[s0:])
             trend.append(base._trend(r.u, r.t)[s0:])
         b, a = np.concatenate(rows), np.concatenate(trend)
-        # columns scaled to unit rms over *all* training samples (once: a scale taken
-        # per record or per input would make the map from the trend to the basis
-        # inconsistent, and the basis on a new command wrong) so that the cut-off
-        # treats them alike; the scale is folded into the stored coefficients
         scale = np.sqrt(np.mean(a**2, axis=0))
-        scale = np.where(scale > 0, scale, 1.0)
-        coef, *_ = np.linalg.lstsq(a / scale, b, rcond=PROJECTION_CUTOFF)
-        return replace(base, detrend=coef / scale[:, None])
+        a = a / np.where(scale > 0, scale, 1.0)
+        q, sv, _ = np.linalg.svd(a, full_matrices=False)
+        q = q[:, sv > 1e-8 * sv[0]]
+        _, sc, vt = np.linalg.svd(q.T @ b, full_matrices=False)
+        keep = sc > PROJECTION_CUTOFF * sc[0] if sc.size and sc[0] > 0 else np.zeros(0, bool)
+        return replace(base, constraint=np.ascontiguousarray(vt[keep].T))
 
     def _trend(self, u: np.ndarray, t: np.ndarray) -> np.ndarray:
-        """The directions the basis is kept off, (N, k): ``[1, u_n, df/dz]``."""
+        """The directions ``delta`` is kept off, (N, k): ``[1, u_n, df/dz]``."""
         out = np.column_stack([np.ones(np.size(u)), self.scaled_input(u)])
         if self.anchor is not None:
             out = np.column_stack([out, self.anchor.sensitivities(u, t)])
@@ -298,17 +301,17 @@ class Discrepancy:
         b = branch_coordinate(u, self.u_half)
         return np.concatenate([common, b[:, None] * common], axis=1)
 
-    def basis(self, u: np.ndarray, t: np.ndarray, frequency_hz: float | None) -> np.ndarray:
-        """The basis ``B`` (N, m) on an input ``u`` (N,) at times ``t`` (s) and a frequency."""
+    def basis(self, u: np.ndarray, frequency_hz: float | None) -> np.ndarray:
+        """The basis ``B`` (N, m) on an input ``u`` (N,) at an excitation frequency.
+
+        A function of the input's history and the frequency only (not of the model or
+        its state), so a feedforward command gets the same ``delta`` as training data
+        with the same coordinates.
+        """
         raw = self.raw_basis(u, frequency_hz)
-        if self.detrend is None:
+        if self.constraint is None or self.constraint.shape[1] == 0:
             return raw
-        trend = self._trend(u, t)
-        if trend.shape[1] != self.detrend.shape[0]:
-            # a sensitivity that was finite on the training data failed here
-            raise ParameterError("discrepancy: the model's sensitivities cannot be computed "
-                                 "on this input (a simulation failed)")
-        return raw - trend @ self.detrend
+        return raw - (raw @ self.constraint) @ self.constraint.T
 
     # ------------------------------------------------------------------ parameters
     def param_space(self) -> ParamSpace:

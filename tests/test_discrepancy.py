@@ -47,18 +47,26 @@ def test_reduced_rank_basis_reproduces_the_squared_exponential_kernel():
     assert rec.n == 600
 
 
-def test_branch_coordinate_is_zero_at_reversals_and_signed_by_direction():
+def test_branch_coordinate_is_a_stop_operator_continuous_at_every_reversal():
+    # oracle: the stop operator is the input minus a play operator of half-width r
+    # (written here as the textbook recurrence), scaled by r; r = u_half / 2
     disc = Discrepancy(u_centre=0.0, u_half=1.0)
     t = np.linspace(0.0, 2.0, 401)
-    u = np.sin(2 * np.pi * t)  # reversals at t = 0.25, 0.75, ...
+    u = np.sin(2 * np.pi * t) * (1.0 - 0.3 * t)  # reversals, shrinking minor loops
     basis = disc.raw_basis(u, None)
     m = disc.n_input
     ratio = basis[:, m:] / np.where(basis[:, :m] == 0, np.nan, basis[:, :m])
     b = np.nanmedian(ratio, axis=1)  # the branch columns are b times the common ones
-    rising = np.r_[True, np.diff(u) > 0]  # the direction of the last move
-    assert np.all(b[5:][rising[5:]] >= -1e-12) and np.all(b[5:][~rising[5:]] <= 1e-12)
-    k_rev = int(np.argmin(u[:300]))  # the minimum: the new branch starts at b ~ 0
-    assert abs(b[k_rev + 1]) < 0.05 and abs(b[k_rev]) > 0.9
+    r = 0.5
+    play = np.empty_like(u)
+    play[0] = u[0]
+    for k in range(1, u.size):
+        play[k] = max(u[k] - r, min(u[k] + r, play[k - 1]))
+    np.testing.assert_allclose(b, (u - play) / r, atol=1e-12)
+    # continuous in time (no step where a branch starts or ends) and +-1 at the tips
+    assert np.max(np.abs(np.diff(b))) <= 2.0 * np.max(np.abs(np.diff(u))) / r / 2 + 1e-12
+    tips = np.flatnonzero(np.diff(np.sign(np.diff(u))) != 0) + 1
+    np.testing.assert_allclose(np.abs(b[tips]), 1.0)
 
 
 def test_basis_is_orthogonal_to_the_model_sensitivities_at_the_anchor(pi):
@@ -70,7 +78,7 @@ def test_basis_is_orthogonal_to_the_model_sensitivities_at_the_anchor(pi):
     anchor = Anchor(model, post.model_space, z_model)
     disc = Discrepancy.for_data(data, anchor=anchor)
     s0 = rec.scored.start or 0
-    basis = disc.basis(rec.u, rec.t, rec.frequency_hz)[s0:]
+    basis = disc.basis(rec.u, rec.frequency_hz)[s0:]
     # oracle: sensitivities by an independent central difference of simulate
     theta0 = post.model_space.unpack(z_model)
     h = 1e-5
@@ -264,19 +272,14 @@ def test_feedforward_against_model_plus_discrepancy_meets_the_reference(pi):
     y_d = 8.0 + 4.0 * np.sin(2 * np.pi * 3.0 * t)
     ff = design_feedforward(model, y_d, t, design, predict, label="posterior",
                             frequency_hz=3.0)
-    basis = post.discrepancy.basis(ff.u, t, 3.0)
+    basis = post.discrepancy.basis(ff.u, 3.0)
     coef = post.discrepancy_coefficients(z[:20])
     y_design = (model.run_batch(ff.u, t, design.theta).y + design.offset[:, None]
                 + coef @ basis.T)
     err = np.abs(y_design.mean(axis=0) - y_d)
-    # at a reversal sample the branch coordinate switches (delta's branch term is not
-    # continuous where a branch *ends*, see bayeshyst.discrepancy): the fixed point
-    # cannot meet y_d on that one sample, everywhere else it does
-    rev = np.flatnonzero(np.diff(np.sign(np.diff(ff.u))) != 0) + 1
-    away = np.ones(t.size, dtype=bool)
-    away[rev] = False
-    assert np.max(err[away]) < 1e-3 * np.ptp(y_d)
-    assert np.max(err[rev]) < 0.02 * np.ptp(y_d)
+    # the branch coordinate is continuous in time, so the fixed point meets y_d at every
+    # sample, reversals included
+    assert np.max(err) < 1e-3 * np.ptp(y_d)
     y_pred = predict_outputs(model, ff.u, t, predict, 3.0)
     alone = predict_outputs(model, ff.u, t, Draws(predict.theta, predict.offset), 3.0)
     assert np.allclose(y_pred - alone, post.discrepancy_coefficients(z[20:]) @ basis.T,
@@ -295,12 +298,12 @@ def test_basis_on_a_new_input_is_the_training_map(pi):
     start = find_map(post0, seed=np.random.default_rng(0))
     z_model = np.concatenate([start.z[post0.space.slice_of(n)] for n in post0.model_space.names])
     disc = Discrepancy.for_data(data, anchor=Anchor(model, post0.model_space, z_model))
-    full = disc.basis(other.u, other.t, other.frequency_hz)
-    again = disc.basis(other.u.copy(), other.t.copy(), other.frequency_hz)
+    full = disc.basis(other.u, other.frequency_hz)
+    again = disc.basis(other.u.copy(), other.frequency_hz)
     assert np.array_equal(full, again)
     # one map for both records: the stacked basis is orthogonal to the stacked trend
     # (a scale taken per record -- the bug this guards against -- breaks it)
-    rows = np.concatenate([disc.basis(r.u, r.t, r.frequency_hz)[r.scored.start or 0:]
+    rows = np.concatenate([disc.basis(r.u, r.frequency_hz)[r.scored.start or 0:]
                            for r in data])
     # the trend built here, unscaled: [1, u, df/dz at the anchor] over both records
     trend = np.concatenate([np.column_stack([np.ones(r.n), r.u,
@@ -308,3 +311,24 @@ def test_basis_on_a_new_input_is_the_training_map(pi):
                             [r.scored.start or 0:] for r in data])
     cos = (trend / np.linalg.norm(trend, axis=0)).T @ (rows / np.linalg.norm(rows, axis=0))
     assert np.max(np.abs(cos)) < 1e-6
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_design_with_the_discrepancy_tracks_a_misspecified_plant_better(seed):
+    # oracle: the plant itself. An asymmetric-Preisach plant with creep, fitted by a
+    # symmetric play-PI model: the discrepancy learns the shape the model lacks, and a
+    # command designed against model + discrepancy tracks the plant with a smaller
+    # error than one designed against the model alone (measured on seeds 0-2: 1.2 %
+    # against 1.9 % of the stroke; the bar, 0.8 times, leaves room for the seed)
+    from bayeshyst.data.virtual import VirtualActuator
+    from bayeshyst.inverse.compensate import compensate
+    from tests.test_compensate import loops
+
+    data = loops(VirtualActuator().without("dynamics", "drift", "delay"), [2.0], seed=seed)
+    realised = {}
+    for kind in ("none", "hsgp"):
+        res = compensate(data, "pi_play(n_operators=6)", sampler=SamplerSettings(seed=seed),
+                         discrepancy=kind, n_design_draws=12, n_predict_draws=40)
+        realised[kind] = res.rows[0].posterior_nrmse_percent
+        assert (res.rows[0].parameter_band_percent is None) == (kind == "none")
+    assert realised["hsgp"] < 0.8 * realised["none"]

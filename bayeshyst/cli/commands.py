@@ -207,7 +207,8 @@ def cmd_compensate(args: argparse.Namespace) -> int:
               f"({len(data)} record(s); frequencies [Hz]: {freqs}); reference: {ref}",
               file=sys.stderr)
     with removed_on_failure(out) as outputs:
-        fit = fit_model(data, model, likelihood, sampler=sampler)
+        fit = fit_model(data, model, likelihood, sampler=sampler,
+                        discrepancy=args.discrepancy)
         # the sampled chains are the first result: should the design fail, their
         # checkpoint stays and the rerun resumes from it instead of sampling again
         outputs.keep()

@@ -122,6 +122,9 @@ def build_parser() -> argparse.ArgumentParser:
                              "posterior draws; posterior = always held-out draws")
     p_comp.add_argument("--no-checkpoint", action="store_true",
                         help="do not checkpoint to OUT/checkpoint.h5 (and do not resume)")
+    p_comp.add_argument("--discrepancy", choices=("none", "hsgp"), default="none",
+                        help="fit with a model-discrepancy term (hsgp) and design and predict "
+                             "the commands against model + discrepancy (default none)")
     p_comp.set_defaults(func=cmd_compensate)
 
     p_dg = sub.add_parser("diagnose", help="trace what a model leaves in its residual to a "

@@ -220,7 +220,7 @@ class Posterior:
                 "keep": None, "frequency_hz": rec.frequency_hz,
                 # the discrepancy's basis over the whole record (N, m), fixed by the data
                 "basis": (None if self.discrepancy is None else np.ascontiguousarray(
-                    self.discrepancy.basis(rec.u, rec.t, rec.frequency_hz))),
+                    self.discrepancy.basis(rec.u, rec.frequency_hz))),
             })
         self.held_out: tuple[int, ...] = ()
         self._n_evals = 0

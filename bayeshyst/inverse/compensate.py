@@ -213,6 +213,11 @@ class CompensationRow:
     model_error_percent : float
         Largest deviation of the model's own (posterior-mean) output from the reference
         under the posterior command: how exactly the inverse was computed.
+    parameter_band_percent : (float, float) or None
+        With a discrepancy: the 90 % NRMSE interval of the posterior command from the
+        parameters alone (the discrepancy left out), to set against
+        ``predicted_band_percent`` (parameters and discrepancy): the tracking band's
+        budget. None without a discrepancy (then the two are the same).
     curves : dict
         ``t``, ``y_d``, ``scored``, the commands ``u_<label>``, the plant outputs
         ``y_<label>`` (the first plant), the tracking NRMSE on every plant
@@ -238,6 +243,7 @@ class CompensationRow:
     mean_over_plants: dict[str, float] | None
     n_saturated: int
     model_error_percent: float
+    parameter_band_percent: tuple[float, float] | None = None
     curves: dict[str, np.ndarray] = field(default_factory=dict, repr=False)
 
     def to_dict(self) -> dict[str, Any]:
@@ -245,6 +251,8 @@ class CompensationRow:
         out = {k: getattr(self, k) for k in self.__dataclass_fields__ if k != "curves"}
         out["predicted_band_percent"] = list(self.predicted_band_percent)
         out["nominal_predicted_band_percent"] = list(self.nominal_predicted_band_percent)
+        if self.parameter_band_percent is not None:
+            out["parameter_band_percent"] = list(self.parameter_band_percent)
         return out
 
     @property
@@ -320,15 +328,10 @@ def _split_draws(fit: FitResult, sizes: tuple[int, ...], seed: int) -> list[Draw
 
 
 def _as_draws(post: Any, z: np.ndarray) -> Draws:
-    # the model's parameters and offsets only: a fit's discrepancy is left out of the
-    # design and the bands, because its basis does not yet transfer to a feedforward
-    # command (measured on the bundled actuator: along the command it predicted a 12-15 %
-    # tracking error where the plant showed 2-4 %; the projection off the model's
-    # sensitivities amplifies their dependence on the operators' initial state).
-    # design_feedforward and predict_outputs take a discrepancy (Draws.delta) when one
-    # transfers.
+    # the model's parameters, offsets and (with one) the discrepancy's coefficients:
+    # delta is a function of the input's history alone, so it transfers to a command
     theta, offset = post.model_draws(z)
-    return Draws(theta, offset)
+    return Draws(theta, offset, post.discrepancy, post.discrepancy_coefficients(z))
 
 
 def _plant_from_data(data: Dataset) -> VirtualActuator | None:
@@ -397,6 +400,7 @@ def compensate(
     u_margin: float = 0.25,
     likelihood: str = "gaussian",
     sampler: SamplerSettings | None = None,
+    discrepancy: str | None = None,
 ) -> CompensationResult:
     """Design feedforward from the posterior of ``model`` and evaluate it per frequency.
 
@@ -435,6 +439,10 @@ def compensate(
         How the fit is sampled (default :class:`SamplerSettings`, the defaults of every
         command; ignored with ``fit`` but for its seed). ``sampler.seed`` seeds the fit
         and the choice of draws: same seed, same result.
+    discrepancy : {"none", "hsgp"}, optional
+        Fit with a model discrepancy (ignored with ``fit``, which carries its own): the
+        commands are then designed against model + discrepancy and the bands predicted
+        from both (:func:`~bayeshyst.inverse.feedforward.design_feedforward`).
 
     Returns
     -------
@@ -462,7 +470,7 @@ def compensate(
             raise ParameterError(f"fit is a posterior of {fit.posterior.model.name!r}, not of "
                                  f"the model asked for, {wanted.name!r}")
     else:
-        fit = fit_model(data, model, likelihood, sampler=sampler)
+        fit = fit_model(data, model, likelihood, sampler=sampler, discrepancy=discrepancy)
     post = fit.posterior
     model = post.model
     if plant is None:
@@ -477,15 +485,15 @@ def compensate(
     if virtual:
         plant_text = (f"virtual actuator ({', '.join(plant.effects)}), the simulator that "
                       "generated the data, noise off")
-        def run_plant(t: np.ndarray, u: np.ndarray) -> np.ndarray:
+        def run_plant(t: np.ndarray, u: np.ndarray, f: float | None) -> np.ndarray:
             return plant.simulate(t, u)[None, :]
     else:
         plants = rest[0]
         plant_text = (f"{plants.size} posterior draws of {model.name} held out from design "
                       "and prediction (no ground truth: this measures how the model's "
                       "uncertainty propagates, not how well it fits the actuator)")
-        def run_plant(t: np.ndarray, u: np.ndarray) -> np.ndarray:
-            return predict_outputs(model, u, t, plants)
+        def run_plant(t: np.ndarray, u: np.ndarray, f: float | None) -> np.ndarray:
+            return predict_outputs(model, u, t, plants, f)
     u_all = np.concatenate([r.u for r in data])
     lo_u, hi_u = float(u_all.min()), float(u_all.max())
     u_limits = (lo_u - u_margin * (hi_u - lo_u), hi_u + u_margin * (hi_u - lo_u))
@@ -510,9 +518,6 @@ def compensate(
         rows.append(_evaluate(model, ref, group, nominal, design, predict, run_plant,
                               u_limits, robust_quantile, virtual))
     statements = _trend_statements(rows, model.name, model.rate_dependent)
-    if post.discrepancy is not None:
-        statements = [*statements, "The fit's model discrepancy was left out of the design "
-                      "and the bands: it does not yet transfer to a feedforward command."]
     settings = {"reference": reference.kind if isinstance(reference, Reference) else reference,
                 "cycles": cycles, "warmup_cycles": warmup_cycles,
                 "n_design_draws": n_design_draws, "n_predict_draws": n_predict_draws,
@@ -530,12 +535,13 @@ def _evaluate(model: HysteresisModel, ref: Reference, group: Dataset, nominal: D
     t, y_d, mask, stroke = ref.t, ref.y_d, ref.scored, ref.stroke
     a, b = _scaled_input(group)
     u_scaled = (y_d - a) / b
+    f = ref.frequency_hz
     commands: dict[str, Feedforward] = {
         "uncompensated": Feedforward("uncompensated", u_scaled,
-                                     predict_outputs(model, u_scaled, t, predict)),
+                                     predict_outputs(model, u_scaled, t, predict, f)),
     }
     common: Mapping[str, Any] = {"u_limits": u_limits, "periodic": ref.periodic,
-                                 "scored": mask}
+                                 "scored": mask, "frequency_hz": f}
     commands["nominal"] = design_feedforward(model, y_d, t, nominal, predict, label="nominal",
                                              **common)
     commands["posterior"] = design_feedforward(model, y_d, t, design, predict,
@@ -546,7 +552,7 @@ def _evaluate(model: HysteresisModel, ref: Reference, group: Dataset, nominal: D
     realised: dict[str, tuple[float, float]] = {}
     over_plants: dict[str, float] = {}
     for label, ff in commands.items():
-        y_plant = run_plant(t, ff.u)
+        y_plant = run_plant(t, ff.u, f)
         nrmse, mx = tracking_percent(y_plant, y_d, stroke, mask)
         realised[label] = (float(nrmse[0]), float(mx[0]))
         over_plants[label] = float(np.mean(nrmse))
@@ -562,6 +568,13 @@ def _evaluate(model: HysteresisModel, ref: Reference, group: Dataset, nominal: D
                          [(1 - BAND) / 2, (1 + BAND) / 2])
     nlo, nhi = np.quantile(commands["nominal"].error_distribution(y_d, stroke, mask),
                            [(1 - BAND) / 2, (1 + BAND) / 2])
+    param_band = None
+    if predict.delta is not None:
+        alone = predict_outputs(model, post_ff.u, t, Draws(predict.theta, predict.offset))
+        ok = np.all(np.isfinite(alone), axis=1)
+        plo, phi = np.quantile(tracking_percent(alone[ok], y_d, stroke, mask)[0],
+                               [(1 - BAND) / 2, (1 + BAND) / 2])
+        param_band = (float(plo), float(phi))
     y_post = curves["y_posterior"]
     inside = (y_post >= band_lo) & (y_post <= band_hi)
     posterior_plants = curves["nrmse_posterior"]
@@ -586,5 +599,6 @@ def _evaluate(model: HysteresisModel, ref: Reference, group: Dataset, nominal: D
                             if ff.inversion is not None)),
         # the inverter's own forward check: max |posterior-mean output - y_d| when scored
         model_error_percent=float(100.0 * post_ff.inversion.max_error / stroke),
+        parameter_band_percent=param_band,
         curves=curves,
     )

@@ -60,12 +60,11 @@ class Draws:
     discrepancy: Any = None
     delta: np.ndarray | None = None
 
-    def delta_on(self, u: np.ndarray, t: np.ndarray,
-                 frequency_hz: float | None) -> np.ndarray | float:
+    def delta_on(self, u: np.ndarray, frequency_hz: float | None) -> np.ndarray | float:
         """The discrepancy ``(S, N)`` of every draw along the command ``u``; 0 without one."""
         if self.discrepancy is None or self.delta is None:
             return 0.0
-        return self.delta @ self.discrepancy.basis(u, t, frequency_hz).T
+        return self.delta @ self.discrepancy.basis(u, frequency_hz).T
 
     @property
     def size(self) -> int:
@@ -81,7 +80,7 @@ def predict_outputs(model: HysteresisModel, u: np.ndarray, t: np.ndarray,
     ``frequency_hz`` (the reference's).
     """
     return (model.run_batch(u, t, draws.theta).y + draws.offset[:, None]
-            + draws.delta_on(u, t, frequency_hz))
+            + draws.delta_on(u, frequency_hz))
 
 
 def tracking_percent(y: np.ndarray, y_d: np.ndarray, stroke: float,
@@ -201,7 +200,7 @@ def design_feedforward(model: HysteresisModel, y_d: Any, t: Any, design: Draws,
         best_err, best = forward_error(inv.u), inv
         u = inv.u
         for _ in range(DISCREPANCY_ROUNDS):
-            extra = design.offset[:, None] + design.delta_on(u, t, frequency_hz)
+            extra = design.offset[:, None] + design.delta_on(u, frequency_hz)
             new = invert(model, y_d, t, design.theta, objective=objective,
                          quantile=quantile, u_limits=u_limits, offset=extra,
                          periodic=periodic, scored=scored)
