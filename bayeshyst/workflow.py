@@ -36,7 +36,8 @@ from bayeshyst.data.record import Dataset, Record
 from bayeshyst.diagnosis import DiagnosisResult, diagnose
 from bayeshyst.diagnosis.loop import DiagnosisFit
 from bayeshyst.errors import DataError, ParameterError
-from bayeshyst.inference.fit import FitResult
+from bayeshyst.inference.calibration import Calibration
+from bayeshyst.inference.fit import FitResult, calibrate_fit
 from bayeshyst.inference.settings import SamplerSettings
 from bayeshyst.inverse.compensate import CompensationResult, compensate
 from bayeshyst.likelihoods import get_likelihood
@@ -81,6 +82,9 @@ class ReportSettings:
         Quantile of ``|error|`` over draws the robust command minimises.
     n_jobs : int or None
         Worker processes of the comparison (default: one per core).
+    calibration : bool
+        Check the final model's predictive on held-out cycles (one more posterior run
+        without the last cycle of every record) for the report's uncertainty analysis.
     """
 
     likelihood: str = "gaussian"
@@ -94,6 +98,7 @@ class ReportSettings:
     design_draws: int = 24
     robust_quantile: float = 0.9
     n_jobs: int | None = None
+    calibration: bool = True
 
     def __post_init__(self) -> None:
         if not isinstance(self.sampler, SamplerSettings):
@@ -133,6 +138,9 @@ class ReportResult:
     diagnosis : DiagnosisResult or None
     compensation : CompensationResult or None
         Designed from the diagnosis' final model.
+    calibration : Calibration or None
+        The leave-cycles-out calibration check of the diagnosis' final fit (None when
+        ``settings.calibration`` is off or no parametric model fitted).
     settings : ReportSettings
     seed : int
         The report's seed (``settings.sampler.seed``).
@@ -149,6 +157,7 @@ class ReportResult:
     compensation: CompensationResult | None
     settings: ReportSettings
     seed: int
+    calibration: Calibration | None = None
     warnings: tuple[str, ...] = ()
     runtime_s: dict[str, float] = field(default_factory=dict)
 
@@ -163,6 +172,8 @@ class ReportResult:
             parts.append(f"diagnosed and compensated: {self.chosen_model}")
         if self.diagnosis is not None:
             parts.append(str(self.diagnosis))
+        if self.calibration is not None:
+            parts.append(str(self.calibration))
         if self.compensation is not None:
             parts.append(str(self.compensation))
         parts += [f"warning: {w}" for w in self.warnings]
@@ -255,7 +266,7 @@ def run_report(
     # the diagnosis' fits: its base fit has the comparison's joint fit's identity
     checkpoints = None if out is None else out / "compare" / "checkpoints"
 
-    _stage(progress, f"1/3 comparing {', '.join(names)} per frequency")
+    _stage(progress, f"1/4 comparing {', '.join(names)} per frequency")
     t0 = time.perf_counter()
     comparison = compare_models(
         data, names, likelihood=s.likelihood, sampler=sampler, lofo=s.lofo,
@@ -264,9 +275,9 @@ def run_report(
     times["compare"] = time.perf_counter() - t0
 
     chosen, warnings = choose_model(comparison)
-    diagnosis = compensation = None
+    diagnosis = compensation = calibration = None
     if chosen is not None:
-        _stage(progress, f"2/3 diagnosing the residual of {chosen}")
+        _stage(progress, f"2/4 diagnosing the residual of {chosen}")
         t0 = time.perf_counter()
         diagnosis = diagnose(
             data, chosen, s.likelihood, effects=s.effects, max_rounds=s.max_rounds,
@@ -274,14 +285,21 @@ def run_report(
             checkpoint_dir=checkpoints, on_fit=on_fit)
         times["diagnose"] = time.perf_counter() - t0
         final = diagnosis.final
-        _stage(progress, f"3/3 designing feedforward with {final.label}")
+        if s.calibration:
+            _stage(progress, f"3/4 checking {final.label}'s predictive on held-out cycles")
+            t0 = time.perf_counter()
+            calibration = calibrate_fit(final.fit, sampler).calibration
+            times["calibrate"] = time.perf_counter() - t0
+        _stage(progress, f"4/4 designing feedforward with {final.label}")
         t0 = time.perf_counter()
         compensation = compensate(data, final.model, fit=final.fit,
                                   n_design_draws=s.design_draws,
                                   robust_quantile=s.robust_quantile, sampler=sampler)
         times["compensate"] = time.perf_counter() - t0
+    if calibration is not None:
+        warnings += [f"{chosen} (final model): {w}" for w in calibration.warnings]
     return ReportResult(data, comparison, chosen, diagnosis, compensation, settings, int(seed),
-                        tuple(warnings), times)
+                        calibration, tuple(warnings), times)
 
 
 # ------------------------------------------------------------------------------ demo

@@ -176,3 +176,32 @@ def test_bad_arguments_are_refused(fit, tmp_path):
     with pytest.raises(ParameterError, match="not sampled from this posterior"):
         P.plot_loops(post.fix("noise.sigma", 0.05), res, tmp_path / "a.png")
     assert list(tmp_path.iterdir()) == []
+
+
+def test_uncertainty_figure_stacks_the_budget_shares_and_draws_the_pit():
+    # oracle: the bars are the budget's shares (stacked: each segment starts where the
+    # one below ends) and the PIT stairs are the calibration's histograms
+    from bayeshyst.inference.calibration import (
+        Calibration,
+        FrequencyBudget,
+        FrequencyCalibration,
+    )
+
+    budget = [FrequencyBudget(1.0, 0.04, 0.01, 0.05), FrequencyBudget(50.0, 0.09, 0.0, 0.01)]
+    hist = (0.2, 0.05, 0.05, 0.1, 0.1, 0.1, 0.1, 0.05, 0.05, 0.2)
+    cal = Calibration([FrequencyCalibration(f, 400, 20.0, {0.5: 0.4, 0.9: 0.8},
+                                            {0.5: (0.3, 0.7), 0.9: (0.7, 1.0)}, hist)
+                       for f in (1.0, 50.0)], ("a#3", "b#3"), True)
+    fig = P.uncertainty_figure(budget, cal, y_unit="um")
+    bars, pit = fig.axes
+    heights = np.array([p.get_height() for p in bars.patches]).reshape(3, 2)
+    bottoms = np.array([p.get_y() for p in bars.patches]).reshape(3, 2)
+    shares = np.array([[b.shares[k] for b in budget]
+                       for k in ("noise", "parameters", "discrepancy")])
+    np.testing.assert_allclose(heights, shares)
+    np.testing.assert_allclose(bottoms, np.vstack([np.zeros(2), np.cumsum(shares, 0)[:-1]]))
+    stairs = [a for a in pit.patches]
+    assert len(stairs) == 2
+    np.testing.assert_allclose(stairs[0].get_data().values, hist)
+    with pytest.raises(ParameterError):
+        P.uncertainty_figure([])

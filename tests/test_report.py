@@ -117,6 +117,21 @@ def test_demo_summary_has_every_section(demo: tuple[int, Path]) -> None:
     comp = summary["compensation"]
     assert [r["frequency_hz"] for r in comp["per_frequency"]] == freqs
     assert comp["plant_kind"] == "virtual actuator"
+    # the uncertainty analysis: the final model's budget and its calibration check per
+    # frequency; the shares are the three variances over their sum, the sd its root
+    unc = summary["uncertainty"]
+    assert unc["checked"] and [r["frequency_hz"] for r in unc["per_frequency"]] == freqs
+    for r in unc["per_frequency"]:
+        parts = (r["noise_var"], r["parameter_var"], r["discrepancy_var"])
+        assert r["predictive_sd"] == pytest.approx(sum(parts) ** 0.5, rel=1e-9)
+        assert sum(r["shares"].values()) == pytest.approx(1.0)
+        assert r["dominant"] == max(r["shares"], key=r["shares"].get)
+        c = r["calibration"]
+        assert c["frequency_hz"] == r["frequency_hz"] and 0 <= c["coverage_90"] <= 1
+        assert c["calibrated"] is (c["expected_50"][0] <= c["coverage_50"] <= c["expected_50"][1]
+                                   and c["expected_90"][0] <= c["coverage_90"]
+                                   <= c["expected_90"][1])
+    assert [r["frequency_hz"] for r in unc["tracking_band"]] == freqs
     # every fit's posterior is on disk as netCDF
     for f in sel["fits"]:
         assert (out / "compare" / "posteriors" / Path(f["posterior"]).name).is_file()
@@ -151,7 +166,7 @@ def test_report_html_embeds_every_figure_and_needs_no_network(demo: tuple[int, P
     assert all(link.startswith("#") for link in page.links), page.links
     assert page.tags.get("script", 0) == 0
     assert page.section_ids == ["glance", "data", "posteriors", "model-selection",
-                                "diagnosis", "compensation", "reproduce"]
+                                "diagnosis", "uncertainty", "compensation", "reproduce"]
 
 
 def test_report_tables_have_no_nan_and_show_the_summary_numbers(

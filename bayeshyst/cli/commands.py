@@ -346,7 +346,8 @@ def _report_settings(args: argparse.Namespace) -> Any:
     return ReportSettings(
         likelihood=args.likelihood, sampler=sampler_settings(args), lofo=not args.no_lofo,
         max_refits=args.max_refits, effects=None if args.effects is None
-        else effect_list(args.effects), max_rounds=args.max_rounds, n_jobs=args.jobs)
+        else effect_list(args.effects), max_rounds=args.max_rounds, n_jobs=args.jobs,
+        calibration=not args.no_calibration)
 
 
 def cmd_report(args: argparse.Namespace) -> int:

@@ -165,6 +165,10 @@ def build_parser() -> argparse.ArgumentParser:
                        help="candidate effects of the diagnosis (default all)")
     p_rep.add_argument("--max-rounds", type=positive_int, default=6, metavar="N",
                        help="most effects the diagnosis adds (default 6)")
+    p_rep.add_argument("--no-calibration", action="store_true",
+                       help="skip the uncertainty analysis' calibration check (one more "
+                            "posterior run of the final model without the last cycle of "
+                            "every record)")
     p_rep.set_defaults(func=cmd_report)
 
     p_demo = sub.add_parser("demo", help="the whole study (bayeshyst report) on the bundled "

@@ -36,6 +36,7 @@ from bayeshyst.diagnosis.residual import (
     best_point,
 )
 from bayeshyst.errors import DataError, ParameterError
+from bayeshyst.inference.calibration import uncertainty_budget
 from bayeshyst.inference.fit import FitResult, TrackingError, errors_by_frequency
 from bayeshyst.inference.optimize import find_map
 from bayeshyst.inference.posterior import Posterior
@@ -398,7 +399,8 @@ def _fit(data: Dataset, model: HysteresisModel, likelihood: str, label: str,
                                 max_ar_order=st.max_ar_order)
     overall, per = errors_by_frequency(data, analysis.mean_prediction)
     fit = FitResult(post, res, overall, list(per), list(analysis.mean_prediction),
-                    pointwise_elpd=scores.pointwise, warnings=tuple(notes), idata=scores.idata)
+                    pointwise_elpd=scores.pointwise, warnings=tuple(notes), idata=scores.idata,
+                    budget=tuple(uncertainty_budget(post, draws)))
     return DiagnosisFit(label, fit, analysis)
 
 

@@ -22,6 +22,7 @@ _EXPORTS = {
     "SamplerSettings": "settings",
     "SamplingResult": "sampling",
     "SamplingTarget": "protocols",
+    "calibrate_fit": "fit",
     "conjugate_posterior": "conjugate",
     "find_map": "optimize",
     "fit_model": "fit",

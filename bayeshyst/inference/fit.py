@@ -8,7 +8,7 @@ the measurement — overall and per excitation frequency, as users report it.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -31,7 +31,8 @@ from bayeshyst.models.base import HysteresisModel
 from bayeshyst.params import ParamSpace
 
 __all__ = [
-    "FitResult", "TrackingError", "errors_by_frequency", "fit_model", "tracking_errors",
+    "FitResult", "TrackingError", "calibrate_fit", "errors_by_frequency", "fit_model",
+    "tracking_errors",
 ]
 
 
@@ -246,8 +247,32 @@ def fit_model(
              else [f + d for f, d in zip(model_preds, deltas, strict=True)])
     overall, per, means = tracking_errors(post, z, preds)
     budget = uncertainty_budget(post, z, parts=(model_preds, deltas))
-    check = (check_calibration(post, res.draws(4 * n_prediction_draws, seed=sampler.seed),
-                               sampler, start=res.start) if calibration else None)
-    return FitResult(post, res, overall, per, means,
-                     warnings=() if check is None else check.warnings,
-                     discrepancy_scales=scales, calibration=check, budget=tuple(budget))
+    fit = FitResult(post, res, overall, per, means, discrepancy_scales=scales,
+                    budget=tuple(budget))
+    return calibrate_fit(fit, sampler, n_draws=4 * n_prediction_draws) if calibration else fit
+
+
+def calibrate_fit(fit: FitResult, sampler: SamplerSettings | None = None, *,
+                  n_draws: int = 800) -> FitResult:
+    """``fit`` with its leave-cycles-out calibration check run (and its warnings added).
+
+    Parameters
+    ----------
+    fit : FitResult
+    sampler : SamplerSettings, optional
+        How the check's posterior (without the last cycle of every record) is sampled;
+        default :class:`SamplerSettings`. Its seed also seeds the predictive draws.
+    n_draws : int
+        Draws of ``fit``'s posterior the check starts its walkers around.
+
+    Returns
+    -------
+    FitResult
+        The same fit with ``calibration`` set
+        (:func:`~bayeshyst.inference.calibration.check_calibration`).
+    """
+    sampler = SamplerSettings() if sampler is None else sampler
+    res = fit.sampling
+    check = check_calibration(fit.posterior, res.draws(n_draws, seed=sampler.seed), sampler,
+                              start=res.start)
+    return replace(fit, calibration=check, warnings=(*fit.warnings, *check.warnings))

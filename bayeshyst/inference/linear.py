@@ -600,8 +600,16 @@ class LinearStructure:
             xa, xb = x[:, a], x[:, b]
             out[:, ix[:, None], ix[None, :]] = xa.transpose(0, 2, 1) @ xb
             ba, bb = basis[a], basis[b]
-            out[:, ib[:, None], ix[None, :]] = np.stack([ba.T @ xb[j] for j in range(w)])
-            out[:, ix[:, None], ib[None, :]] = np.stack([xa[j].T @ bb for j in range(w)])
+            # one product over all walkers: the basis (N x m, tens of MB on long records)
+            # is read once, not once per walker (W skinny products were memory-bound)
+            n_b = xb.shape[1]
+            cross_b = (ba.T @ xb.transpose(1, 0, 2).reshape(n_b, -1)).reshape(-1, w, ix.size)
+            out[:, ib[:, None], ix[None, :]] = cross_b.transpose(1, 0, 2)
+            if a is b or np.array_equal(a, b):
+                out[:, ix[:, None], ib[None, :]] = cross_b.transpose(1, 2, 0)
+            else:
+                cross_a = (bb.T @ xa.transpose(1, 0, 2).reshape(n_b, -1)).reshape(-1, w, ix.size)
+                out[:, ix[:, None], ib[None, :]] = cross_a.transpose(1, 2, 0)
             out[:, ib[:, None], ib[None, :]] = self._basis_gram(rec_index, a, b)[None]
             return out
 

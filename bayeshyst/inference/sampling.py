@@ -42,7 +42,12 @@ from bayeshyst.inference.checkpoint import (
 from bayeshyst.inference.convergence import ConvergenceReport, assess, hdi
 from bayeshyst.inference.linear import LinearStructure
 from bayeshyst.inference.moves import MoveStats, StructuredTarget, structured_moves
-from bayeshyst.inference.optimize import MAPResult, find_map, initial_ensemble
+from bayeshyst.inference.optimize import (
+    MAPResult,
+    conditional_mode,
+    find_map,
+    initial_ensemble,
+)
 from bayeshyst.inference.posterior import EvalCounts, Posterior
 from bayeshyst.inference.settings import SamplerSettings
 from bayeshyst.params import ParamSpace
@@ -592,8 +597,18 @@ def sample_posterior(
             # the best walker and sample afresh from there (the chains so far started in
             # a minor mode; their draws are discarded, not mixed in)
             gain = run.best_log_prob - start.log_prob
-            new = find_map(post, seed=np.random.default_rng(rngs[0].integers(2**31 - 1)),
-                           x0=run.restart_from)
+            if structure is not None and getattr(post, "discrepancy", None) is not None:
+                # with a discrepancy the linear block has ~100 coordinates: the polish
+                # keeps the best walker's nonlinear ones and moves the block and the
+                # noise to their conditional mode (a full search differentiates every
+                # coefficient: 10+ minutes on 30 000 samples, measured)
+                z0 = conditional_mode(post, LinearStructure.of(post, reference=run.restart_from),
+                                      run.restart_from)
+                new = replace(start, z=z0, theta=post.space.unpack(z0),
+                              log_prob=float(post.log_prob(z0)), notes=())
+            else:
+                new = find_map(post, seed=np.random.default_rng(rngs[0].integers(2**31 - 1)),
+                               x0=run.restart_from)
             attempt += 1
             structure = LinearStructure.of(post, reference=new.z) if structured else None
             start = replace(new, notes=(*start.notes, *new.notes, (

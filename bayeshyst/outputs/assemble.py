@@ -220,7 +220,8 @@ def report_figures(result: ReportResult, posteriors: Mapping[str, Any]) -> dict[
         File name relative to the report's folder -> figure: ``figures/data_loops.png``,
         ``figures/corner_<model>.png`` (:func:`corner_figure_name`, for each joint fit
         with the Bouc–Wen shape parameters), ``figures/trace_final.png`` and
-        ``figures/corner_final.png`` (the diagnosis' final fit), and each stage's own
+        ``figures/corner_final.png`` (the diagnosis' final fit), ``figures/uncertainty.png``
+        (its uncertainty budget and calibration check), and each stage's own
         figures under ``compare/``, ``diagnose/`` and ``compensate/``.
     """
     from bayeshyst import diagnostics, plotting
@@ -238,6 +239,10 @@ def report_figures(result: ReportResult, posteriors: Mapping[str, Any]) -> dict[
                  f"{'converged' if converged else 'NOT CONVERGED'})")
         out[corner_figure_name(task)] = plotting.draws_corner_figure(draws, units=units,
                                                                       title=title)
+    if result.final_fit is not None and result.final_fit.budget:
+        y_unit = str(dict(result.data[0].units).get("y", ""))
+        out["figures/uncertainty.png"] = plotting.uncertainty_figure(
+            result.final_fit.budget, result.calibration, y_unit=y_unit)
     if result.diagnosis is not None:
         fit = result.diagnosis.final
         out["figures/trace_final.png"] = plotting.trace_figure(fit.sampling)

@@ -44,7 +44,8 @@ from bayeshyst.workflow import ReportResult
 __all__ = ["SECTIONS", "data_overview", "write_report_outputs"]
 
 #: Sections of ``summary.json`` (and of the HTML report), in order.
-SECTIONS = ("data", "posteriors", "model_selection", "diagnosis", "compensation")
+SECTIONS = ("data", "posteriors", "model_selection", "diagnosis", "uncertainty",
+            "compensation")
 
 _METADATA_SHOWN = 6  # metadata entries listed per record (the rest are in summary.json)
 _INLINE_CHARS = 40  # longer metadata values are named, not shown (they are in summary.json)
@@ -301,6 +302,120 @@ def _diagnosis_html(summary: dict[str, Any] | None, out: Path,
     return H.join(parts)
 
 
+# ---------------------------------------------------------------------- uncertainty
+def _uncertainty(result: ReportResult, comp: dict[str, Any] | None) -> dict[str, Any] | None:
+    """The uncertainty-analysis section: calibration, budget, tracking band per frequency."""
+    fit = result.final_fit
+    if fit is None:
+        return None
+    cal = result.calibration
+    y_unit = str(dict(result.data[0].units).get("y", ""))
+    calib = {} if cal is None else {c.frequency_hz: c.to_dict() for c in cal.per_frequency}
+    rows = []
+    for b in fit.budget:
+        row = {**b.to_dict(), "calibration": calib.get(b.frequency_hz)}
+        rows.append(row)
+    tracking = []
+    for r in (comp or {}).get("per_frequency", []):
+        tracking.append({"frequency_hz": r.get("frequency_hz"),
+                         "band_percent": r.get("predicted_band_percent"),
+                         "parameter_band_percent": r.get("parameter_band_percent"),
+                         "realised_percent": r.get("posterior_nrmse_percent"),
+                         "inside": r.get("realised_inside_band")})
+    return {"model": result.diagnosis.final.label, "y_unit": y_unit,
+            "discrepancy": fit.posterior.discrepancy is not None,
+            "checked": cal is not None,
+            "calibrated": None if cal is None else cal.calibrated,
+            "refit_converged": None if cal is None else cal.refit_converged,
+            "held_out": [] if cal is None else list(cal.held_out),
+            "per_frequency": rows, "tracking_band": tracking}
+
+
+def _uncertainty_sentence(row: dict[str, Any], y_unit: str) -> str:
+    """One plain sentence per frequency: calibrated or not, the budget, what dominates."""
+    f = row["frequency_hz"]
+    where = "all records" if f is None else f"{f:g} Hz"
+    sh = row["shares"]
+    budget = (f"predictive sd {row['predictive_sd']:.3g} {y_unit}: noise "
+              f"{100 * sh['noise']:.0f} %, parameters {100 * sh['parameters']:.0f} %, "
+              f"discrepancy {100 * sh['discrepancy']:.0f} % of the variance, dominated by "
+              f"{row['dominant']}")
+    c = row.get("calibration")
+    if c is None:
+        verdict = "calibration not checked"
+    else:
+        lo, hi = c["expected_90"]
+        verdict = (f"{'calibrated' if c['calibrated'] else 'NOT calibrated'} (the 90 % band "
+                   f"held {100 * c['coverage_90']:.0f} % of the held-out samples; a "
+                   f"calibrated predictive holds {100 * lo:.0f}-{100 * hi:.0f} %)")
+    return f"At {where}: {verdict}; {budget}."
+
+
+def _uncertainty_html(section: dict[str, Any] | None, out: Path) -> H.Markup:
+    if section is None:
+        return H.paragraph("No parametric model fitted, so there is no predictive to "
+                           "analyse.", cls="warn")
+    unit = section["y_unit"]
+    parts = [H.paragraph(
+        f"The predictive of {section['model']} (the diagnosis' final model"
+        f"{', with a model discrepancy' if section['discrepancy'] else ''}): is it "
+        "calibrated on cycles it was not fitted to (the last cycle of every record held "
+        "out, the posterior re-sampled without them), and where does its uncertainty come "
+        "from (sensor noise, parameters, model discrepancy)?")]
+    if not section["checked"]:
+        parts.append(H.paragraph("The calibration check was not run (--no-calibration).",
+                                 cls="warn"))
+    elif not section["refit_converged"]:
+        parts.append(H.paragraph("The posterior without the held-out cycles did not converge: "
+                                 "the calibration verdicts are indicative.", cls="warn"))
+    for row in section["per_frequency"]:
+        bad = row.get("calibration") is not None and not row["calibration"]["calibrated"]
+        parts.append(H.paragraph(_uncertainty_sentence(row, unit), cls="warn" if bad else None))
+    table = []
+    for row in section["per_frequency"]:
+        c = row.get("calibration") or {}
+        sh = row["shares"]
+        table.append([row["frequency_hz"],
+                      H.badge(c.get("calibrated"), "yes", "no") if c else "not checked",
+                      None if not c else 100 * c["coverage_50"],
+                      None if not c else f"{100 * c['expected_50'][0]:.0f}-"
+                                         f"{100 * c['expected_50'][1]:.0f}",
+                      None if not c else 100 * c["coverage_90"],
+                      None if not c else f"{100 * c['expected_90'][0]:.0f}-"
+                                         f"{100 * c['expected_90'][1]:.0f}",
+                      row["predictive_sd"], 100 * sh["noise"], 100 * sh["parameters"],
+                      100 * sh["discrepancy"], row["dominant"]])
+    parts.append(H.table(
+        ["frequency [Hz]", "calibrated", "50 % band held %", "expected %",
+         "90 % band held %", "expected %", f"predictive sd [{unit}]", "noise %",
+         "parameters %", "discrepancy %", "dominant"], table,
+        numeric=[True, False, True, False, True, False, True, True, True, True, False]))
+    fig = out / "figures" / "uncertainty.png"
+    if fig.is_file():
+        parts.append(H.figure(fig, "Left: the predictive variance by source per frequency. "
+                                   "Right: PIT histograms of the held-out cycles (flat at "
+                                   "0.1 when calibrated)."))
+    if section["tracking_band"]:
+        rows = []
+        for r in section["tracking_band"]:
+            band, par = r["band_percent"] or [None, None], r["parameter_band_percent"]
+            rows.append([r["frequency_hz"], band[0], band[1],
+                         None if par is None else par[0], None if par is None else par[1],
+                         r["realised_percent"], H.badge(r["inside"], "yes", "no")])
+        parts.append(H.paragraph(
+            "The feedforward tracking band (90 % range of the posterior command's NRMSE over "
+            "held-out draws, % of the reference's stroke) from everything the fit knows"
+            + (", and from the parameters alone (the discrepancy left out):"
+               if section["discrepancy"] else
+               " -- without a discrepancy that is the parameters alone, so it says nothing "
+               "about what the model family misses:")))
+        parts.append(H.table(["frequency [Hz]", "band low %", "band high %",
+                              "parameters only low %", "parameters only high %",
+                              "realised %", "inside"], rows,
+                             numeric=[True] * 6 + [False]))
+    return H.join(parts)
+
+
 # --------------------------------------------------------------------- compensation
 def _compensation_html(summary: dict[str, Any] | None, out: Path) -> H.Markup:
     if summary is None:
@@ -368,6 +483,17 @@ def _glance_html(summary: dict[str, Any]) -> H.Markup:
             f"Residual diagnosis: {', '.join(dg['effects_found']) or 'no effect'} added; "
             f"RMSE {H.number(dg['before']['rmse'])} → {H.number(dg['after']['rmse'])} "
             f"{H.unit_text(dg.get('output_unit') or '')}."))
+    unc = summary.get("uncertainty")
+    if unc is not None and unc["checked"]:
+        rows_c = [r for r in unc["per_frequency"] if r.get("calibration") is not None]
+        ok = [r for r in rows_c if r["calibration"]["calibrated"]]
+        bad = ", ".join("all records" if r["frequency_hz"] is None
+                        else f"{r['frequency_hz']:g} Hz" for r in rows_c if r not in ok)
+        dominant = sorted({r["dominant"] for r in unc["per_frequency"]})
+        parts.append(H.paragraph(
+            f"Uncertainty of {unc['model']}: predictive calibrated on held-out cycles at "
+            f"{len(ok)} of {len(rows_c)} frequencies{f' (not at {bad})' if bad else ''}; "
+            f"dominated by {' / '.join(dominant)}.", cls=None if not bad else "warn"))
     comp = summary["compensation"]
     if comp is not None and comp["per_frequency"]:
         pieces = [f"{r['frequency_hz']:g} Hz: "
@@ -502,6 +628,7 @@ def write_report_outputs(result: ReportResult, out_dir: str | Path, *,
             posterior=f"../diagnose/{saved}", figures=_under(figures, "compensate"),
             data_path=data_path))
     post_sec = _posteriors(result, out, posteriors, figures)
+    unc = _uncertainty(result, comp)
     summary: dict[str, Any] = {
         "command": "report",
         "title": title or f"bayeshyst report: {result.data.name}",
@@ -510,6 +637,7 @@ def write_report_outputs(result: ReportResult, out_dir: str | Path, *,
         "posteriors": post_sec,
         "model_selection": sel,
         "diagnosis": dg,
+        "uncertainty": unc,
         "compensation": comp,
         "warnings": _warnings(result, sel, dg, comp),
         "settings": result.settings.to_dict(),
@@ -529,6 +657,8 @@ def write_report_outputs(result: ReportResult, out_dir: str | Path, *,
         ("model-selection", "Model selection per frequency", _selection_html(sel, out)),
         ("diagnosis", "Residual diagnosis: what the model misses",
          _diagnosis_html(dg, out, evidence)),
+        ("uncertainty", "Uncertainty analysis per frequency",
+         _uncertainty_html(summary["uncertainty"], out)),
         ("compensation", "Feedforward compensation per frequency",
          _compensation_html(comp, out)),
         ("reproduce", "How this was made", _reproduce_html(summary)),

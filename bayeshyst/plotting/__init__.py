@@ -30,6 +30,7 @@ from bayeshyst.plotting.fit import (
     plot_loops,
     plot_residuals,
     residuals_figure,
+    uncertainty_figure,
 )
 from bayeshyst.plotting.posterior import (
     corner_figure,
@@ -90,4 +91,5 @@ __all__ = [
     "scores_vs_frequency_figure",
     "study_figures",
     "trace_figure",
+    "uncertainty_figure",
 ]

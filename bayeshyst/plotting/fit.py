@@ -14,7 +14,9 @@ from __future__ import annotations
 
 import math
 import os
+from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from matplotlib.collections import PolyCollection
@@ -39,7 +41,7 @@ from bayeshyst.plotting._common import (
 )
 
 __all__ = ["DATA_OVERVIEW_DPI", "data_overview_figure", "loops_figure", "plot_data_overview",
-           "plot_loops", "plot_residuals", "residuals_figure"]
+           "plot_loops", "plot_residuals", "residuals_figure", "uncertainty_figure"]
 
 #: Resolution of a new data-overview figure (it is embedded in the HTML report).
 DATA_OVERVIEW_DPI = 110
@@ -333,3 +335,72 @@ def plot_data_overview(data: Dataset, path: str | os.PathLike[str], *,
     """
     path = png_path(path)
     return save_and_free(data_overview_figure(data, max_panels=max_panels), path)
+
+
+# ------------------------------------------------------------------ uncertainty analysis
+_BUDGET_COLOURS = {"noise": "0.65", "parameters": "C0", "discrepancy": "C1"}
+
+
+def uncertainty_figure(budget: Sequence[Any], calibration: Any = None, *,
+                       fig: Figure | None = None, y_unit: str = "") -> Figure:
+    """The predictive's uncertainty budget per frequency, and its calibration check.
+
+    Left: the predictive variance split into sensor noise, parameters and discrepancy
+    (shares, stacked to 1), the predictive sd written above each bar. Right (with a
+    calibration check): the PIT histogram of the held-out cycles per frequency, against
+    the uniform share a calibrated predictive gives (a U shape: over-confident; a hump:
+    under-confident).
+
+    Parameters
+    ----------
+    budget : sequence of FrequencyBudget
+        :attr:`~bayeshyst.inference.fit.FitResult.budget`.
+    calibration : Calibration, optional
+        :attr:`~bayeshyst.inference.fit.FitResult.calibration`.
+    fig : Figure, optional
+        An empty figure to draw into.
+    y_unit : str
+        Output unit (for the sd labels).
+
+    Returns
+    -------
+    Figure
+    """
+    budget = list(budget)
+    if not budget:
+        raise ParameterError("budget is empty: nothing to draw")
+    panels = 2 if calibration is not None else 1
+    fig = new_figure(fig, 4.2 * panels + 0.4, 3.2)
+    axes = fig.subplots(1, panels, squeeze=False)[0]
+    ax = axes[0]
+    x = np.arange(len(budget))
+    bottom = np.zeros(len(budget))
+    for source, colour in _BUDGET_COLOURS.items():
+        share = np.array([b.shares[source] for b in budget])
+        ax.bar(x, share, bottom=bottom, color=colour, label=source, width=0.7)
+        bottom += share
+    for i, b in enumerate(budget):
+        ax.text(i, 1.02, f"{fmt(math.sqrt(b.total), '.3g')}", ha="center", fontsize=7)
+    ax.set_xticks(x, [_group_label(b.frequency_hz) for b in budget], fontsize=7)
+    ax.set_ylim(0, 1.12)
+    ax.set_ylabel("share of the predictive variance", fontsize=8)
+    sd_unit = unit(y_unit)
+    ax.set_title(f"uncertainty budget (numbers: predictive sd{f' [{sd_unit}]' if sd_unit else ''})",
+                 fontsize=9)
+    ax.legend(fontsize=7, loc="lower right")
+    ax.tick_params(labelsize=7)
+    if calibration is not None:
+        ax = axes[1]
+        for i, c in enumerate(calibration.per_frequency):
+            hist = np.asarray(c.pit_histogram)
+            edges = np.linspace(0.0, 1.0, hist.size + 1)
+            ax.stairs(hist, edges, color=f"C{i % 10}", lw=1.2,
+                      label=f"{_group_label(c.frequency_hz)}"
+                            f"{'' if c.calibrated else ' (NOT calibrated)'}")
+        ax.axhline(0.1, color="k", lw=0.8, ls="--", label="calibrated")
+        ax.set_xlabel("PIT of the held-out samples", fontsize=8)
+        ax.set_ylabel("share per bin", fontsize=8)
+        ax.set_title("calibration on held-out cycles", fontsize=9)
+        ax.legend(fontsize=6)
+        ax.tick_params(labelsize=7)
+    return fig
