@@ -29,7 +29,7 @@ from bayeshyst.inverse.feedforward import (
     tracking_percent,
 )
 from bayeshyst.inverse.lti import LTIInverse, deconvolve
-from bayeshyst.inverse.numerical import Inversion, invert
+from bayeshyst.inverse.numerical import Inversion, Member, invert, invert_pooled
 
 __all__ = [
     "CompensationResult",
@@ -38,12 +38,14 @@ __all__ = [
     "Feedforward",
     "Inversion",
     "LTIInverse",
+    "Member",
     "Reference",
     "analytic_inverse",
     "compensate",
     "deconvolve",
     "design_feedforward",
     "invert",
+    "invert_pooled",
     "load_reference",
     "predict_outputs",
     "reference_signal",

@@ -46,7 +46,7 @@ from bayeshyst.models.blocks import EffectBlock
 from bayeshyst.models.compose import STATIC, Composite, _namespaces
 from bayeshyst.params import ParamSpace
 
-__all__ = ["OBJECTIVES", "Inversion", "invert"]
+__all__ = ["OBJECTIVES", "Inversion", "Member", "invert", "invert_pooled"]
 
 #: What the shared command is chosen to achieve across draws.
 OBJECTIVES = ("mean", "quantile")
@@ -115,6 +115,24 @@ class Inversion:
                 f"stages: {'; '.join(self.stages)})")
 
 
+@dataclass(frozen=True)
+class Member:
+    """One model and its parameter vectors in a pooled inversion (:func:`invert_pooled`).
+
+    Attributes
+    ----------
+    model : HysteresisModel
+    thetas : mapping
+        ``name -> array (S_m, *shape)``: the member's draws.
+    offset : array_like, shape (S_m,) or (S_m, N), optional
+        As :func:`invert`'s ``offset``.
+    """
+
+    model: HysteresisModel
+    thetas: Mapping[str, Any]
+    offset: Any = None
+
+
 # ------------------------------------------------------------------------------ stages
 
 
@@ -131,6 +149,22 @@ class _FirstStage:
     def step(self, x: float, t_k: np.ndarray, states: np.ndarray):
         y, s, failed = self.model._run(np.array([float(x)]), t_k, self.theta, states)
         return y[:, 0], s, failed
+
+
+class _PooledFirstStage:
+    """The first stages of several models driven by the one shared command, draws pooled."""
+
+    def __init__(self, stages: list[_FirstStage]) -> None:
+        self.stages = stages
+        self.name = " | ".join(st.model.name for st in stages)
+
+    def rest(self, x: float) -> list[np.ndarray]:
+        return [st.rest(x) for st in self.stages]
+
+    def step(self, x: float, t_k: np.ndarray, states: list[np.ndarray]):
+        out = [st.step(x, t_k, s) for st, s in zip(self.stages, states, strict=True)]
+        return (np.concatenate([o[0] for o in out]), [o[1] for o in out],
+                np.concatenate([o[2] for o in out]))
 
 
 class _BlockStage:
@@ -235,7 +269,7 @@ def _objective_value(y: np.ndarray, target: np.ndarray, active: np.ndarray,
 class _Sample:
     """The first stage at one sample: residuals ``y_s(z) - v_s,k`` of the draws in play."""
 
-    def __init__(self, stage: _FirstStage, v_k: np.ndarray, t_k: np.ndarray, states: Any,
+    def __init__(self, stage: _PooledFirstStage, v_k: np.ndarray, t_k: np.ndarray, states: Any,
                  active: np.ndarray) -> None:
         self.stage, self.v_k, self.t_k, self.states, self.active = stage, v_k, t_k, states, active
 
@@ -279,7 +313,7 @@ def _quantile(a: np.ndarray, q: float) -> float:
     return float(x[i] + (h - i) * (x[i + 1] - x[i]))
 
 
-def _invert_first(stage: _FirstStage, v: np.ndarray, t: np.ndarray, objective: str, q: float,
+def _invert_first(stage: _PooledFirstStage, v: np.ndarray, t: np.ndarray, objective: str, q: float,
                   lo: float, hi: float, u_scale: float, ftol: float, xtol: float,
                   active: np.ndarray) -> tuple[np.ndarray, int, int, int]:
     """Shared command (N,) for per-draw first-stage targets ``v`` (S, N); updates ``active``."""
@@ -316,7 +350,7 @@ def _invert_first(stage: _FirstStage, v: np.ndarray, t: np.ndarray, objective: s
         y, states, failed = stage.step(xk, t_k, s0)
         active &= ~(failed | ~np.isfinite(y))
         if not active.any():
-            raise SimulationError(f"{stage.model.name}: every draw failed by sample {k}")
+            raise SimulationError(f"{stage.name}: every draw failed by sample {k}")
         step = max(abs(xk - x), 1e-3 * u_scale)
         x = xk
         u[k] = xk
@@ -394,6 +428,39 @@ def invert(model: HysteresisModel, y_d: Any, t: Any, thetas: Mapping[str, Any], 
     SimulationError
         If every draw fails.
     """
+    return invert_pooled([Member(model, thetas, offset)], y_d, t, objective=objective,
+                         quantile=quantile, u_limits=u_limits, periodic=periodic,
+                         scored=scored)
+
+
+def invert_pooled(members: Any, y_d: Any, t: Any, *, objective: str = "mean",
+                  quantile: float = 0.9, u_limits: tuple[float, float] = (-math.inf, math.inf),
+                  periodic: bool = False, scored: Any = None) -> Inversion:
+    """One command for the draws of several models pooled (a model-averaged design).
+
+    Every member's draws are carried together through the shared command, exactly as
+    :func:`invert` carries one model's draws: with ``objective="mean"`` the mean output
+    over *all* pooled draws meets ``y_d``, with ``"quantile"`` the ``q``-quantile of
+    ``|y - y_d|`` over them is smallest. Pooling draws in proportion to each model's
+    weight (e.g. its stacking weight) makes that the model-averaged posterior's mean or
+    quantile. Each member's later stages (dynamics) are inverted with its own
+    parameters, per draw.
+
+    Parameters
+    ----------
+    members : sequence of Member
+        At least one.
+    y_d, t, objective, quantile, u_limits, periodic, scored
+        As :func:`invert`.
+
+    Returns
+    -------
+    Inversion
+        ``y`` stacks the members' draws in order.
+    """
+    members = list(members)
+    if not members or not all(isinstance(m, Member) for m in members):
+        raise ParameterError("members must be a non-empty sequence of Member")
     if objective not in OBJECTIVES:
         raise ParameterError(f"objective must be one of {OBJECTIVES}, got {objective!r}")
     if not 0.0 < float(quantile) < 1.0:
@@ -408,19 +475,26 @@ def invert(model: HysteresisModel, y_d: Any, t: Any, thetas: Mapping[str, Any], 
                              f"{t.shape}")
     if not (np.all(np.isfinite(y_d)) and np.all(np.isfinite(t))):
         raise ParameterError("y_d and t must be finite")
-    theta_b, n_draws = model._batch_theta(thetas, batched=True)
-    # (S, 1): one offset per draw; (S, N): a known additive term per draw and sample
-    # (the model discrepancy evaluated along a previous command)
-    off = np.zeros((n_draws, 1)) if offset is None else np.asarray(offset, dtype=float)
-    off = off.reshape(-1, 1) if off.ndim <= 1 else off
-    if off.ndim != 2 or off.shape[0] not in (1, n_draws) or off.shape[1] not in (1, y_d.size):
-        raise ParameterError(f"offset must have shape ({n_draws},) or ({n_draws}, "
-                             f"{y_d.size}), got {np.shape(offset)}")
-    off = np.broadcast_to(off, (n_draws, off.shape[1]))
-    first, later, first_name = _stages(model, theta_b)
-    labels = [f"{first_name}: per sample"] + [
-        s.label if isinstance(s, _BlockStage) else f"{s[0].name}: deconvolution"
-        for s in later]
+    parts = []
+    for m in members:
+        theta_b, n_m = m.model._batch_theta(m.thetas, batched=True)
+        # (S, 1): one offset per draw; (S, N): a known additive term per draw and sample
+        # (the model discrepancy evaluated along a previous command)
+        off = np.zeros((n_m, 1)) if m.offset is None else np.asarray(m.offset, dtype=float)
+        off = off.reshape(-1, 1) if off.ndim <= 1 else off
+        if off.ndim != 2 or off.shape[0] not in (1, n_m) or off.shape[1] not in (1, y_d.size):
+            raise ParameterError(f"{m.model.name}: offset must have shape ({n_m},) or ({n_m}, "
+                                 f"{y_d.size}), got {np.shape(m.offset)}")
+        first, later, first_name = _stages(m.model, theta_b)
+        parts.append((m.model, theta_b, np.broadcast_to(off, (n_m, off.shape[1])), first,
+                      later, first_name))
+    pooled = _PooledFirstStage([p[3] for p in parts])
+    several = len(parts) > 1
+    labels = [f"{' | '.join(p[5] for p in parts)}: per sample"] + [
+        (f"{p[0].name}: " if several else "")
+        + (st.label if isinstance(st, _BlockStage) else f"{st[0].name}: deconvolution")
+        for p in parts for st in p[4]]
+    n_draws = sum(p[2].shape[0] for p in parts)
     span = float(np.ptp(y_d)) or max(abs(float(y_d[0])), 1.0)
     ftol = FTOL_REL * span
     u_scale = hi - lo if math.isfinite(hi - lo) else 1.0
@@ -429,26 +503,29 @@ def invert(model: HysteresisModel, y_d: Any, t: Any, thetas: Mapping[str, Any], 
     if mask.shape != y_d.shape or not mask.any():
         raise ParameterError(f"scored must be a boolean mask of shape {y_d.shape} with at "
                              f"least one True, got shape {mask.shape}")
-    target = y_d[None, :] - off
+    has_later = any(p[4] for p in parts)
     correction = np.zeros_like(y_d)
     active = np.ones(n_draws, dtype=bool)
     total_eval = 0
     n_corr = 0
     best = None
     while True:
-        v = target + correction[None, :]
-        for stage in reversed(later):
-            if isinstance(stage, _BlockStage):
-                v = stage.invert(v, t, ftol, XTOL_REL)
-            else:
-                block, th = stage
-                v = deconvolve(block, th, v, t, periodic=periodic).w
-        u, n_sat, n_mono, n_eval = _invert_first(first, v, t, objective, quantile, lo, hi,
-                                                 u_scale, ftol, xtol, active)
+        vs = []
+        for _, _, off, _, later, _ in parts:
+            v = y_d[None, :] - off + correction[None, :]
+            for stage in reversed(later):
+                if isinstance(stage, _BlockStage):
+                    v = stage.invert(v, t, ftol, XTOL_REL)
+                else:
+                    block, th = stage
+                    v = deconvolve(block, th, v, t, periodic=periodic).w
+            vs.append(np.broadcast_to(v, (off.shape[0], y_d.size)))
+        u, n_sat, n_mono, n_eval = _invert_first(pooled, np.concatenate(vs), t, objective,
+                                                 quantile, lo, hi, u_scale, ftol, xtol, active)
         total_eval += n_eval
-        traj = model.run_batch(u, t, theta_b)
-        y = traj.y + off
-        active &= ~traj.failed
+        runs = [(model.run_batch(u, t, theta_b), off) for model, theta_b, off, *_ in parts]
+        y = np.concatenate([traj.y + off for traj, off in runs])
+        active &= ~np.concatenate([traj.failed for traj, _ in runs])
         stat = _objective_value(y, y_d[None, :], active, "mean", quantile)
         err = float(np.max(np.abs(stat[mask])))
         if best is not None and err >= best[0]:
@@ -457,7 +534,7 @@ def invert(model: HysteresisModel, y_d: Any, t: Any, thetas: Mapping[str, Any], 
             break
         best = (err, u, y, n_sat, n_mono)
         # only the posterior mean behind per-draw dynamics needs the correction
-        if (objective != "mean" or n_draws == 1 or not later or err <= 10 * ftol
+        if (objective != "mean" or n_draws == 1 or not has_later or err <= 10 * ftol
                 or n_corr >= MAX_CORRECTIONS):
             break
         correction = correction - np.where(mask, stat, 0.0)
