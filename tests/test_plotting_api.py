@@ -61,6 +61,7 @@ def results(fit) -> dict[str, Any]:
                                    n_design_draws=3, n_predict_draws=10, n_plants=4,
                                    sampler=TINY),
         "study": _result(study, rows, pw),
+        "fit": fitted,
     }
 
 
@@ -91,6 +92,8 @@ def _calls(fit, results) -> dict[str, Callable[..., Figure]]:
         "best_model_figure": lambda **kw: P.best_model_figure(results["study"], **kw),
         "scores_vs_frequency_figure": lambda **kw: P.scores_vs_frequency_figure(
             results["study"], **kw),
+        "uncertainty_figure": lambda **kw: P.uncertainty_figure(results["fit"].budget,
+                                                                y_unit="um", **kw),
     }
 
 
@@ -98,7 +101,7 @@ FIGURE_FUNCTIONS = ["loops_figure", "residuals_figure", "trace_figure", "corner_
                     "draws_corner_figure", "data_overview_figure", "model_comparison_figure",
                     "compensation_figure", "diagnosis_residuals_figure",
                     "effect_evidence_figure", "best_model_figure",
-                    "scores_vs_frequency_figure"]
+                    "scores_vs_frequency_figure", "uncertainty_figure"]
 ONE_PANEL = {"effect_evidence_figure"}  # take ax=, not fig=
 
 
