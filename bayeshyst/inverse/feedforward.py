@@ -193,8 +193,8 @@ def design_feedforward(model: HysteresisModel, y_d: Any, t: Any, design: Draws,
             ok = np.all(np.isfinite(y), axis=1)
             if not ok.any():
                 return np.inf
-            # rms, not max: at a reversal sample the branch term steps and no command
-            # meets y_d there; the max would rank every round by that one sample
+            # rms over the scored samples: the rounds are ranked by how well they track
+            # overall, not by their single worst sample
             return float(np.sqrt(np.mean(((np.mean(y[ok], axis=0) - y_target)[mask]) ** 2)))
 
         best_err, best = forward_error(inv.u), inv
