@@ -605,7 +605,7 @@ class LinearStructure:
             n_b = xb.shape[1]
             cross_b = (ba.T @ xb.transpose(1, 0, 2).reshape(n_b, -1)).reshape(-1, w, ix.size)
             out[:, ib[:, None], ix[None, :]] = cross_b.transpose(1, 0, 2)
-            if a is b or np.array_equal(a, b):
+            if np.array_equal(a, b):
                 out[:, ix[:, None], ib[None, :]] = cross_b.transpose(1, 2, 0)
             else:
                 cross_a = (bb.T @ xa.transpose(1, 0, 2).reshape(n_b, -1)).reshape(-1, w, ix.size)

@@ -34,7 +34,7 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -149,6 +149,17 @@ class _FirstStage:
     def step(self, x: float, t_k: np.ndarray, states: np.ndarray):
         y, s, failed = self.model._run(np.array([float(x)]), t_k, self.theta, states)
         return y[:, 0], s, failed
+
+
+class _Part(NamedTuple):
+    """One member of a pooled inversion, prepared: batched theta, offsets, its stages."""
+
+    model: HysteresisModel
+    theta: dict
+    offset: np.ndarray  # (S_m, 1) or (S_m, N)
+    first: _FirstStage
+    later: list
+    first_name: str
 
 
 class _PooledFirstStage:
@@ -485,16 +496,15 @@ def invert_pooled(members: Any, y_d: Any, t: Any, *, objective: str = "mean",
         if off.ndim != 2 or off.shape[0] not in (1, n_m) or off.shape[1] not in (1, y_d.size):
             raise ParameterError(f"{m.model.name}: offset must have shape ({n_m},) or ({n_m}, "
                                  f"{y_d.size}), got {np.shape(m.offset)}")
-        first, later, first_name = _stages(m.model, theta_b)
-        parts.append((m.model, theta_b, np.broadcast_to(off, (n_m, off.shape[1])), first,
-                      later, first_name))
-    pooled = _PooledFirstStage([p[3] for p in parts])
+        parts.append(_Part(m.model, theta_b, np.broadcast_to(off, (n_m, off.shape[1])),
+                           *_stages(m.model, theta_b)))
+    pooled = _PooledFirstStage([p.first for p in parts])
     several = len(parts) > 1
-    labels = [f"{' | '.join(p[5] for p in parts)}: per sample"] + [
-        (f"{p[0].name}: " if several else "")
+    labels = [f"{' | '.join(p.first_name for p in parts)}: per sample"] + [
+        (f"{p.model.name}: " if several else "")
         + (st.label if isinstance(st, _BlockStage) else f"{st[0].name}: deconvolution")
-        for p in parts for st in p[4]]
-    n_draws = sum(p[2].shape[0] for p in parts)
+        for p in parts for st in p.later]
+    n_draws = sum(p.offset.shape[0] for p in parts)
     span = float(np.ptp(y_d)) or max(abs(float(y_d[0])), 1.0)
     ftol = FTOL_REL * span
     u_scale = hi - lo if math.isfinite(hi - lo) else 1.0
@@ -503,7 +513,7 @@ def invert_pooled(members: Any, y_d: Any, t: Any, *, objective: str = "mean",
     if mask.shape != y_d.shape or not mask.any():
         raise ParameterError(f"scored must be a boolean mask of shape {y_d.shape} with at "
                              f"least one True, got shape {mask.shape}")
-    has_later = any(p[4] for p in parts)
+    has_later = any(p.later for p in parts)
     correction = np.zeros_like(y_d)
     active = np.ones(n_draws, dtype=bool)
     total_eval = 0
@@ -511,19 +521,19 @@ def invert_pooled(members: Any, y_d: Any, t: Any, *, objective: str = "mean",
     best = None
     while True:
         vs = []
-        for _, _, off, _, later, _ in parts:
-            v = y_d[None, :] - off + correction[None, :]
-            for stage in reversed(later):
+        for p in parts:
+            v = y_d[None, :] - p.offset + correction[None, :]  # (S_m, N)
+            for stage in reversed(p.later):
                 if isinstance(stage, _BlockStage):
                     v = stage.invert(v, t, ftol, XTOL_REL)
                 else:
                     block, th = stage
                     v = deconvolve(block, th, v, t, periodic=periodic).w
-            vs.append(np.broadcast_to(v, (off.shape[0], y_d.size)))
+            vs.append(v)
         u, n_sat, n_mono, n_eval = _invert_first(pooled, np.concatenate(vs), t, objective,
                                                  quantile, lo, hi, u_scale, ftol, xtol, active)
         total_eval += n_eval
-        runs = [(model.run_batch(u, t, theta_b), off) for model, theta_b, off, *_ in parts]
+        runs = [(p.model.run_batch(u, t, p.theta), p.offset) for p in parts]
         y = np.concatenate([traj.y + off for traj, off in runs])
         active &= ~np.concatenate([traj.failed for traj, _ in runs])
         stat = _objective_value(y, y_d[None, :], active, "mean", quantile)
