@@ -67,6 +67,7 @@ from typing import Any
 import numpy as np
 
 from bayeshyst.errors import ParameterError
+from bayeshyst.models.pi import stop_response
 from bayeshyst.params import HalfNormal, LogNormal, Normal, Param, ParamSpace
 
 __all__ = ["DISC", "DISCREPANCY_KINDS", "Anchor", "Discrepancy", "make_discrepancy"]
@@ -103,16 +104,12 @@ def branch_coordinate(u: np.ndarray, half: float) -> np.ndarray:
 
     ``b_0 = 0``, ``b_k = clip(b_(k-1) + 2 (u_k - u_(k-1)) / half, -1, 1)``: +1 after the
     input has risen by ``half`` (input unit), -1 after it has fallen by as much, linear
-    in between; continuous in time, independent of the rate.
+    in between; continuous in time, independent of the rate. It is the stop operator of
+    threshold ``half / 2`` (:func:`~bayeshyst.models.pi.stop_response`) over that
+    threshold.
     """
-    u = np.asarray(u, float)
-    out = np.zeros(u.size)
-    gain = 2.0 / half
-    b = 0.0
-    for k in range(1, u.size):  # a short python loop over N: run once per record, not per draw
-        b = min(1.0, max(-1.0, b + gain * (u[k] - u[k - 1])))
-        out[k] = b
-    return out
+    r = 0.5 * half
+    return stop_response(u, r) / r
 
 
 @dataclass(frozen=True, eq=False)

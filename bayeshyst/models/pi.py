@@ -12,7 +12,7 @@ from typing import Any, ClassVar
 import numpy as np
 
 from bayeshyst.errors import ParameterError
-from bayeshyst.models._kernels.operators import pi_play_batch, pi_stop_batch
+from bayeshyst.models._kernels.operators import pi_play_batch, pi_stop_batch, stop_operator
 from bayeshyst.models.base import (
     DataScales,
     HysteresisModel,
@@ -33,6 +33,7 @@ __all__ = [
     "default_thresholds",
     "operator_space",
     "play_pi_inverse",
+    "stop_response",
 ]
 
 
@@ -220,6 +221,26 @@ class PIInverse:
     def __str__(self) -> str:
         return (f"PIInverse(p0'={self.p0:.6g}, w'={np.array2string(self.w, precision=4)}, "
                 f"r'={np.array2string(self.r, precision=4)})")
+
+
+def stop_response(u: Any, r: float) -> np.ndarray:
+    """Output (N,) of one stop operator of threshold ``r`` driven by ``u``, from 0.
+
+    ``e_k = min(r, max(-r, e_(k-1) + u_k - u_(k-1)))``, ``e_0 = 0`` (review Eq. 20;
+    the kernel the stop-type PI models run).
+
+    Parameters
+    ----------
+    u : array_like, shape (N,)
+        Input (input unit).
+    r : float
+        Threshold (input unit), > 0.
+    """
+    u = np.ascontiguousarray(u, dtype=float)
+    out = np.empty(u.size)
+    if u.size:
+        stop_operator(u, float(r), 0.0, float(u[0]), out)
+    return out
 
 
 def play_pi_inverse(p0: float, w: Any, r: Any) -> PIInverse:
