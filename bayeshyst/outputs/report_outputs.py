@@ -31,7 +31,7 @@ from typing import Any
 import numpy as np
 
 from bayeshyst._version import __version__
-from bayeshyst.data.record import Dataset
+from bayeshyst.data.record import Dataset, frequency_label
 from bayeshyst.files import atomic_path, json_text
 from bayeshyst.outputs import html as H
 from bayeshyst.outputs.assemble import CORNER_MAX, corner_figure_name, joint_tasks
@@ -333,8 +333,7 @@ def _uncertainty(result: ReportResult, comp: dict[str, Any] | None) -> dict[str,
 
 def _uncertainty_sentence(row: dict[str, Any], y_unit: str) -> str:
     """One plain sentence per frequency: calibrated or not, the budget, what dominates."""
-    f = row["frequency_hz"]
-    where = "all records" if f is None else f"{f:g} Hz"
+    where = frequency_label(row["frequency_hz"])
     sh = row["shares"]
     budget = (f"predictive sd {row['predictive_sd']:.3g} {y_unit}: noise "
               f"{100 * sh['noise']:.0f} %, parameters {100 * sh['parameters']:.0f} %, "
@@ -487,8 +486,7 @@ def _glance_html(summary: dict[str, Any]) -> H.Markup:
     if unc is not None and unc["checked"]:
         rows_c = [r for r in unc["per_frequency"] if r.get("calibration") is not None]
         ok = [r for r in rows_c if r["calibration"]["calibrated"]]
-        bad = ", ".join("all records" if r["frequency_hz"] is None
-                        else f"{r['frequency_hz']:g} Hz" for r in rows_c if r not in ok)
+        bad = ", ".join(frequency_label(r["frequency_hz"]) for r in rows_c if r not in ok)
         dominant = sorted({r["dominant"] for r in unc["per_frequency"]})
         parts.append(H.paragraph(
             f"Uncertainty of {unc['model']}: predictive calibrated on held-out cycles at "
