@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import itertools
+import math
 import os
 import signal
 import subprocess
@@ -166,6 +167,60 @@ def test_checkpoint_of_another_run_is_refused(tmp_path):
     _small_run(checkpoint=ck, seed=5)
     with pytest.raises(ParameterError, match="different run"):
         _small_run(checkpoint=ck, seed=6)
+
+
+class _Payload:
+    """Unpickling this creates a file: the proof that a loader ran the file's code."""
+
+    def __init__(self, path):
+        self.path = str(path)
+
+    def __reduce__(self):
+        return (open, (self.path, "w"))
+
+
+@pytest.mark.parametrize("where", ["file", "group"])
+def test_a_checkpoint_with_a_pickled_attribute_is_refused_unopened(tmp_path, where):
+    import pickle
+
+    import h5py
+
+    from bayeshyst.errors import ParameterError
+
+    ck, sentinel = tmp_path / "run.h5", tmp_path / "code_ran"
+    _small_run(checkpoint=ck, seed=5)
+    blob = np.void(pickle.dumps(_Payload(sentinel)))
+    with h5py.File(ck, "a") as f:
+        # the pickled format's names: the file's metadata, or an ensemble's last step
+        (f.attrs if where == "file" else f["ensemble_0"].attrs)[
+            "bayeshyst_meta" if where == "file" else "checkpoint"] = blob
+    with pytest.raises(ParameterError, match="pickled"):
+        _small_run(checkpoint=ck, seed=5)
+    assert not sentinel.exists()
+
+
+def test_a_checkpoint_holds_no_pickle_and_its_metadata_round_trips(tmp_path):
+    import h5py
+
+    from bayeshyst.inference.checkpoint import read_meta, write_meta
+
+    ck = tmp_path / "run.h5"
+    _small_run(checkpoint=ck, seed=5)
+    found = []
+    with h5py.File(ck, "r") as f:
+        def visit(name, obj):
+            found.extend(f"{name}/{k}" for k, v in obj.attrs.items()
+                         if isinstance(v, np.void) or getattr(v, "dtype", None) is np.dtype(object))
+        visit("", f)
+        f.visititems(visit)
+    assert found == []  # every attribute is a number, an array of numbers or text
+    meta = {"a": np.arange(6.0).reshape(2, 3), "b": (1, "x", None), "c": -math.inf,
+            "d": {"e": np.array(True), "f": np.float64(0.1)}}
+    write_meta(tmp_path / "m.h5", meta)
+    back = read_meta(tmp_path / "m.h5")
+    np.testing.assert_array_equal(back["a"], meta["a"])
+    assert back["a"].dtype == float and back["b"] == [1, "x", None] and back["c"] == -math.inf
+    assert back["d"]["e"].dtype == bool and back["d"]["f"] == 0.1
 
 
 def test_fit_sampler_names_a_fit_by_what_it_is_and_its_seed(tmp_path):

@@ -15,12 +15,17 @@ the in-memory buffer are recomputed identically, none is duplicated.
 
 The run's identity (model, data, likelihood, priors, sampler settings) is stored as a
 fingerprint; resuming a file written for a different run is refused.
+
+Nothing here unpickles. A checkpoint is JSON and arrays only (format
+:data:`CHECKPOINT_FORMAT`): the random state is stored as its numbers, the run's
+metadata as JSON whose arrays are tagged with a numeric dtype. A file someone sent
+you is data, never code; files of the older, pickled format are refused with the
+reason, not opened.
 """
 
 from __future__ import annotations
 
 import json
-import pickle
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -32,7 +37,87 @@ from emcee.backends import HDFBackend
 
 from bayeshyst.errors import ParameterError
 
-__all__ = ["CheckpointBackend", "check_fingerprint", "read_meta", "write_meta"]
+__all__ = ["CHECKPOINT_FORMAT", "CheckpointBackend", "check_fingerprint", "read_meta",
+           "write_meta"]
+
+#: version of the on-disk layout (2: JSON and arrays; 1, pickled attributes, is refused)
+CHECKPOINT_FORMAT = 2
+#: file attribute holding the format; dataset holding the run's metadata (JSON text);
+#: group attribute holding each ensemble's last flushed step (JSON text)
+_FORMAT_ATTR, _META, _STEP = "bayeshyst_format", "bayeshyst_run", "checkpoint_json"
+#: what the pickled format 1 stored: their presence names an old (or crafted) file
+_PICKLED = ("bayeshyst_meta", "checkpoint")
+#: numpy dtypes an array in the metadata may have (no object arrays, nothing to import)
+_ARRAY_KINDS = "biuf"
+
+
+def _refuse_pickled(path: Any, where: str) -> None:
+    raise ParameterError(
+        f"checkpoint {path}: {where} holds a pickled attribute (the format of bayeshyst "
+        "before checkpoint format 2, or a crafted file). It is not opened: unpickling runs "
+        "code from the file. Delete the checkpoint to start afresh")
+
+
+def _encode(obj: Any) -> Any:
+    """JSON-ready form of the metadata: arrays tagged with their dtype and shape."""
+    if isinstance(obj, np.ndarray):
+        if obj.dtype.kind not in _ARRAY_KINDS:
+            raise ParameterError(f"checkpoint metadata: arrays of dtype {obj.dtype} are not "
+                                 "stored (numbers and booleans only)")
+        return {"__ndarray__": {"dtype": obj.dtype.str, "shape": list(obj.shape),
+                                "data": obj.ravel().tolist()}}
+    if isinstance(obj, np.generic):
+        return obj.item()
+    if isinstance(obj, dict):
+        return {str(k): _encode(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_encode(v) for v in obj]
+    if obj is None or isinstance(obj, (bool, int, float, str)):
+        return obj
+    raise ParameterError(f"checkpoint metadata: cannot store a {type(obj).__name__}")
+
+
+def _decode_array(d: dict[str, Any]) -> dict[str, Any] | np.ndarray:
+    spec = d.get("__ndarray__")
+    if not isinstance(spec, dict):
+        return d
+    dtype = np.dtype(str(spec.get("dtype")))
+    if dtype.kind not in _ARRAY_KINDS:
+        raise ParameterError(f"checkpoint metadata: array of dtype {dtype} refused")
+    return np.asarray(spec.get("data"), dtype=dtype).reshape(tuple(spec.get("shape")))
+
+
+def _loads(text: Any, path: Any, where: str) -> Any:
+    if isinstance(text, bytes):
+        text = text.decode("utf-8")
+    try:
+        return json.loads(str(text), object_hook=_decode_array)
+    except (ValueError, TypeError) as exc:
+        raise ParameterError(f"checkpoint {path}: {where} is not valid checkpoint JSON "
+                             f"({exc}); delete it to start afresh") from exc
+
+
+def _encode_random_state(state: Any) -> dict[str, Any] | None:
+    """The legacy MT19937 state tuple of numpy (what emcee keeps) as numbers."""
+    if state is None:
+        return None
+    kind, key, pos, has_gauss, cached = state
+    return {"kind": str(kind), "key": np.asarray(key, dtype=np.uint32).tolist(),
+            "pos": int(pos), "has_gauss": int(has_gauss), "cached_gaussian": float(cached)}
+
+
+def _decode_random_state(d: Any, path: Any) -> tuple | None:
+    if d is None:
+        return None
+    try:
+        key = np.asarray(d["key"], dtype=np.uint32)
+        state = (str(d["kind"]), key, int(d["pos"]), int(d["has_gauss"]),
+                 float(d["cached_gaussian"]))
+        np.random.RandomState().set_state(state)  # validates kind, key length and pos
+    except (KeyError, TypeError, ValueError, OverflowError) as exc:
+        raise ParameterError(f"checkpoint {path}: the stored random state is not a "
+                             f"MT19937 state ({exc}); delete it to start afresh") from exc
+    return state
 
 
 class CheckpointBackend(HDFBackend):
@@ -65,8 +150,26 @@ class CheckpointBackend(HDFBackend):
 
     # ------------------------------------------------------------------ on disk
     def _read_checkpoint(self, g: h5py.Group) -> dict[str, Any] | None:
-        raw = g.attrs.get("checkpoint")
-        return None if raw is None else pickle.loads(np.asarray(raw).tobytes())
+        if _PICKLED[1] in g.attrs:
+            _refuse_pickled(self.filename, f"group {self.name!r}")
+        raw = g.attrs.get(_STEP)
+        if raw is None:
+            return None
+        ck = _loads(raw, self.filename, f"group {self.name!r}")
+        if not isinstance(ck, dict) or "iteration" not in ck:
+            raise ParameterError(f"checkpoint {self.filename}: group {self.name!r} has no "
+                                 "step record; delete it to start afresh")
+        ck["accepted"] = np.asarray(ck.get("accepted", []), dtype=int)
+        ck["random_state"] = _decode_random_state(ck.get("random_state"), self.filename)
+        return ck
+
+    @staticmethod
+    def _step_record(iteration: int, random_state: Any, accepted: np.ndarray,
+                     extra: dict[str, Any] | None) -> str:
+        return json.dumps({"iteration": int(iteration),
+                           "random_state": _encode_random_state(random_state),
+                           "accepted": np.asarray(accepted, dtype=int).tolist(),
+                           "extra": _encode(extra)})
 
     def _repair(self) -> None:
         # read first: a finished run opened by a second reader (another command reusing
@@ -106,8 +209,7 @@ class CheckpointBackend(HDFBackend):
         self._accepted = np.zeros(nwalkers, dtype=int)
         with self.open("a") as f:
             g = f[self.name]
-            g.attrs["checkpoint"] = np.void(pickle.dumps(
-                {"iteration": 0, "random_state": None, "accepted": np.zeros(nwalkers, int)}))
+            g.attrs[_STEP] = self._step_record(0, None, np.zeros(nwalkers, int), None)
 
     @property
     def random_state(self) -> Any:
@@ -196,9 +298,8 @@ class CheckpointBackend(HDFBackend):
             g["log_prob"][it:it + n] = np.stack(self._log_prob)
             g["accepted"][:] = self._accepted
             extra = None if self.extra_provider is None else self.extra_provider()
-            g.attrs["checkpoint"] = np.void(pickle.dumps(
-                {"iteration": it + n, "random_state": self._random_state,
-                 "accepted": np.array(self._accepted), "extra": extra}))
+            g.attrs[_STEP] = self._step_record(it + n, self._random_state, self._accepted,
+                                               extra)
             g.attrs["iteration"] = it + n
         self._coords, self._log_prob = [], []
 
@@ -223,24 +324,59 @@ class CheckpointBackend(HDFBackend):
 
 
 def write_meta(filename: str | Path, meta: dict[str, Any]) -> None:
-    """Store run metadata (JSON-serialisable except numpy arrays) as a file attribute."""
-    blob = pickle.dumps(meta)
+    """Store run metadata (JSON values and numeric numpy arrays) in the checkpoint.
+
+    Parameters
+    ----------
+    filename : str or Path
+        The HDF5 checkpoint (created if missing).
+    meta : dict
+        JSON values, tuples (stored as lists) and numeric arrays.
+    """
+    text = json.dumps(_encode(meta))
     with h5py.File(filename, "a") as f:
-        f.attrs["bayeshyst_meta"] = np.void(blob)
+        for name in _PICKLED[:1]:
+            if name in f.attrs:
+                _refuse_pickled(filename, "the file")
+        # a dataset, not an attribute: attributes are limited to 64 kB and a discrepancy
+        # fit's covariance is larger
+        if _META in f:
+            del f[_META]
+        f.create_dataset(_META, data=text, dtype=h5py.string_dtype("utf-8"))
+        f.attrs[_FORMAT_ATTR] = CHECKPOINT_FORMAT
 
 
 def read_meta(filename: str | Path) -> dict[str, Any] | None:
-    """The metadata stored by :func:`write_meta`, or None for a new/empty file."""
+    """The metadata stored by :func:`write_meta`, or None for a new/empty file.
+
+    Raises
+    ------
+    ParameterError
+        If the file is not HDF5, is of another checkpoint format (the pickled format 1
+        is refused without being loaded) or its metadata is not checkpoint JSON.
+    """
     path = Path(filename)
     if not path.exists():
         return None
     try:
         with h5py.File(path, "r") as f:
-            raw = f.attrs.get("bayeshyst_meta")
+            if _PICKLED[0] in f.attrs:
+                _refuse_pickled(path, "the file")
+            version = f.attrs.get(_FORMAT_ATTR)
+            raw = f[_META][()] if _META in f else None
     except OSError as exc:
         raise ParameterError(f"checkpoint {path} cannot be read as HDF5 ({exc}); delete it "
                              "to start afresh") from exc
-    return None if raw is None else pickle.loads(np.asarray(raw).tobytes())
+    if raw is None:
+        return None
+    if version is None or int(version) != CHECKPOINT_FORMAT:
+        raise ParameterError(f"checkpoint {path} has format {version}, this bayeshyst reads "
+                             f"format {CHECKPOINT_FORMAT}; delete it to start afresh")
+    meta = _loads(raw, path, "the run's metadata")
+    if not isinstance(meta, dict):
+        raise ParameterError(f"checkpoint {path}: the run's metadata is not a JSON object; "
+                             "delete it to start afresh")
+    return meta
 
 
 def check_fingerprint(filename: str | Path, stored: dict[str, Any], wanted: dict[str, Any]) -> None:

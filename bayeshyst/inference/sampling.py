@@ -368,6 +368,21 @@ def _write_run_meta(checkpoint: Any, fingerprint: dict[str, Any], start: MAPResu
         "n_evals": start.n_evals, "candidates": start.candidates, "notes": start.notes}})
 
 
+def _start_from_meta(meta: dict[str, Any], checkpoint: Any) -> MAPResult:
+    """The MAP a checkpointed run started (or restarted) from (:func:`_write_run_meta`)."""
+    try:
+        d = meta["start"]
+        return MAPResult(
+            z=np.asarray(d["z"], dtype=float), theta=dict(d["theta"]),
+            log_prob=float(d["log_prob"]), covariance=np.asarray(d["covariance"], dtype=float),
+            laplace_ok=bool(d["laplace_ok"]), n_evals=int(d["n_evals"]),
+            candidates=tuple(float(c) for c in d["candidates"]),
+            notes=tuple(str(n) for n in d["notes"]))
+    except (KeyError, TypeError, ValueError) as exc:
+        raise ParameterError(f"checkpoint {checkpoint}: its start record is incomplete "
+                             f"({exc!r}); delete it to start afresh") from exc
+
+
 def _attempt_rngs(seed: int, n_ens: int, attempt: int,
                   seeds: list[np.random.SeedSequence]) -> list[np.random.Generator]:
     """Each ensemble's generator for an attempt.
@@ -554,7 +569,7 @@ def sample_posterior(
             # a run that restarted goes on from the start it restarted from
             attempt = int(meta.get("restarts", 0))
             if start is None or attempt > 0:
-                start = MAPResult(**meta["start"])
+                start = _start_from_meta(meta, checkpoint)
     if start is None:
         start = find_map(post, seed=np.random.default_rng(seeds[-1]))
     structured = settings.moves == "structured"
