@@ -36,6 +36,9 @@ _LAZY: dict[str, tuple[str, str]] = {
     "CompensationResult": ("bayeshyst.inverse.compensate", "CompensationResult"),
     "ReportResult": ("bayeshyst.workflow", "ReportResult"),
     "ReportSettings": ("bayeshyst.workflow", "ReportSettings"),
+    "SavedFit": ("bayeshyst.inference.saved", "SavedFit"),
+    # a fit written by fit/compare/diagnose/report, read back with its draws
+    "load_fit": ("bayeshyst.inference.saved", "load_fit"),
     # the same functions under their long names, and the two inference steps
     "fit_model": ("bayeshyst.inference.fit", "fit_model"),
     "compare_models": ("bayeshyst.selection.compare", "compare_models"),

@@ -35,6 +35,7 @@ from bayeshyst.files import atomic_path
 from bayeshyst.inference.linear import LinearStructure
 from bayeshyst.inference.posterior import NOISE, Posterior
 from bayeshyst.inference.sampling import ParamSummary, SamplingResult, summarise_draws
+from bayeshyst.inference.saved import CONSTRAINT_VAR, FIT_ATTR, SEGMENT_VAR, fit_description
 from bayeshyst.params import ParamSpace
 
 __all__ = [
@@ -356,12 +357,19 @@ def to_inference_data(
     observed = xr.Dataset(
         {"y": ("obs", np.concatenate([r.y for r in post.data]), {"unit": y_unit})},
         coords=obs_coords)
+    # what load_fit rebuilds the posterior from (JSON at the root, arrays beside the data)
+    rebuild = fit_description(post)
+    extra: dict[str, Any] = {}
+    if rebuild.segment is not None:
+        extra[SEGMENT_VAR] = ("obs", rebuild.segment)
+    if rebuild.constraint is not None:
+        extra[CONSTRAINT_VAR] = (("disc_basis", "disc_direction"), rebuild.constraint)
     constant = xr.Dataset(
         {"t": ("obs", np.concatenate([r.t for r in post.data]), {"unit": _unit_of(post, "t")}),
          "u": ("obs", np.concatenate([r.u for r in post.data]), {"unit": _unit_of(post, "u")}),
          "record": ("obs", layout["record"]),
          "scored": ("obs", layout["scored"]),
-         "cycle": ("obs", layout["cycle"])},
+         "cycle": ("obs", layout["cycle"]), **extra},
         coords=obs_coords,
         attrs={"records": json.dumps([r.name for r in post.data]),
                "record_frequency_hz": json.dumps([r.frequency_hz for r in post.data])})
@@ -370,7 +378,8 @@ def to_inference_data(
         posterior=posterior, sample_stats=sample_stats, log_likelihood=log_likelihood,
         posterior_predictive=predictive, observed_data=observed, constant_data=constant,
         attrs={"model": result.model, "likelihood": result.likelihood,
-               "bayeshyst_converged": int(result.convergence.converged)})
+               "bayeshyst_converged": int(result.convergence.converged),
+               FIT_ATTR: json.dumps(rebuild.meta)})
 
 
 # -------------------------------------------------------------------------- netCDF

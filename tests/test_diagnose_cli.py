@@ -123,6 +123,10 @@ def test_diagnose_writes_every_output(diagnosed):
         assert {"posterior", "log_likelihood", "observed_data"} <= set(idata.groups())
     assert "drift.d" in set(load_netcdf(out / "posterior_final.nc").posterior.data_vars)
     assert "drift.d" not in set(load_netcdf(out / "posterior_base.nc").posterior.data_vars)
+    from bayeshyst.inference.saved import load_fit
+
+    final = load_fit(out)  # a diagnosis' directory: the final model
+    assert final.path.name == "posterior_final.nc" and final.model.name.endswith("+drift")
     text = (out / "diagnosis.txt").read_text()
     assert f"diagnosis of {MODEL}: effects found: drift" in text
 

@@ -69,6 +69,13 @@ def test_fit_writes_summary_posterior_and_figures(fitted):
     assert not any(p.name.endswith(".tmp") for p in out.iterdir())
     for name in ["posterior.nc", *summary["files"]["figures"]]:
         assert (out / name).stat().st_size > 0
+    # what the CLI wrote reloads as the fit it summarises
+    from bayeshyst.inference.saved import load_fit
+
+    saved = load_fit(out)
+    assert saved.model.name == "pi_play" and saved.converged == summary["converged"]
+    assert saved.to_dataframe()["p0"].mean() == pytest.approx(summary["params"]["p0"]["mean"],
+                                                              abs=3 * summary["params"]["p0"]["sd"])
 
 
 def test_non_converged_run_says_so(data_csv, tmp_path):

@@ -20,12 +20,14 @@ _EXPORTS = {
     "Prediction": "protocols",
     "Predictor": "protocols",
     "SamplerSettings": "settings",
+    "SavedFit": "saved",
     "SamplingResult": "sampling",
     "SamplingTarget": "protocols",
     "calibrate_fit": "fit",
     "conjugate_posterior": "conjugate",
     "find_map": "optimize",
     "fit_model": "fit",
+    "load_fit": "saved",
     "sample_posterior": "sampling",
 }
 

@@ -25,7 +25,7 @@ from bayeshyst.models.bouc_wen import (
     BoucWenOscillator,
     ModifiedBoucWen,
 )
-from bayeshyst.models.compose import Composite
+from bayeshyst.models.compose import Composite, model_spec
 from bayeshyst.models.duhem import Duhem, ImprovedDuhem
 from bayeshyst.models.maxwell import MaxwellSlip
 from bayeshyst.models.mrc import MRCElectromechanical
@@ -68,6 +68,7 @@ __all__ = [
     "get",
     "kernel_parallelism",
     "model_class",
+    "model_spec",
     "names",
     "play_pi_inverse",
     "register",

@@ -15,6 +15,7 @@ name (``static.w``, ``arx.kappa``, ``creep.c``); a block that appears twice gets
 from __future__ import annotations
 
 import ast
+import dataclasses
 import math
 import re
 from collections.abc import Mapping, Sequence
@@ -29,7 +30,7 @@ from bayeshyst.models.base import HysteresisModel, LinearDesign, LinearInParams
 from bayeshyst.models.blocks import Creep, EffectBlock, block_class, block_names
 from bayeshyst.params import ParamSpace
 
-__all__ = ["Composite", "Hammerstein", "WithCreep", "block_names", "parse_spec"]
+__all__ = ["Composite", "Hammerstein", "WithCreep", "block_names", "model_spec", "parse_spec"]
 
 #: Namespace of the base model's parameters.
 STATIC = "static"
@@ -326,6 +327,53 @@ def parse_spec(spec: str) -> HysteresisModel:
         return base
     return Composite(base, tuple(registry.build(block_class(n), kw, f"model spec {spec!r}: "
                                                 f"block {n!r}") for n, kw in rest))
+
+
+def _literal(value: Any) -> bool:
+    if value is None or isinstance(value, (bool, int, float, str)):
+        return not (isinstance(value, float) and not math.isfinite(value))
+    return isinstance(value, tuple) and all(_literal(v) for v in value)
+
+
+def _part_spec(part: Any) -> str:
+    """``name(setting=literal, ...)`` with the settings that differ from their defaults."""
+    settings = []
+    for f in dataclasses.fields(part):
+        if not f.init:
+            continue
+        value = getattr(part, f.name)
+        if f.default is not dataclasses.MISSING:
+            default = f.default
+        elif f.default_factory is not dataclasses.MISSING:
+            default = f.default_factory()
+        else:
+            default = dataclasses.MISSING
+        if default is not dataclasses.MISSING and value == default:
+            continue
+        if not _literal(value):
+            raise ModelError(f"{part.name}: setting {f.name}={value!r} cannot be written in a "
+                             "spec string (numbers, strings and tuples of them can)")
+        settings.append(f"{f.name}={value!r}")
+    return f"{part.name}({', '.join(settings)})" if settings else part.name
+
+
+def model_spec(model: HysteresisModel) -> str:
+    """The spec string that rebuilds ``model`` with :func:`parse_spec` (settings included).
+
+    ``model.name`` names the parts only (``"pi_play+second_order"``); this carries every
+    structural setting that is not its default (``"pi_play(n_operators=8)+second_order"``),
+    which is what a saved fit needs to be reloaded as the model that was fitted.
+
+    Raises
+    ------
+    ModelError
+        If a setting is not a literal, or the string does not rebuild an equal model.
+    """
+    parts = ([model.base, *model.blocks] if isinstance(model, Composite) else [model])
+    spec = "+".join(_part_spec(p) for p in parts)
+    if registry.get(spec) != model:
+        raise ModelError(f"{model.name}: its spec string {spec!r} does not rebuild it")
+    return spec
 
 
 registry.register_spec_parser(parse_spec)

@@ -1,0 +1,152 @@
+"""load_fit: a saved posterior read back is the posterior that was sampled.
+
+Oracle: the in-memory posterior and draws the file was written from — the reloaded
+model, data, parameter draws and predictions must equal them, and the rebuilt
+posterior must give the log densities the sampler recorded. Files that are not such a
+record (no record, another format, edited data, several posteriors) are refused in words.
+"""
+
+from __future__ import annotations
+
+import h5py
+import numpy as np
+import pytest
+
+from bayeshyst import diagnostics
+from bayeshyst import models as M
+from bayeshyst.data.record import Dataset
+from bayeshyst.errors import DataError, ModelError
+from bayeshyst.inference.optimize import find_map
+from bayeshyst.inference.posterior import Posterior
+from bayeshyst.inference.sampling import sample_posterior
+from bayeshyst.inference.saved import FIT_ATTR, load_fit
+from bayeshyst.inference.settings import SamplerSettings
+from bayeshyst.models.compose import model_spec
+from tests.synthetic import pi_data
+
+
+def _save(post, path, seed=3):
+    start = find_map(post, seed=0, global_search=False, n_screen=64, n_starts=1)
+    res = sample_posterior(post, SamplerSettings(seed=seed, max_steps=300, first_chunk=100),
+                           start=start)
+    idata = diagnostics.to_inference_data(post, res, draws_per_chain=5, n_predictive=10)
+    diagnostics.save_netcdf(idata, path)
+    return res, idata
+
+
+@pytest.fixture(scope="module")
+def saved(tmp_path_factory):
+    model, rec, _ = pi_data(n_ops=3, n=800, warmup=100)
+    post = Posterior(Dataset((rec,), name="bench"), model)
+    out = tmp_path_factory.mktemp("fit")
+    res, idata = _save(post, out / "posterior.nc")
+    return post, res, idata, out
+
+
+def test_a_reloaded_fit_is_the_fit_that_was_written(saved):
+    post, res, idata, out = saved
+    fit = load_fit(out)  # the directory: its posterior.nc
+    assert fit.model == post.model and fit.likelihood == post.likelihood.name
+    assert fit.posterior.space.names == post.space.names
+    assert fit.posterior.space.fixed.keys() == post.space.fixed.keys()
+    (a,), (b,) = fit.data, post.data
+    np.testing.assert_array_equal(a.t, b.t)
+    np.testing.assert_array_equal(a.u, b.u)
+    np.testing.assert_array_equal(a.y, b.y)
+    assert (a.warmup, a.frequency_hz, a.name, dict(a.units)) == (
+        b.warmup, b.frequency_hz, b.name, dict(b.units))
+    # the draws: the stored physical values, and the same predictions as the original
+    n_chain, n_draw = idata.posterior.sizes["chain"], idata.posterior.sizes["draw"]
+    assert fit.n_draws == n_chain * n_draw
+    for name in post.space.names:
+        np.testing.assert_allclose(
+            np.asarray(fit.theta[name]).reshape(fit.n_draws, -1),
+            idata.posterior[name].values.reshape(fit.n_draws, -1), rtol=1e-12)
+    z = fit.draws(20, seed=1)
+    for p_new, p_old in zip(fit.posterior.predict(z), post.predict(z), strict=True):
+        np.testing.assert_array_equal(p_new, p_old)
+    np.testing.assert_allclose(post.log_prob_batch(z), fit.posterior.log_prob_batch(z),
+                               rtol=0, atol=1e-9)
+    assert fit.max_log_prob_error < 1e-6
+    assert fit.converged == res.converged and fit.seed == res.seed
+    np.testing.assert_array_equal(fit.draws(20, seed=1), z)  # same seed, same draws
+    frame = fit.to_dataframe()
+    assert list(frame.columns) == list(post.space.labels) and len(frame) == fit.n_draws
+    assert fit.to_dict()["model"] == model_spec(post.model)
+    assert "pi_play(n_operators=3)" in str(fit)
+
+
+def test_a_fit_with_a_discrepancy_and_a_fixed_parameter_reloads(tmp_path):
+    model, rec, _ = pi_data(n_ops=2, n=700, warmup=100)
+    post = Posterior(rec, model, discrepancy="hsgp").fix("noise.sigma", 0.05)
+    _save(post, tmp_path / "x.nc")
+    fit = load_fit(tmp_path / "x.nc")
+    disc = fit.posterior.discrepancy
+    assert disc is not None and disc.size == post.discrepancy.size
+    np.testing.assert_array_equal(disc.constraint, post.discrepancy.constraint)
+    assert fit.posterior.space.fixed["noise.sigma"] == 0.05
+    z = fit.draws(10, seed=0)
+    np.testing.assert_array_equal(fit.posterior.discrepancy_coefficients(z),
+                                  post.discrepancy_coefficients(z))
+    for p_new, p_old in zip(fit.posterior.predict(z), post.predict(z), strict=True):
+        np.testing.assert_array_equal(p_new, p_old)
+
+
+def _edit(path, fn):
+    with h5py.File(path, "a") as f:
+        fn(f)
+
+
+def test_files_that_are_not_a_reloadable_fit_are_refused_in_words(saved, tmp_path):
+    _, _, idata, _ = saved
+    base = tmp_path / "a.nc"
+    diagnostics.save_netcdf(idata, base)
+
+    no_record = tmp_path / "none.nc"
+    diagnostics.save_netcdf(idata, no_record)
+    _edit(no_record, lambda f: f.attrs.__delitem__(FIT_ATTR))
+    with pytest.raises(DataError, match="no 'bayeshyst_fit' record"):
+        load_fit(no_record)
+
+    future = tmp_path / "future.nc"
+    diagnostics.save_netcdf(idata, future)
+    _edit(future, lambda f: f.attrs.__setitem__(
+        FIT_ATTR, f.attrs[FIT_ATTR].replace('"format": 1', '"format": 99')))
+    with pytest.raises(DataError, match="fit format 99"):
+        load_fit(future)
+
+    # the data changed after the fit: the rebuilt posterior is not the sampled one
+    edited = tmp_path / "edited.nc"
+    diagnostics.save_netcdf(idata, edited)
+    def shift(f):
+        f["observed_data/y"][...] = f["observed_data/y"][...] + 0.3
+    _edit(edited, shift)
+    with pytest.raises(DataError, match="differs from the recorded one"):
+        load_fit(edited)
+
+    with pytest.raises(DataError, match="holds 4 saved posteriors"):
+        load_fit(tmp_path)
+    with pytest.raises(DataError, match="no such file"):
+        load_fit(tmp_path / "missing")
+    assert load_fit(base).n_draws > 0
+
+
+def test_model_spec_rebuilds_every_registered_model_and_composite():
+    for name in M.names():
+        model = M.get(name)
+        assert M.get(model_spec(model)) == model
+    composed = M.get("pi_play(n_operators=7)+second_order+creep")
+    assert model_spec(composed) == "pi_play(n_operators=7)+second_order+creep"
+    assert M.get(model_spec(composed)) == composed
+    assert model_spec(M.get("pi_play")) == "pi_play"  # defaults are left out
+
+
+def test_model_spec_refuses_a_setting_that_is_not_a_literal():
+    import dataclasses
+
+    model = M.get("pi_play")
+    field = next(f.name for f in dataclasses.fields(model) if f.init)
+    odd = dataclasses.replace(model, **{field: 5})
+    object.__setattr__(odd, field, object())
+    with pytest.raises(ModelError, match="cannot be written in a spec string"):
+        model_spec(odd)
