@@ -15,7 +15,8 @@ from bayeshyst.data.virtual import (
 )
 from bayeshyst.errors import DataError, ParameterError
 from bayeshyst.inference.settings import SamplerSettings
-from bayeshyst.inverse.compensate import compensate, load_reference, reference_signal
+from bayeshyst.inverse.compensate import compensate
+from bayeshyst.inverse.references import load_reference, reference_signal
 
 
 def loops(actuator, freqs, *, samples_per_cycle=100, cycles=4, seed=0):

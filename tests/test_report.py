@@ -132,6 +132,24 @@ def test_demo_summary_has_every_section(demo: tuple[int, Path]) -> None:
                                    and c["expected_90"][0] <= c["coverage_90"]
                                    <= c["expected_90"][1])
     assert [r["frequency_hz"] for r in unc["tracking_band"]] == freqs
+    # the model-averaged design: per frequency, the comparison's models of weight >= 1 %
+    # (all parametric in the quick demo), at their stacking weights renormalised
+    avg = summary["model_averaged_feedforward"]
+    assert [r["frequency_hz"] for r in avg["per_frequency"]] == freqs
+    for r, fc in zip(avg["per_frequency"], sel["per_frequency"], strict=True):
+        kept = {s["model"]: s["weight"] for s in fc["ranking"]
+                if s["error"] is None and s["weight"] >= 0.01}
+        assert sorted(r["models"]) == sorted(kept)
+        total = sum(kept.values())
+        for m, w in zip(r["models"], r["weights"], strict=True):
+            assert w == pytest.approx(kept[m] / total, rel=1e-9)
+        assert sum(r["design_draws"]) == max(DEMO_QUICK.settings.design_draws, len(kept))
+        assert r["single_model"] == max(kept, key=kept.get)
+        lo, hi = r["predicted_band_percent"]
+        assert 0 <= lo <= hi and r["realised_inside_band"] is (
+            lo <= r["averaged_nrmse_percent"] <= hi)
+        if len(kept) == 1:  # a one-model average is that model's own design
+            assert r["single_nrmse_percent"] == r["averaged_nrmse_percent"]
     # every fit's posterior is on disk as netCDF
     for f in sel["fits"]:
         assert (out / "compare" / "posteriors" / Path(f["posterior"]).name).is_file()

@@ -176,7 +176,8 @@ def cmd_compensate(args: argparse.Namespace) -> int:
     from bayeshyst import diagnostics
     from bayeshyst.data import load
     from bayeshyst.inference.fit import fit_model
-    from bayeshyst.inverse.compensate import REFERENCE_KINDS, compensate, load_reference
+    from bayeshyst.inverse.compensate import compensate
+    from bayeshyst.inverse.references import REFERENCE_KINDS, load_reference
     from bayeshyst.likelihoods import get_likelihood
     from bayeshyst.models import get as get_model
     from bayeshyst.outputs.assemble import compensation_figures

@@ -8,19 +8,16 @@
   by stable deconvolution (:mod:`~bayeshyst.inverse.lti`);
 * :mod:`~bayeshyst.inverse.feedforward` -- nominal, posterior-aware and robust commands
   with predicted output bands and tracking-error distributions;
+* :mod:`~bayeshyst.inverse.references` -- reference trajectories, command limits and
+  the virtual plant a design is run on;
 * :mod:`~bayeshyst.inverse.compensate` -- the per-frequency evaluation behind
-  ``bayeshyst compensate``.
+  ``bayeshyst compensate``;
+* :mod:`~bayeshyst.inverse.averaged` -- one command designed over several models'
+  posteriors weighted by their stacking weights (the report's model-averaged design).
 """
 
 from bayeshyst.inverse.analytic import analytic_inverse, swap_input_output
-from bayeshyst.inverse.compensate import (
-    CompensationResult,
-    CompensationRow,
-    Reference,
-    compensate,
-    load_reference,
-    reference_signal,
-)
+from bayeshyst.inverse.compensate import CompensationResult, CompensationRow, compensate
 from bayeshyst.inverse.feedforward import (
     Draws,
     Feedforward,
@@ -30,6 +27,7 @@ from bayeshyst.inverse.feedforward import (
 )
 from bayeshyst.inverse.lti import LTIInverse, deconvolve
 from bayeshyst.inverse.numerical import Inversion, Member, invert, invert_pooled
+from bayeshyst.inverse.references import Reference, load_reference, reference_signal
 
 __all__ = [
     "CompensationResult",

@@ -23,7 +23,6 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -41,138 +40,16 @@ from bayeshyst.inverse.feedforward import (
     predict_outputs,
     tracking_percent,
 )
+from bayeshyst.inverse.references import (
+    Reference,
+    command_limits,
+    design_references,
+    virtual_plant,
+)
 from bayeshyst.models import get as get_model
 from bayeshyst.models.base import HysteresisModel
 
-__all__ = [
-    "REFERENCE_KINDS",
-    "CompensationResult",
-    "CompensationRow",
-    "Reference",
-    "compensate",
-    "load_reference",
-    "reference_signal",
-]
-
-#: Built-in reference shapes.
-REFERENCE_KINDS = ("sine", "triangle")
-#: Fraction of the data's output range the built-in references leave free at each end.
-REFERENCE_MARGIN = 0.1
-
-
-# ---------------------------------------------------------------------------- references
-
-
-@dataclass(frozen=True)
-class Reference:
-    """A desired output trajectory.
-
-    Attributes
-    ----------
-    t : ndarray, shape (N,)
-        Times (s), from 0.
-    y_d : ndarray, shape (N,)
-        Desired output (output unit).
-    scored : ndarray of bool, shape (N,)
-        Samples the tracking error is measured on (after the warm-up).
-    kind : str
-        ``"sine"``, ``"triangle"`` or the file name.
-    frequency_hz : float or None
-    periodic : bool
-        Whether ``y_d`` holds whole periods (the inverse dynamics is then the periodic
-        steady state).
-    """
-
-    t: np.ndarray
-    y_d: np.ndarray
-    scored: np.ndarray
-    kind: str
-    frequency_hz: float | None
-    periodic: bool
-
-    @property
-    def stroke(self) -> float:
-        """Peak-to-peak of the reference (the percentages' denominator)."""
-        return float(np.ptp(self.y_d))
-
-
-def reference_signal(kind: str, frequency_hz: float, fs: float, y_lo: float, y_hi: float,
-                     *, cycles: int = 2, warmup_cycles: int = 1) -> Reference:
-    """A periodic reference from ``y_lo`` to ``y_hi``, starting at rest at ``y_lo``.
-
-    Parameters
-    ----------
-    kind : {"sine", "triangle"}
-    frequency_hz : float
-        Its frequency (Hz), > 0.
-    fs : float
-        Sampling rate (Hz); rounded to a whole number of samples per cycle.
-    y_lo, y_hi : float
-        Lowest and highest desired output (output unit), ``y_lo < y_hi``.
-    cycles, warmup_cycles : int
-        Scored cycles and the cycles before them.
-    """
-    if kind not in REFERENCE_KINDS:
-        raise ParameterError(f"reference must be one of {REFERENCE_KINDS} or a file, "
-                             f"got {kind!r}")
-    if not (frequency_hz > 0 and fs > 0 and y_hi > y_lo):
-        raise ParameterError(f"reference needs frequency > 0, fs > 0, y_lo < y_hi; got "
-                             f"{frequency_hz}, {fs}, {y_lo}, {y_hi}")
-    per_cycle = max(8, round(fs / frequency_hz))
-    n = per_cycle * (cycles + warmup_cycles)
-    phase = (np.arange(n) % per_cycle) / per_cycle
-    shape = (0.5 - 0.5 * np.cos(2 * np.pi * phase) if kind == "sine"
-             else 1.0 - 2.0 * np.abs(phase - 0.5))
-    t = np.arange(n) / (per_cycle * frequency_hz)
-    scored = np.arange(n) >= per_cycle * warmup_cycles
-    return Reference(t, y_lo + (y_hi - y_lo) * shape, scored, kind, float(frequency_hz), True)
-
-
-def load_reference(path: str | Path) -> Reference:
-    """A reference from a CSV file with a header naming ``t`` and ``y`` (s, output unit).
-
-    Every sample is scored; the file should start at rest (the inverse of dynamics
-    needs its pre-actuation before the motion starts). Raises DataError naming the file,
-    column and row of a problem.
-    """
-    path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except OSError as exc:
-        raise DataError(f"{path}: cannot read reference file: {exc.strerror}") from None
-    lines = [ln for ln in text.splitlines() if ln.strip()]
-    if not lines:
-        raise DataError(f"{path}: reference file is empty")
-    header = [h.strip() for h in lines[0].split(",")]
-    missing = [c for c in ("t", "y") if c not in header]
-    if missing:
-        raise DataError(f"{path}: header must name columns 't' and 'y', missing "
-                        f"{missing} in {header}")
-    it, iy = header.index("t"), header.index("y")
-    rows = []
-    for row, line in enumerate(lines[1:], start=2):
-        cells = line.split(",")
-        try:
-            rows.append((float(cells[it]), float(cells[iy])))
-        except (ValueError, IndexError):
-            raise DataError(f"{path}: row {row}: expected numbers in columns 't' and 'y', "
-                            f"got {line!r}") from None
-    arr = np.array(rows)
-    if arr.shape[0] < 8:
-        raise DataError(f"{path}: expected at least 8 samples, got {arr.shape[0]}")
-    bad = np.flatnonzero(~np.isfinite(arr).all(axis=1))
-    if bad.size:
-        raise DataError(f"{path}: row {int(bad[0]) + 2}: values must be finite")
-    steps = np.diff(arr[:, 0])
-    if np.any(steps <= 0):
-        i = int(np.flatnonzero(steps <= 0)[0])
-        raise DataError(f"{path}: column 't', row {i + 3}: time must increase, "
-                        f"{arr[i + 1, 0]!r} follows {arr[i, 0]!r}")
-    t = arr[:, 0] - arr[0, 0]
-    if np.ptp(arr[:, 1]) <= 0:
-        raise DataError(f"{path}: column 'y' is constant: nothing to track")
-    return Reference(t, arr[:, 1].copy(), np.ones(t.size, dtype=bool), path.name, None, False)
-
+__all__ = ["CompensationResult", "CompensationRow", "compensate"]
 
 # ------------------------------------------------------------------------------ results
 
@@ -311,7 +188,6 @@ class CompensationResult:
 
 # ------------------------------------------------------------------------------ driver
 
-
 def _split_draws(fit: FitResult, sizes: tuple[int, ...], seed: int) -> list[Draws]:
     """Disjoint sets of posterior draws (design, prediction, plants) as model draws."""
     post = fit.posterior
@@ -332,14 +208,6 @@ def _as_draws(post: Any, z: np.ndarray) -> Draws:
     # delta is a function of the input's history alone, so it transfers to a command
     theta, offset = post.model_draws(z)
     return Draws(theta, offset, post.discrepancy, post.discrepancy_coefficients(z))
-
-
-def _plant_from_data(data: Dataset) -> VirtualActuator | None:
-    for rec in data:
-        truth = rec.metadata.get("truth")
-        if truth is not None:
-            return VirtualActuator.from_truth(truth).without("noise")
-    return None
 
 
 def _scaled_input(records: Dataset) -> tuple[float, float]:
@@ -474,7 +342,7 @@ def compensate(
     post = fit.posterior
     model = post.model
     if plant is None:
-        plant = _plant_from_data(data) or "posterior"
+        plant = virtual_plant(data) or "posterior"
     elif isinstance(plant, str) and plant != "posterior":
         raise ParameterError(f"plant must be a VirtualActuator, 'posterior' or None, "
                              f"got {plant!r}")
@@ -494,25 +362,8 @@ def compensate(
                       "uncertainty propagates, not how well it fits the actuator)")
         def run_plant(t: np.ndarray, u: np.ndarray, f: float | None) -> np.ndarray:
             return predict_outputs(model, u, t, plants, f)
-    u_all = np.concatenate([r.u for r in data])
-    lo_u, hi_u = float(u_all.min()), float(u_all.max())
-    u_limits = (lo_u - u_margin * (hi_u - lo_u), hi_u + u_margin * (hi_u - lo_u))
-    y_all = np.concatenate([r.y for r in data])
-    y_lo = float(y_all.min()) + REFERENCE_MARGIN * float(np.ptp(y_all))
-    y_hi = float(y_all.max()) - REFERENCE_MARGIN * float(np.ptp(y_all))
-    if isinstance(reference, Reference):
-        refs = [(reference, data)]
-    else:
-        groups = data.by_frequency()
-        refs = []
-        for f, group in groups.items():
-            if f is None:
-                continue
-            refs.append((reference_signal(reference, f, group[0].fs, y_lo, y_hi,
-                                          cycles=cycles, warmup_cycles=warmup_cycles), group))
-        if not refs:
-            raise DataError(f"{data.name}: no record has a frequency_hz; pass a reference "
-                            "file or label the records' frequencies")
+    u_limits = command_limits(data, u_margin)
+    refs = design_references(data, reference, cycles=cycles, warmup_cycles=warmup_cycles)
     rows = []
     for ref, group in refs:
         rows.append(_evaluate(model, ref, group, nominal, design, predict, run_plant,

@@ -33,6 +33,7 @@ import numpy as np
 from bayeshyst._version import __version__
 from bayeshyst.data.record import Dataset, frequency_label
 from bayeshyst.files import atomic_path, json_text
+from bayeshyst.inverse.averaged import POSTERIOR_WORDS
 from bayeshyst.outputs import html as H
 from bayeshyst.outputs.assemble import CORNER_MAX, corner_figure_name, joint_tasks
 from bayeshyst.outputs.compare_outputs import write_comparison_outputs
@@ -45,7 +46,7 @@ __all__ = ["SECTIONS", "data_overview", "write_report_outputs"]
 
 #: Sections of ``summary.json`` (and of the HTML report), in order.
 SECTIONS = ("data", "posteriors", "model_selection", "diagnosis", "uncertainty",
-            "compensation")
+            "compensation", "model_averaged_feedforward")
 
 _METADATA_SHOWN = 6  # metadata entries listed per record (the rest are in summary.json)
 _INLINE_CHARS = 40  # longer metadata values are named, not shown (they are in summary.json)
@@ -450,6 +451,33 @@ def _compensation_html(summary: dict[str, Any] | None, out: Path) -> H.Markup:
     return H.join(parts)
 
 
+def _averaged_html(section: dict[str, Any] | None) -> H.Markup:
+    if section is None:
+        return H.join([])
+    parts = [H.Markup("<h3>Model-averaged design</h3>"), H.paragraph(
+        "Per frequency, one command designed over the parametric models that frequency's "
+        "comparison keeps, each at its stacking weight (" + POSTERIOR_WORDS.get(
+            section.get("posteriors", ""), "") + "), run on " + section["plant"] + "; "
+        "next to it, the heaviest model's own posterior-mean command on the same plant. "
+        "The band is the mixture's predicted 90 % range of the averaged command's error.")]
+    rows = []
+    for r in section["per_frequency"]:
+        band = r.get("predicted_band_percent") or [None, None]
+        used = ", ".join(f"{m} ({w:.2f})" for m, w in zip(r["models"], r["weights"],
+                                                          strict=True))
+        rows.append([r["frequency_hz"], used, r.get("averaged_nrmse_percent"),
+                     r.get("robust_nrmse_percent"), r.get("single_model"),
+                     r.get("single_nrmse_percent"), band[0], band[1],
+                     H.badge(r.get("realised_inside_band"), "yes", "no")])
+    parts.append(H.table(["frequency [Hz]", "models (weight)", "averaged NRMSE %",
+                          "robust NRMSE %", "heaviest model", "alone NRMSE %",
+                          "band low %", "band high %", "inside band"], rows,
+                         numeric=[True, False, True, True, False, True, True, True, False]))
+    for n in section.get("notes", []):
+        parts.append(H.paragraph(n, cls="warn"))
+    return H.join(parts)
+
+
 # ------------------------------------------------------------------------- overview
 def _convergence_headline(summary: dict[str, Any]) -> str | None:
     """One sentence counting the fits that did not converge, or None when all did."""
@@ -637,6 +665,8 @@ def write_report_outputs(result: ReportResult, out_dir: str | Path, *,
         "diagnosis": dg,
         "uncertainty": unc,
         "compensation": comp,
+        "model_averaged_feedforward": (None if result.averaged is None
+                                       else result.averaged.to_dict()),
         "warnings": _warnings(result, sel, dg, comp),
         "settings": result.settings.to_dict(),
         "seed": result.seed,
@@ -658,7 +688,8 @@ def write_report_outputs(result: ReportResult, out_dir: str | Path, *,
         ("uncertainty", "Uncertainty analysis per frequency",
          _uncertainty_html(summary["uncertainty"], out)),
         ("compensation", "Feedforward compensation per frequency",
-         _compensation_html(comp, out)),
+         H.join([_compensation_html(comp, out),
+                 _averaged_html(summary["model_averaged_feedforward"])])),
         ("reproduce", "How this was made", _reproduce_html(summary)),
     ]
     subtitle = (f"data: {data_path or result.data.name} · models: "
