@@ -150,3 +150,67 @@ def test_model_spec_refuses_a_setting_that_is_not_a_literal():
     object.__setattr__(odd, field, object())
     with pytest.raises(ModelError, match="cannot be written in a spec string"):
         model_spec(odd)
+
+
+# ------------------------------------------------------------------ bayeshyst invert
+def _reference_csv(path, rec, n=1200):
+    # a raised-cosine stroke inside the fitted output range, from rest
+    lo, hi = np.quantile(rec.y, [0.2, 0.8])
+    t = np.arange(n) / 2000.0
+    y = lo + (hi - lo) * 0.5 * (1 - np.cos(2 * np.pi * 3.0 * t))
+    rows = "".join(f"{float(a)!r},{float(b)!r}\n" for a, b in zip(t, y, strict=True))
+    path.write_text("t,y\n" + rows)
+    return t, y
+
+
+def test_invert_cli_gives_the_maps_exact_inverse_and_its_band(saved, tmp_path):
+    import pandas as pd
+
+    from bayeshyst.cli import main
+    from bayeshyst.inverse.numerical import invert
+
+    post, _, _, out = saved
+    t, y = _reference_csv(tmp_path / "ref.csv", post.data[0])
+    for objective in ("nominal", "mean"):
+        code = main(["invert", str(out), "--reference", str(tmp_path / "ref.csv"),
+                     "--objective", objective, "--out", str(tmp_path / objective), "--quiet"])
+        assert code == 0
+    nominal = pd.read_csv(tmp_path / "nominal" / "command.csv")
+    np.testing.assert_allclose(nominal["t"], t, rtol=0, atol=1e-12)
+    # oracle: the MAP model, driven by the command, follows the reference
+    fit = load_fit(out)
+    theta, offset = fit.posterior.model_draws(fit.map_z[None, :])
+    y_model = fit.model.run_batch(nominal["u"].to_numpy(), t, theta).y[0] + offset[0]
+    assert np.max(np.abs(y_model - y)) < 1e-6 * np.ptp(y)
+    # and it is the inverse the library computes from the same MAP
+    direct = invert(fit.model, y, t, theta, offset=offset, u_limits=(-1e9, 1e9))
+    np.testing.assert_allclose(nominal["u"], direct.u, rtol=0, atol=1e-6 * np.ptp(direct.u))
+    import json
+
+    s = json.loads((tmp_path / "mean" / "summary.json").read_text())
+    lo, hi = s["predicted_band_percent"]
+    assert 0 <= lo <= hi and s["objective"] == "mean" and s["n_design_draws"] == 24
+    mean = pd.read_csv(tmp_path / "mean" / "command.csv")
+    assert np.all(mean["y_lo"] <= mean["y_mean"] + 1e-12)
+    assert np.all(mean["y_mean"] <= mean["y_hi"] + 1e-12)
+    # same seed, same command
+    assert main(["invert", str(out), "--reference", str(tmp_path / "ref.csv"), "--out",
+                 str(tmp_path / "again"), "--quiet"]) == 0
+    assert (tmp_path / "again" / "command.csv").read_text() == (
+        tmp_path / "mean" / "command.csv").read_text()
+
+
+def test_invert_cli_bad_input_exits_2_and_writes_nothing(saved, tmp_path, capsys):
+    from bayeshyst.cli import main
+
+    _, _, _, out = saved
+    (tmp_path / "bad.csv").write_text("time,pos\n0,1\n")
+    cases = [([str(tmp_path / "nothing"), "--reference", str(tmp_path / "bad.csv")],
+              "no such file"),
+             ([str(out), "--reference", str(tmp_path / "bad.csv")], "must name columns")]
+    for argv, message in cases:
+        target = tmp_path / "out"
+        assert main(["invert", *argv, "--out", str(target), "--quiet"]) == 2
+        err = capsys.readouterr().err
+        assert message in err and "Traceback" not in err
+        assert not target.exists()

@@ -24,8 +24,8 @@ from bayeshyst.cli.options import EXIT_OK, effect_list, sampler_settings
 from bayeshyst.errors import DataError, ModelError
 from bayeshyst.files import RunOutputs, json_text, removed_on_failure
 
-__all__ = ["cmd_compare", "cmd_compensate", "cmd_demo", "cmd_diagnose", "cmd_fit", "cmd_models",
-           "cmd_report", "cmd_study"]
+__all__ = ["cmd_compare", "cmd_compensate", "cmd_demo", "cmd_diagnose", "cmd_fit",
+           "cmd_invert", "cmd_models", "cmd_report", "cmd_study"]
 
 
 def _models_summary(names: Sequence[str]) -> list[dict[str, Any]]:
@@ -229,6 +229,37 @@ def cmd_compensate(args: argparse.Namespace) -> int:
         for w in summary["warnings"]:
             print(f"warning: {w}")
         print(f"outputs in {out}/: " + ", ".join(written_files(summary)))
+    return EXIT_OK
+
+
+def cmd_invert(args: argparse.Namespace) -> int:
+    """``bayeshyst invert FIT --reference REF.csv``: a command from a saved fit."""
+    from bayeshyst.inference.saved import load_fit
+    from bayeshyst.inverse.command import design_command
+    from bayeshyst.inverse.references import load_reference
+    from bayeshyst.outputs.invert_outputs import write_invert_outputs
+
+    # read and check both inputs before anything is written
+    fit = load_fit(args.fit)
+    reference = load_reference(args.reference)
+    out = Path(args.out)
+    if not args.quiet:
+        print(f"bayeshyst invert: {args.objective} command for {reference.kind} "
+              f"({reference.t.size} samples) from {fit.path} ({fit.model.name}, "
+              f"{fit.n_draws} draws)", file=sys.stderr)
+    with removed_on_failure(out):
+        design = design_command(fit, reference, objective=args.objective,
+                                n_design_draws=args.design_draws,
+                                n_predict_draws=args.predict_draws, quantile=args.quantile,
+                                seed=args.seed)
+        summary = write_invert_outputs(design, out, fit_path=str(fit.path),
+                                       reference_path=str(args.reference),
+                                       units=dict(fit.data[0].units))
+    if args.json:
+        sys.stdout.write(json_text(summary))
+    else:
+        print(design)
+        print(f"outputs in {out}/: command.csv, summary.json")
     return EXIT_OK
 
 

@@ -11,6 +11,7 @@ from bayeshyst.cli.commands import (
     cmd_demo,
     cmd_diagnose,
     cmd_fit,
+    cmd_invert,
     cmd_models,
     cmd_report,
     cmd_study,
@@ -126,6 +127,34 @@ def build_parser() -> argparse.ArgumentParser:
                         help="fit with a model-discrepancy term (hsgp) and design and predict "
                              "the commands against model + discrepancy (default none)")
     p_comp.set_defaults(func=cmd_compensate)
+
+    p_inv = sub.add_parser("invert", help="a feedforward command for a reference from a saved "
+                           "fit (fit/compare/diagnose/report output), without refitting")
+    p_inv.add_argument("fit", metavar="FIT",
+                       help="a fit's output folder or its posterior .nc file")
+    p_inv.add_argument("--reference", required=True, metavar="FILE",
+                       help="CSV file with header t,y (s, output unit): the trajectory to "
+                            "follow")
+    p_inv.add_argument("--objective", choices=("nominal", "mean", "robust"), default="mean",
+                       help="nominal = inverse of the MAP model; mean (default) = the "
+                            "posterior-mean output follows the reference; robust = the "
+                            "quantile of |error| over draws is smallest")
+    p_inv.add_argument("--design-draws", type=positive_int, default=24, metavar="N",
+                       help="posterior draws the mean/robust command is designed on "
+                            "(default 24)")
+    p_inv.add_argument("--predict-draws", type=positive_int, default=100, metavar="N",
+                       help="held-out posterior draws the band is predicted from "
+                            "(default 100)")
+    p_inv.add_argument("--quantile", type=probability, default=0.9, metavar="Q",
+                       help="quantile of |error| the robust command minimises (default 0.9)")
+    p_inv.add_argument("--seed", type=int, default=0,
+                       help="seeds the choice of draws (default 0): same seed, same command")
+    p_inv.add_argument("--out", default="bayeshyst-invert", metavar="DIR",
+                       help="output folder (default bayeshyst-invert): command.csv, "
+                            "summary.json")
+    p_inv.add_argument("--json", action="store_true", help="print summary.json to stdout")
+    p_inv.add_argument("--quiet", action="store_true", help="no progress line on stderr")
+    p_inv.set_defaults(func=cmd_invert)
 
     p_dg = sub.add_parser("diagnose", help="trace what a model leaves in its residual to a "
                           "missing effect, add it, refit, and report the error before and after")

@@ -290,6 +290,8 @@ class SavedFit:
     max_log_prob_error : float
         Largest ``|log p|`` difference (nats) between the rebuilt posterior and the
         recorded values over the checked draws.
+    map_z : ndarray, shape (ndim,)
+        The MAP the sampler started from (the nominal design's parameters).
     warnings : tuple of str
     """
 
@@ -303,6 +305,7 @@ class SavedFit:
     settings: dict[str, Any]
     written_by: str
     max_log_prob_error: float
+    map_z: np.ndarray = field(repr=False)
     warnings: tuple[str, ...] = ()
 
     @property
@@ -448,6 +451,10 @@ def load_fit(path: str | Path) -> SavedFit:
     if meta.get("metadata_not_stored"):
         warnings.append("record metadata not stored (not JSON): "
                         + ", ".join(meta["metadata_not_stored"]))
+    map_z = np.asarray(s.get("map_z", ()), dtype=float).reshape(-1)
+    if map_z.size != post.ndim or not np.all(np.isfinite(map_z)):
+        raise DataError(f"{path}: its MAP (sample_stats attribute map_z) has {map_z.size} "
+                        f"finite coordinates, the posterior {post.ndim}")
     return SavedFit(path, post, z, lp, bool(int(s.get("converged", 0))),
                     str(s.get("convergence", "")), int(s.get("seed", 0)), settings,
-                    str(meta.get("written_by", "")), err, tuple(warnings))
+                    str(meta.get("written_by", "")), err, map_z, tuple(warnings))

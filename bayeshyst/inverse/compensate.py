@@ -198,16 +198,9 @@ def _split_draws(fit: FitResult, sizes: tuple[int, ...], seed: int) -> list[Draw
     z = z[np.random.default_rng(seed).permutation(z.shape[0])]
     out, start = [], 0
     for size in sizes:
-        out.append(_as_draws(post, z[start:start + size]))
+        out.append(Draws.of(post, z[start:start + size]))
         start += size
     return out
-
-
-def _as_draws(post: Any, z: np.ndarray) -> Draws:
-    # the model's parameters, offsets and (with one) the discrepancy's coefficients:
-    # delta is a function of the input's history alone, so it transfers to a command
-    theta, offset = post.model_draws(z)
-    return Draws(theta, offset, post.discrepancy, post.discrepancy_coefficients(z))
 
 
 def _scaled_input(records: Dataset) -> tuple[float, float]:
@@ -349,7 +342,7 @@ def compensate(
     virtual = isinstance(plant, VirtualActuator)
     sizes = (n_design_draws, n_predict_draws) + (() if virtual else (n_plants,))
     design, predict, *rest = _split_draws(fit, sizes, seed)
-    nominal = _as_draws(post, fit.sampling.start.z)
+    nominal = Draws.of(post, fit.sampling.start.z)
     if virtual:
         plant_text = (f"virtual actuator ({', '.join(plant.effects)}), the simulator that "
                       "generated the data, noise off")

@@ -60,6 +60,17 @@ class Draws:
     discrepancy: Any = None
     delta: np.ndarray | None = None
 
+    @classmethod
+    def of(cls, post: Any, z: np.ndarray) -> Draws:
+        """The draws of a posterior's points ``z`` (W, ndim).
+
+        The model's parameters, the offsets and (with one) the discrepancy's coefficients:
+        the discrepancy is a function of the input's history alone, so it transfers to a
+        command.
+        """
+        theta, offset = post.model_draws(z)
+        return cls(theta, offset, post.discrepancy, post.discrepancy_coefficients(z))
+
     def delta_on(self, u: np.ndarray, frequency_hz: float | None) -> np.ndarray | float:
         """The discrepancy ``(S, N)`` of every draw along the command ``u``; 0 without one."""
         if self.discrepancy is None or self.delta is None:
