@@ -38,6 +38,8 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from bayeshyst.data.record import Dataset, Record
 from bayeshyst.diagnosis import DiagnosisResult, diagnose
 from bayeshyst.diagnosis.loop import DiagnosisFit
@@ -51,7 +53,13 @@ from bayeshyst.inverse.compensate import CompensationResult, compensate
 from bayeshyst.inverse.feedforward import Draws
 from bayeshyst.inverse.references import command_limits, design_references, virtual_plant
 from bayeshyst.likelihoods import get_likelihood
-from bayeshyst.selection import ComparisonResult, check_models, compare_models
+from bayeshyst.selection import (
+    ComparisonResult,
+    check_models,
+    compare_models,
+    stacking_weights,
+)
+from bayeshyst.selection.results import cycles_at
 from bayeshyst.selection.tasks import build_spec, is_parametric
 
 __all__ = ["DEFAULT_MODELS", "DEMO_DEFAULT", "DEMO_QUICK", "DemoPlan", "ReportResult",
@@ -369,13 +377,15 @@ def model_averaged_design(data: Dataset, comparison: ComparisonResult,
                           posteriors: str = "auto") -> AveragedResult:
     """Per frequency, one feedforward design over the models the comparison keeps.
 
-    The members at a frequency are the parametric models whose stacking weight there is
-    at least :data:`WEIGHT_FLOOR`, whose fit converged and whose posterior was saved;
-    each brings its posterior draws (:func:`~bayeshyst.inference.saved.load_fit`) at its
-    renormalised weight. A GP, an unconverged fit or a missing file leaves a member out
-    with a note, as does a frequency left with no member.
+    The members at a frequency are the parametric models whose fit converged and whose
+    posterior was saved, weighted by their **stacking weights among themselves** at that
+    frequency (the same held-out cycle densities the comparison stacks; a GP, which has
+    no inverse, may hold the comparison's weight, and the design then says so), those of
+    weight at least :data:`WEIGHT_FLOOR` kept; each brings its posterior draws
+    (:func:`~bayeshyst.inference.saved.load_fit`). An unconverged fit or a missing file
+    leaves a member out with a note, as does a frequency left with no member.
 
-    The weights are the frequency's. The draws are, by default (``"auto"``), a
+    The draws are, by default (``"auto"``), a
     rate-independent model's posterior given that frequency's records and a
     rate-dependent model's **joint** posterior (all frequencies). A command carries
     harmonics of the reference's frequency, and a rate-dependent model fitted to one
@@ -414,28 +424,42 @@ def model_averaged_design(data: Dataset, comparison: ComparisonResult,
     for fc in comparison.per_frequency:
         if fc.frequency_hz is None or fc.frequency_hz not in refs:
             continue
-        members = []
+        candidates = []
         for score in fc.scores:
-            w = score.weight
-            if score.error or not (w >= WEIGHT_FLOOR):
+            if score.error:
                 continue
-            task = (_member_task(comparison, score.model, fc.frequency_hz, posteriors)
-                    if is_parametric(build_spec(score.model)) else None)
-            why = None
             if not is_parametric(build_spec(score.model)):
-                why = "a Gaussian-process model has no inverse"
-            elif task is None or task.netcdf is None:
+                if score.weight >= WEIGHT_FLOOR:
+                    notes.append(f"{fc.label}: {score.model} (stacking weight "
+                                 f"{score.weight:.2f} in the comparison) has no inverse; the "
+                                 "design weighs the parametric models by their stacking "
+                                 "weights among themselves")
+                continue
+            scoring = _member_task(comparison, score.model, fc.frequency_hz, "frequency")
+            task = _member_task(comparison, score.model, fc.frequency_hz, posteriors)
+            why = None
+            if scoring is None or task is None or task.netcdf is None:
                 why = "its posterior was not saved"
             elif not task.converged:
                 why = "its fit did not converge"
             if why is not None:
-                notes.append(f"{fc.label}: {score.model} (stacking weight {w:.2f}) left out "
-                             f"of the average: {why}")
+                notes.append(f"{fc.label}: {score.model} left out of the average: {why}")
                 continue
-            saved = load_fit(task.netcdf)
-            theta, offset = saved.posterior.model_draws(saved.z)
-            members.append(WeightedPosterior(score.model, saved.model,
-                                             Draws(theta, offset), float(w)))
+            candidates.append((score.model, scoring, task))
+        members = []
+        if candidates:
+            # the stacking weights of the models that can be inverted, from the same
+            # held-out cycle densities the comparison stacked
+            single = len(comparison.per_frequency) == 1
+            weights = stacking_weights(np.column_stack(
+                [t.pointwise[cycles_at(t, fc.frequency_hz, single)] for _, t, _ in candidates]))
+            for (model, _, task), w in zip(candidates, weights, strict=True):
+                if w < WEIGHT_FLOOR:
+                    continue
+                saved = load_fit(task.netcdf)
+                theta, offset = saved.posterior.model_draws(saved.z)
+                members.append(WeightedPosterior(model, saved.model, Draws(theta, offset),
+                                                 float(w)))
         if not members:
             notes.append(f"{fc.label}: no model-averaged design (no member left)")
             continue

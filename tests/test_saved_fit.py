@@ -204,7 +204,7 @@ def test_invert_cli_bad_input_exits_2_and_writes_nothing(saved, tmp_path, capsys
     from bayeshyst.cli import main
 
     _, _, _, out = saved
-    (tmp_path / "bad.csv").write_text("time,pos\n0,1\n")
+    (tmp_path / "bad.csv").write_text("when,where\n0,1\n")
     cases = [([str(tmp_path / "nothing"), "--reference", str(tmp_path / "bad.csv")],
               "no such file"),
              ([str(out), "--reference", str(tmp_path / "bad.csv")], "must name columns")]

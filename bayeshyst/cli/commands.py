@@ -28,6 +28,25 @@ __all__ = ["cmd_compare", "cmd_compensate", "cmd_demo", "cmd_diagnose", "cmd_fit
            "cmd_invert", "cmd_models", "cmd_report", "cmd_study"]
 
 
+def load_data(args: argparse.Namespace) -> Any:
+    """The command's data file with its ``--columns``; conversions and cautions on stderr.
+
+    The unit conversions the header asked for and what does not look like a piezo stage
+    (:func:`bayeshyst.data.units.plausibility`) are printed unless ``--quiet``.
+    """
+    from bayeshyst.data import load
+    from bayeshyst.data.units import plausibility
+
+    data = load(args.data, columns=args.columns)
+    if not args.quiet:
+        notes = dict.fromkeys(n for r in data for n in r.metadata.get("unit_conversions", ()))
+        for n in notes:
+            print(f"bayeshyst {args.command}: {args.data}: {n}", file=sys.stderr)
+        for w in plausibility(data):
+            print(f"bayeshyst {args.command}: warning: {w}", file=sys.stderr)
+    return data
+
+
 def _models_summary(names: Sequence[str]) -> list[dict[str, Any]]:
     from bayeshyst import models
 
@@ -92,7 +111,6 @@ def cmd_models(args: argparse.Namespace) -> int:
 def cmd_fit(args: argparse.Namespace) -> int:
     """``bayeshyst fit DATA --model M``: sample one posterior; write and print its summary."""
     from bayeshyst import diagnostics
-    from bayeshyst.data import load
     from bayeshyst.inference.fit import fit_model
     from bayeshyst.likelihoods import get_likelihood
     from bayeshyst.models import get as get_model
@@ -100,7 +118,7 @@ def cmd_fit(args: argparse.Namespace) -> int:
     from bayeshyst.outputs.assemble import fit_figures
 
     # validate everything cheap before the long part starts
-    data = load(args.data)
+    data = load_data(args)
     model = get_model(args.model)
     likelihood = get_likelihood(args.likelihood)
     out = Path(args.out)
@@ -130,14 +148,13 @@ def cmd_fit(args: argparse.Namespace) -> int:
 
 def cmd_compare(args: argparse.Namespace) -> int:
     """``bayeshyst compare DATA --models A,B``: rank models per frequency; write, print."""
-    from bayeshyst.data import load
     from bayeshyst.likelihoods import get_likelihood
     from bayeshyst.outputs.assemble import comparison_figures
     from bayeshyst.outputs.compare_outputs import write_comparison_outputs
     from bayeshyst.selection import check_models, compare_models
 
     # validate everything cheap before the long part starts
-    data = load(args.data)
+    data = load_data(args)
     models = check_models(args.models)
     get_likelihood(args.likelihood)
     out = Path(args.out)
@@ -174,7 +191,6 @@ def cmd_compare(args: argparse.Namespace) -> int:
 def cmd_compensate(args: argparse.Namespace) -> int:
     """``bayeshyst compensate DATA --model M``: design feedforward commands per frequency."""
     from bayeshyst import diagnostics
-    from bayeshyst.data import load
     from bayeshyst.inference.fit import fit_model
     from bayeshyst.inverse.compensate import compensate
     from bayeshyst.inverse.references import REFERENCE_KINDS, load_reference
@@ -184,7 +200,7 @@ def cmd_compensate(args: argparse.Namespace) -> int:
     from bayeshyst.outputs.compensate_outputs import write_compensation_outputs, written_files
 
     # validate everything cheap before the long part starts
-    data = load(args.data)
+    data = load_data(args)
     model = get_model(args.model)
     likelihood = get_likelihood(args.likelihood)
     if args.reference in REFERENCE_KINDS:
@@ -265,7 +281,6 @@ def cmd_invert(args: argparse.Namespace) -> int:
 
 def cmd_diagnose(args: argparse.Namespace) -> int:
     """``bayeshyst diagnose DATA --model M``: the residual loop, before and after."""
-    from bayeshyst.data import load
     from bayeshyst.diagnosis import EFFECTS, diagnose
     from bayeshyst.likelihoods import get_likelihood
     from bayeshyst.models import get as get_model
@@ -273,7 +288,7 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
     from bayeshyst.outputs.diagnose_outputs import write_diagnosis_outputs
 
     # validate everything cheap before the long part starts
-    data = load(args.data)
+    data = load_data(args)
     model = get_model(args.model)
     likelihood = get_likelihood(args.likelihood)
     effects = tuple(EFFECTS) if args.effects is None else effect_list(args.effects)
@@ -384,12 +399,11 @@ def _report_settings(args: argparse.Namespace) -> Any:
 
 def cmd_report(args: argparse.Namespace) -> int:
     """``bayeshyst report DATA``: compare, diagnose, compensate; write report.html."""
-    from bayeshyst.data import load
     from bayeshyst.selection import check_models
     from bayeshyst.workflow import DEFAULT_MODELS
 
     # validate everything cheap before the long part starts
-    data = load(args.data)
+    data = load_data(args)
     models = check_models(args.models) if args.models else DEFAULT_MODELS
     settings = _report_settings(args)
     with removed_on_failure(args.out, results=_REPORT_RESULTS) as outputs:

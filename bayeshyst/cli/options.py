@@ -83,6 +83,35 @@ def probability(text: str) -> float:
     return value
 
 
+def column_mapping(text: str) -> dict[str, str]:
+    """An argparse type: ``t=Time [s],u=Voltage [V],y=Displacement`` -> role -> column.
+
+    Roles are those of the readers (``t``, ``u``, ``y``, ``segment``, ``frequency_hz``,
+    ``record``); a column may be named with or without its unit.
+    """
+    from bayeshyst.data.parsing import OPTIONAL_ROLES, REQUIRED_ROLES
+
+    roles = REQUIRED_ROLES + OPTIONAL_ROLES
+    out: dict[str, str] = {}
+    for part in text.split(","):
+        if not part.strip():
+            continue
+        role, sep, name = part.partition("=")
+        role, name = role.strip(), name.strip()
+        if not sep or not name:
+            raise argparse.ArgumentTypeError(f"expected ROLE=COLUMN pairs separated by ',' "
+                                             f"(e.g. t=Time [s],u=Voltage,y=Disp), got "
+                                             f"{part.strip()!r}")
+        if role not in roles:
+            raise argparse.ArgumentTypeError(f"unknown role {role!r} in {part.strip()!r}; "
+                                             f"roles: {', '.join(roles)}")
+        if role in out:
+            raise argparse.ArgumentTypeError(f"role {role!r} given twice")
+        out[role] = name
+    if not out:
+        raise argparse.ArgumentTypeError(f"no ROLE=COLUMN pair in {text!r}")
+    return out
+
 
 def effect_list(text: str) -> tuple[str, ...]:
     """``creep,delay`` -> ``("creep", "delay")``; ModelError naming an unknown effect."""

@@ -17,6 +17,7 @@ from bayeshyst.cli.commands import (
     cmd_study,
 )
 from bayeshyst.cli.options import (
+    column_mapping,
     non_negative_float,
     non_negative_int,
     positive_int,
@@ -34,6 +35,12 @@ def add_run_options(p: argparse.ArgumentParser, out_default: str, steps_help: st
     printed and drawn.
     """
     p.add_argument("data", help="data file (.csv/.txt/.npz/.mat, JSON sidecar optional)")
+    p.add_argument("--columns", type=column_mapping, default=None, metavar="t=..,u=..,y=..",
+                   help="which columns of the file are time, input and output (with or "
+                        "without their units), e.g. 't=Time [s],u=Voltage,y=Displacement'; "
+                        "default: t,u,y, the sidecar's mapping, or names such as time, "
+                        "voltage, displacement. Units in the header ('Time [ms]', 'x (nm)', "
+                        "'U/V') are converted to s, V, um")
     p.add_argument("--likelihood", default="gaussian", help="gaussian (default), student_t or ar1")
     p.add_argument("--out", default=out_default, help=f"output folder (default {out_default})")
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")

@@ -22,6 +22,7 @@ from typing import Any
 import numpy as np
 
 from bayeshyst.data.record import MIN_SAMPLES, Record
+from bayeshyst.data.units import ROLE_NAMES, recognise_roles, split_header
 from bayeshyst.errors import DataError
 
 __all__ = [
@@ -484,12 +485,33 @@ def resolve_roles(
         name = mapping.get(role, role)
         if name in available:
             resolved[role] = name
-        elif role in REQUIRED_ROLES or role in mapping:
-            mapped = f" (role {role!r})" if name != role else ""
+        elif role in mapping:
+            # a mapping may name a column without its unit: "Displacement" for
+            # "Displacement [um]"
+            fits = [c for c in available if split_header(c)[0] == name]
+            if len(fits) != 1:
+                raise DataError(
+                    f"{path}: {header}, {kind} {name!r} (role {role!r}): "
+                    + ("missing" if not fits else f"matches several {kind}s {fits}")
+                    + f"; found {list(available)}")
+            resolved[role] = fits[0]
+    missing = [r for r in REQUIRED_ROLES if r not in resolved]
+    if missing:
+        # an instrument's header: roles recognised by name where exactly one column fits
+        found, ambiguous = recognise_roles(available, resolved)
+        resolved.update({r: c for r, c in found.items() if r in missing})
+        still = [r for r in REQUIRED_ROLES if r not in resolved]
+        if still:
+            role = still[0]
+            if role in ambiguous:
+                raise DataError(
+                    f"{path}: {header}: several {kind}s could be {role!r}: "
+                    f"{ambiguous[role]}; name one (columns={{'{role}': ...}}, CLI "
+                    f"--columns {role}=NAME)")
             raise DataError(
-                f"{path}: {header}, {kind} {name!r}{mapped}: missing; expected {kind}s "
-                f"t,u,y (or mapped names), found {list(available)}"
-            )
+                f"{path}: {header}, {kind} {role!r}: missing; expected {kind}s t,u,y (or "
+                f"names such as {', '.join(repr(n) for n in ROLE_NAMES[role][1:4])}, or "
+                f"mapped names: --columns t=...,u=...,y=...), found {list(available)}")
     for name in set(resolved.values()):
         roles = [r for r, c in resolved.items() if c == name]
         if len(roles) > 1:

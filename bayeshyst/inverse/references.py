@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from bayeshyst.data.record import Dataset
+from bayeshyst.data.units import ROLE_NAMES, conversion, split_header
 from bayeshyst.data.virtual import VirtualActuator
 from bayeshyst.errors import DataError, ParameterError
 
@@ -108,6 +109,9 @@ def reference_signal(kind: str, frequency_hz: float, fs: float, y_lo: float, y_h
 def load_reference(path: str | Path) -> Reference:
     """A reference from a CSV file with a header naming ``t`` and ``y`` (s, output unit).
 
+    Instrument names work too (``Time [ms]``, ``Position (nm)``; the names of
+    :data:`bayeshyst.data.units.ROLE_NAMES`), their units converted to s and µm.
+
     Every sample is scored; the file should start at rest (the inverse of dynamics
     needs its pre-actuation before the motion starts). Raises DataError naming the file,
     column and row of a problem.
@@ -121,11 +125,23 @@ def load_reference(path: str | Path) -> Reference:
     if not lines:
         raise DataError(f"{path}: reference file is empty")
     header = [h.strip() for h in lines[0].split(",")]
-    missing = [c for c in ("t", "y") if c not in header]
-    if missing:
-        raise DataError(f"{path}: header must name columns 't' and 'y', missing "
-                        f"{missing} in {header}")
-    it, iy = header.index("t"), header.index("y")
+    # 't' and 'y', or an instrument's names with units ("Time [ms]", "Position (nm)")
+    names = {"t": ROLE_NAMES["t"], "y": (*ROLE_NAMES["y"], "y_d", "reference", "desired")}
+    index: dict[str, int] = {}
+    for role, accepted in names.items():
+        fits = [j for j, h in enumerate(header) if h == role] or [
+            j for j, h in enumerate(header) if split_header(h)[0].lower() in accepted]
+        if len(fits) != 1:
+            raise DataError(f"{path}: header must name columns 't' and 'y' (or time and "
+                            f"position, with units in brackets), "
+                            + ("missing" if not fits else "several fit") + f" {role!r} in "
+                            f"{header}")
+        index[role] = fits[0]
+    it, iy = index["t"], index["y"]
+    scale = {}
+    for role, j in index.items():
+        conv = conversion(role, split_header(header[j])[1])
+        scale[role] = 1.0 if conv is None else conv[0]
     rows = []
     for row, line in enumerate(lines[1:], start=2):
         cells = line.split(",")
@@ -145,6 +161,7 @@ def load_reference(path: str | Path) -> Reference:
         i = int(np.flatnonzero(steps <= 0)[0])
         raise DataError(f"{path}: column 't', row {i + 3}: time must increase, "
                         f"{arr[i + 1, 0]!r} follows {arr[i, 0]!r}")
+    arr = arr * np.array([scale["t"], scale["y"]])
     t = arr[:, 0] - arr[0, 0]
     if np.ptp(arr[:, 1]) <= 0:
         raise DataError(f"{path}: column 'y' is constant: nothing to track")

@@ -1,0 +1,121 @@
+"""Instrument files: headers with units, roles by name, conversion, plausibility, --columns.
+
+Oracle: the numbers written to the file times the unit's factor (s, V, µm), and the
+readers' refusals in words where a file is ambiguous or contradicts itself.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from bayeshyst.cli import main
+from bayeshyst.data import load
+from bayeshyst.data.units import conversion, plausibility, split_header
+from bayeshyst.errors import DataError
+from bayeshyst.inverse.references import load_reference
+
+
+def _write(path, header, columns, delimiter=","):
+    rows = "\n".join(delimiter.join(repr(float(v)) for v in row) for row in zip(*columns,
+                                                                               strict=True))
+    path.write_text(delimiter.join(header) + "\n" + rows + "\n")
+    return path
+
+
+def _signals(n=3000, fs=5000.0):
+    t = np.arange(n) / fs
+    u = 60 + 50 * np.sin(2 * np.pi * 5 * t)
+    y = 0.2 * u + 0.01 * np.sin(2 * np.pi * 7 * t)
+    return t, u, y
+
+
+@pytest.mark.parametrize(("cell", "expected"), [
+    ("Time [s]", ("Time", "s")), ("Displacement (nm)", ("Displacement", "nm")),
+    ("U/V", ("U", "V")), ("t / ms", ("t", "ms")), ("x [µm]", ("x", "µm")),
+    ("in/out", ("in/out", None)), ("t", ("t", None)), ("Force [N]", ("Force", "N")),
+])
+def test_split_header(cell, expected):
+    assert split_header(cell) == expected
+
+
+def test_conversion_factors_and_labels():
+    assert conversion("t", "ms") == (1e-3, "s") and conversion("t", "µs") == (1e-6, "s")
+    assert conversion("y", "nm") == (1e-3, "um") and conversion("y", "mm") == (1e3, "um")
+    assert conversion("y", "m") == (1e6, "um") and conversion("u", "kV") == (1e3, "V")
+    assert conversion("u", "mA") is None  # another dimension: a label
+    assert conversion("y", "ms") is None and conversion("t", None) is None
+
+
+def test_an_instrument_export_is_read_and_converted(tmp_path):
+    t, u, y = _signals()
+    path = _write(tmp_path / "scope.csv",
+                  ["Time [ms]", "Voltage [V]", "Displacement [nm]", "Temperature [C]"],
+                  [t * 1e3, u, y * 1e3, np.full(t.size, 21.5)])
+    (rec,) = load(path)
+    np.testing.assert_allclose(rec.t, t, rtol=1e-12)
+    np.testing.assert_allclose(rec.u, u, rtol=1e-12)
+    np.testing.assert_allclose(rec.y, y, rtol=1e-12)
+    assert dict(rec.units) == {"t": "s", "u": "V", "y": "um"} and rec.fs == pytest.approx(5000)
+    assert rec.metadata["unit_conversions"] == (
+        "column 'Time [ms]' (t): ms -> s, x 0.001",
+        "column 'Displacement [nm]' (y): nm -> um, x 0.001")
+    assert rec.metadata["ignored_columns"] == ("Temperature [C]",)
+    assert plausibility(load(path)) == []
+    # semicolons and slashed units, as some exports write them
+    (rec2,) = load(_write(tmp_path / "b.csv", ["t/s", "U/V", "x (um)"], [t, u, y], ";"))
+    np.testing.assert_allclose(rec2.y, y, rtol=1e-12)
+
+
+def test_ambiguous_or_contradicting_headers_are_refused_in_words(tmp_path):
+    t, u, y = _signals()
+    two = _write(tmp_path / "two.csv", ["Time [s]", "Voltage [V]", "Position [um]",
+                                        "Output [um]"], [t, u, y, 2 * y])
+    with pytest.raises(DataError, match=r"several columns could be 'y': \['Position \[um\]', "
+                                        r"'Output \[um\]'\]"):
+        load(two)
+    # named by the user, with or without its unit
+    assert np.allclose(load(two, columns={"y": "Output"})[0].y, 2 * y)
+    assert np.allclose(load(two, columns={"y": "Position [um]"})[0].y, y)
+    clash = _write(tmp_path / "clash.csv", ["t", "u", "y [nm]"], [t, u, y])
+    with pytest.raises(DataError, match=r"the header says 'nm', the declared unit of 'y' "
+                                        r"is 'mm'"):
+        load(clash, units={"y": "mm"})
+    none = _write(tmp_path / "none.csv", ["a", "b", "c"], [t, u, y])
+    with pytest.raises(DataError, match=r"column 't': missing"):
+        load(none)
+
+
+def test_time_in_ms_read_as_seconds_is_flagged(tmp_path):
+    t, u, y = _signals()
+    path = _write(tmp_path / "ms.csv", ["time", "volt", "disp"], [t * 1e3, u, y])
+    (warning,) = plausibility(load(path))
+    assert "sampling rate 5 Hz" in warning and "ms" in warning
+
+
+def test_a_reference_file_with_instrument_units(tmp_path):
+    t = np.arange(100) / 1000.0
+    y = 5 + 4 * np.sin(2 * np.pi * 10 * t)
+    ref = load_reference(_write(tmp_path / "ref.csv", ["Time [ms]", "Position [nm]"],
+                                [t * 1e3, y * 1e3]))
+    np.testing.assert_allclose(ref.t, t, rtol=1e-12, atol=1e-15)
+    np.testing.assert_allclose(ref.y_d, y, rtol=1e-12)
+
+
+def test_cli_columns_option(tmp_path, capsys):
+    t, u, y = _signals()
+    path = _write(tmp_path / "two.csv", ["Time [ms]", "Voltage [V]", "Position [um]",
+                                         "Output [um]"], [t * 1e3, u, y, 2 * y])
+    out = tmp_path / "fit"
+    assert main(["fit", str(path), "--model", "pi_play(n_operators=2)", "--columns",
+                 "y=Output", "--steps", "600", "--out", str(out), "--no-figures",
+                 "--no-calibration"]) == 0
+    err = capsys.readouterr().err
+    assert "column 'Time [ms]' (t): ms -> s, x 0.001" in err
+    for bad, message in (("z=Output", "unknown role 'z'"), ("y", "ROLE=COLUMN"),
+                         ("y=a,y=b", "given twice")):
+        with pytest.raises(SystemExit) as exc:
+            main(["fit", str(path), "--model", "pi_play", "--columns", bad,
+                  "--out", str(tmp_path / "x")])
+        assert exc.value.code == 2 and message in capsys.readouterr().err
+    assert not (tmp_path / "x").exists()
