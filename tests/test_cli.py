@@ -49,6 +49,22 @@ def test_models_json_matches_param_spaces(capsys):
             assert p["unit"] is not None and p["description"]
 
 
+def test_models_lists_the_gp_models_and_every_effect_block(capsys):
+    from bayeshyst.gp import gp_names
+    from bayeshyst.models.blocks import block_class, block_names
+
+    assert main(["models", "--json"]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert [g["name"] for g in doc["gaussian_processes"]] == gp_names() == ["gp", "gp_memory"]
+    assert [b["name"] for b in doc["effect_blocks"]] == block_names()
+    for entry in doc["effect_blocks"]:
+        space = block_class(entry["name"])().param_space()
+        assert [p["name"] for p in entry["parameters"]] == list(space.all_names)
+    assert main(["models", "gp_memory", "creep"]) == 0  # any of them by name
+    out = capsys.readouterr().out
+    assert "gp_memory  [GPHysteresis" in out and "creep  [Creep" in out
+
+
 def test_unknown_model_exits_2_with_one_line_and_no_traceback():
     res = subprocess.run([sys.executable, "-m", "bayeshyst.cli", "models", "pi_plya"],
                          capture_output=True, text=True)

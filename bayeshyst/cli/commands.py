@@ -47,39 +47,64 @@ def load_data(args: argparse.Namespace) -> Any:
     return data
 
 
-def _models_summary(names: Sequence[str]) -> list[dict[str, Any]]:
-    from bayeshyst import models
+def _params(space: Any) -> list[dict[str, Any]]:
+    params = []
+    for p in space.params:
+        params.append({"name": p.name, "shape": list(p.shape), "unit": p.unit,
+                       "prior": str(p.prior), "description": p.description})
+    for p in space.fixed_params:
+        params.append({"name": p.name, "shape": list(p.shape), "unit": p.unit,
+                       "fixed": np.asarray(space.fixed[p.name]).tolist(),
+                       "description": p.description})
+    return params
 
-    out = []
+
+def _first_line(obj: Any) -> str:
+    return ((type(obj).__doc__ or "").strip().splitlines() or [""])[0]
+
+
+def _models_summary(names: Sequence[str]) -> dict[str, list[dict[str, Any]]]:
+    """The hysteresis models, GP models and effect blocks among ``names``, as JSON."""
+    from bayeshyst import models
+    from bayeshyst.gp import gp_features, gp_from_spec
+    from bayeshyst.models.blocks import block_class, block_names
+
+    out: dict[str, list[dict[str, Any]]] = {"models": [], "gaussian_processes": [],
+                                            "effect_blocks": []}
     for name in names:
-        model = models.get(name)
-        space = model.param_space()
-        params = []
-        for p in space.params:
-            params.append({"name": p.name, "shape": list(p.shape), "unit": p.unit,
-                           "prior": str(p.prior), "description": p.description})
-        for p in space.fixed_params:
-            params.append({"name": p.name, "shape": list(p.shape), "unit": p.unit,
-                           "fixed": np.asarray(space.fixed[p.name]).tolist(),
-                           "description": p.description})
-        out.append({
-            "name": name,
-            "class": type(model).__name__,
-            "equation": model.equation,
-            "rate_dependent": bool(model.rate_dependent),
-            "analytic_inverse": bool(model.has_inverse),
-            "summary": (type(model).__doc__ or "").strip().splitlines()[0],
-            "settings": {k: v for k, v in vars(model).items() if not k.startswith("_")},
-            "parameters": params,
-        })
+        if gp_features(name) is not None:
+            gp = gp_from_spec(name)
+            out["gaussian_processes"].append({
+                "name": name, "class": type(gp).__name__, "features": gp_features(name),
+                "summary": _first_line(gp),
+                "use": "a nonparametric peer: fit, compare and report score it like the "
+                       "parametric models; no parameters to sample, no inverse"})
+        elif name in block_names():
+            block = block_class(name)()
+            out["effect_blocks"].append({
+                "name": name, "class": type(block).__name__, "equation": block.equation,
+                "rate_dependent": bool(block.rate_dependent), "summary": _first_line(block),
+                "use": f"append to a model spec: pi_play+{name}",
+                "settings": {k: v for k, v in vars(block).items() if not k.startswith("_")},
+                "parameters": _params(block.param_space())})
+        else:
+            model = models.get(name)
+            out["models"].append({
+                "name": name, "class": type(model).__name__, "equation": model.equation,
+                "rate_dependent": bool(model.rate_dependent),
+                "analytic_inverse": bool(model.has_inverse), "summary": _first_line(model),
+                "settings": {k: v for k, v in vars(model).items() if not k.startswith("_")},
+                "parameters": _params(model.param_space())})
     return out
 
 
 def cmd_models(args: argparse.Namespace) -> int:
-    """``bayeshyst models [NAME ...]``: the registered families, their parameters and priors."""
+    """``bayeshyst models [NAME ...]``: models, GP models, effect blocks and their priors."""
     from bayeshyst import models
+    from bayeshyst.gp import gp_names
+    from bayeshyst.models.blocks import block_names
 
-    names = models.names()
+    names = [*models.names(), *gp_names(), *block_names()]
     if args.name:
         unknown = [n for n in args.name if n not in names]
         if unknown:
@@ -87,24 +112,33 @@ def cmd_models(args: argparse.Namespace) -> int:
         names = args.name
     summary = _models_summary(names)
     if args.json:
-        json.dump({"models": summary}, sys.stdout, indent=2, default=str)
+        json.dump(summary, sys.stdout, indent=2, default=str)
         sys.stdout.write("\n")
         return EXIT_OK
-    for m in summary:
-        flags = []
-        if m["rate_dependent"]:
-            flags.append("rate-dependent")
-        if m["analytic_inverse"]:
-            flags.append("analytic inverse")
-        settings = ", ".join(f"{k}={v}" for k, v in m["settings"].items())
-        print(f"{m['name']}  [{m['class']}({settings})]  {m['equation']}"
-              + (f"  ({'; '.join(flags)})" if flags else ""))
-        print(f"    {m['summary']}")
-        for p in m["parameters"]:
-            shape = "x".join(map(str, p["shape"])) or "scalar"
-            what = p.get("prior") or f"fixed = {np.round(p['fixed'], 4).tolist()}"
-            print(f"    {p['name']:<16} {shape:<7} {p['unit']:<8} {what}  - {p['description']}")
-        print()
+    titles = {"models": "hysteresis models", "gaussian_processes": "Gaussian-process models",
+              "effect_blocks": "effect blocks (compose with +)"}
+    for key, entries in summary.items():
+        if not entries:
+            continue
+        if len(args.name) != 1:
+            print(f"== {titles[key]}\n")
+        for m in entries:
+            flags = [f for f, on in (("rate-dependent", m.get("rate_dependent")),
+                                     ("analytic inverse", m.get("analytic_inverse"))) if on]
+            settings = ", ".join(f"{k}={v}" for k, v in m.get("settings", {}).items())
+            head = f"{m['name']}  [{m['class']}({settings})]"
+            if "equation" in m:
+                head += f"  {m['equation']}"
+            print(head + (f"  ({'; '.join(flags)})" if flags else ""))
+            print(f"    {m['summary']}")
+            if "use" in m:
+                print(f"    {m['use']}")
+            for p in m.get("parameters", []):
+                shape = "x".join(map(str, p["shape"])) or "scalar"
+                what = p.get("prior") or f"fixed = {np.round(p['fixed'], 4).tolist()}"
+                print(f"    {p['name']:<16} {shape:<7} {p['unit']:<8} {what}  - "
+                      f"{p['description']}")
+            print()
     return EXIT_OK
 
 

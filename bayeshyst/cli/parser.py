@@ -24,6 +24,7 @@ from bayeshyst.cli.options import (
     probability,
 )
 from bayeshyst.inference.settings import MOVES
+from bayeshyst.likelihoods import likelihood_names
 
 __all__ = ["add_run_options", "build_parser"]
 
@@ -41,7 +42,8 @@ def add_run_options(p: argparse.ArgumentParser, out_default: str, steps_help: st
                         "default: t,u,y, the sidecar's mapping, or names such as time, "
                         "voltage, displacement. Units in the header ('Time [ms]', 'x (nm)', "
                         "'U/V') are converted to s, V, um")
-    p.add_argument("--likelihood", default="gaussian", help="gaussian (default), student_t or ar1")
+    p.add_argument("--likelihood", default="gaussian", choices=likelihood_names(),
+                   help="observation model: gaussian (default), student_t or ar1")
     p.add_argument("--out", default=out_default, help=f"output folder (default {out_default})")
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     p.add_argument("--steps", type=positive_int, default=20_000, help=steps_help)
@@ -229,8 +231,9 @@ def build_parser() -> argparse.ArgumentParser:
     where.add_argument("--scheduler", default=None, metavar="ADDRESS",
                        help="submit to the running Dask scheduler at ADDRESS "
                             "(tcp://host:port) instead of starting a local cluster")
-    where.add_argument("--workers", type=positive_int, default=None, metavar="N",
-                       help="worker processes of the local cluster (default: one per core)")
+    where.add_argument("--jobs", "--workers", dest="workers", type=positive_int, default=None,
+                       metavar="N", help="worker processes of the local cluster (default: one "
+                                         "per core; --workers is the same option)")
     where.add_argument("--serial", action="store_true",
                        help="no Dask: run the fits one after the other in this process")
     p_st.add_argument("--retry-failed", action="store_true",

@@ -133,7 +133,9 @@ __all__ = [
     "HyperparameterTarget",
     "UnitLogDensity",
     "fit_gp_inverse",
+    "gp_features",
     "gp_from_spec",
+    "gp_names",
     "records_to_X",
 ]
 
@@ -152,6 +154,16 @@ _LAZY = {
 #: Model specs that build a GP, and their features: ``gp`` is the (u, du/dt) form of
 #: ref. [64], ``gp_memory`` adds the reversal-memory features.
 _SPECS = {"gp": "rate", "gp_memory": "memory"}
+
+
+def gp_names() -> list[str]:
+    """The model specs that build a GP (``gp``, ``gp_memory``), sorted."""
+    return sorted(_SPECS)
+
+
+def gp_features(spec: str) -> str | None:
+    """The features of the GP a spec names (``"rate"``, ``"memory"``), None if not a GP."""
+    return _SPECS.get(spec.strip()) if isinstance(spec, str) else None
 
 
 def gp_from_spec(spec: str, *, n_train: int = 1000,
@@ -175,7 +187,7 @@ def gp_from_spec(spec: str, *, n_train: int = 1000,
     -------
     GPHysteresis or None
     """
-    features = _SPECS.get(spec.strip()) if isinstance(spec, str) else None
+    features = gp_features(spec)
     if features is None:
         return None
     from bayeshyst.gp.model import GPHysteresis
