@@ -65,6 +65,17 @@ def test_models_lists_the_gp_models_and_every_effect_block(capsys):
     assert "gp_memory  [GPHysteresis" in out and "creep  [Creep" in out
 
 
+@pytest.mark.parametrize("command", ["fit", "compare", "compensate", "diagnose", "report"])
+def test_an_unknown_likelihood_is_refused_with_the_valid_names(command, tmp_path):
+    res = subprocess.run([sys.executable, "-m", "bayeshyst.cli", command, str(DATA),
+                          "--model" if command in ("fit", "compensate", "diagnose")
+                          else "--models", "pi_play", "--likelihood", "cauchy",
+                          "--out", str(tmp_path / "out")], capture_output=True, text=True)
+    assert res.returncode == 2 and "Traceback" not in res.stderr
+    assert "invalid choice: 'cauchy' (choose from 'ar1', 'gaussian', 'student_t')" in res.stderr
+    assert not (tmp_path / "out").exists()
+
+
 def test_unknown_model_exits_2_with_one_line_and_no_traceback():
     res = subprocess.run([sys.executable, "-m", "bayeshyst.cli", "models", "pi_plya"],
                          capture_output=True, text=True)

@@ -126,7 +126,6 @@ def test_rerun_resumes_from_checkpoints_with_identical_numbers(compared):
     (["--models", "pi_plya"], "unknown model 'pi_plya'"),
     (["--models", "pi_play,pi_play"], "listed more than once"),
     (["--models", "pi_play(n_operators=x)"], "must be a literal"),
-    (["--models", "pi_play", "--likelihood", "cauchy"], "likelihood"),
 ])
 def test_bad_models_exit_2_and_write_nothing(tmp_path, capsys, argv, message):
     data_path = tmp_path / "d.csv"

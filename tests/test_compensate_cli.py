@@ -133,7 +133,6 @@ def test_bad_reference_file_exit_2_and_write_nothing(data_csv, tmp_path, capsys)
 
 @pytest.mark.parametrize("argv, message", [
     (["--model", "pi_plya"], "pi_plya"),
-    (["--model", "pi_play", "--likelihood", "cauchy"], "likelihood"),
     (["--model", "pi_play", "--reference", "sinus"], "sinus"),
 ])
 def test_bad_input_exit_2_and_write_nothing(data_csv, tmp_path, capsys, argv, message):

@@ -16,6 +16,7 @@ from bayeshyst.data.segment import (
     default_prominence,
     estimate_frequency,
     find_reversals,
+    label_frequencies,
     split_by_frequency,
     split_cycles,
 )
@@ -196,3 +197,62 @@ def test_split_by_frequency_rejects_short_blocks():
     seg[100:103] = 9
     with pytest.raises(DataError, match=r"record 'sweep': block 1 \(samples 100:103, label 9"):
         split_by_frequency(rec.with_(segment=seg))
+
+
+# ---------------------------------------------------------------- label_frequencies
+def _rec(u, name="r", fs=5000.0, **kw):
+    t = np.arange(u.size) / fs
+    return Record(t=t, u=u, y=0.2 * u, name=name, **kw)
+
+
+@pytest.mark.parametrize("noise", [0.0, 0.5])
+def test_a_stepped_sine_is_split_into_its_steps_with_their_frequencies(noise):
+    # oracle: the steps' frequencies by construction, and the cuts at the steps
+    fs, steps = 5000.0, [(10.0, 6), (20.0, 8), (5.0, 4)]
+    u = np.concatenate([60 - 50 * np.cos(2 * np.pi * f * np.arange(int(n * fs / f)) / fs)
+                        for f, n in steps])
+    u = u + np.random.default_rng(1).normal(0, noise, u.size)
+    out = label_frequencies(_rec(u, "step"))
+    # exact on a clean input; with 1 % input noise the minima that bound a short block's
+    # cycles move by ~20 samples, so a 3-cycle block's label is good to 1 %
+    np.testing.assert_allclose([r.frequency_hz for r in out], [f for f, _ in steps],
+                               rtol=0.01 if noise else 0.0)
+    joins = np.cumsum([int(n * fs / f) for f, n in steps])[:-1]
+    starts = [r.metadata["parent_slice"][0] for r in out][1:]
+    # each later piece starts at its step's first input minimum: within one sample on a
+    # clean input, within 5 % of the step's period with noise (a flat minimum's position)
+    periods = np.array([fs / f for f, _ in steps[1:]])
+    assert np.all(np.abs(np.array(starts) - joins) <= (0.05 * periods if noise else 1))
+    # a later piece's warm-up is its first cycle
+    warm = np.array([r.warmup for r in out][1:])
+    assert np.all(np.abs(warm - periods) <= (0.05 * periods if noise else 1))
+    assert sum(r.n for r in out) == u.size  # nothing dropped
+
+
+def test_one_frequency_keeps_the_record_and_a_sweep_is_binned():
+    fs = 5000.0
+    t = np.arange(int(3 * fs)) / fs
+    (sine,) = label_frequencies(_rec(60 - 50 * np.cos(2 * np.pi * 7.3 * t), "sine"))
+    assert sine.name == "sine" and sine.frequency_hz == 7.3 and sine.n == t.size
+    # a linear chirp 1 -> 20 Hz: every piece's label lies within its own span of
+    # instantaneous frequency, the labels increase, and every piece has >= 2 cycles
+    f0, rate = 1.0, 19.0 / 3.0
+    pieces = label_frequencies(_rec(60 - 50 * np.cos(2 * np.pi * (f0 * t + rate / 2 * t**2)),
+                                    "chirp"))
+    labels = [r.frequency_hz for r in pieces]
+    assert len(pieces) > 5 and labels == sorted(labels)
+    for r in pieces[1:]:
+        a, b = r.metadata["parent_slice"]
+        lo, hi = f0 + rate * t[a], f0 + rate * t[b - 1]
+        assert lo * 0.97 <= r.frequency_hz <= hi * 1.03
+        assert int(r.metadata["frequency_source"].split("(")[1].split()[0]) >= 2
+
+
+def test_labelled_records_pass_and_acyclic_ones_say_why():
+    t = np.arange(4000) / 5000.0
+    labelled = _rec(60 - 50 * np.cos(2 * np.pi * 3 * t), "l", metadata={"frequency_hz": 3.1})
+    ramp = _rec(np.linspace(0, 100, 4000), "ramp")
+    out = label_frequencies(Dataset((labelled, ramp), name="d"))
+    assert out[0] is labelled and out[0].frequency_hz == 3.1
+    assert out[1].frequency_hz is None and "no excitation frequency" in out[1].metadata[
+        "frequency_note"]

@@ -119,3 +119,25 @@ def test_cli_columns_option(tmp_path, capsys):
                   "--out", str(tmp_path / "x")])
         assert exc.value.code == 2 and message in capsys.readouterr().err
     assert not (tmp_path / "x").exists()
+
+
+def test_cli_finds_the_frequencies_a_file_does_not_give(tmp_path, capsys):
+    import json
+
+    fs = 5000.0
+    steps = [(10.0, 6), (20.0, 8)]
+    u = np.concatenate([60 - 50 * np.cos(2 * np.pi * f * np.arange(int(n * fs / f)) / fs)
+                        for f, n in steps])
+    t = np.arange(u.size) / fs
+    y = 0.2 * u + 0.01 * np.sin(2 * np.pi * 3 * t)
+    path = _write(tmp_path / "stepped.csv", ["t", "u", "y"], [t, u, y])
+    args = ["fit", str(path), "--model", "pi_play(n_operators=2)", "--steps", "600",
+            "--no-figures", "--no-calibration"]
+    assert main([*args, "--out", str(tmp_path / "a")]) == 0
+    err = capsys.readouterr().err
+    assert "record 'stepped' has no frequency_hz; found from its input: 10 Hz" in err
+    per = json.loads((tmp_path / "a" / "summary.json").read_text())["per_frequency"]
+    assert [p["frequency_hz"] for p in per if p["frequency_hz"] is not None] == [10.0, 20.0]
+    assert main([*args, "--no-frequency-labels", "--out", str(tmp_path / "b")]) == 0
+    per = json.loads((tmp_path / "b" / "summary.json").read_text())["per_frequency"]
+    assert all(p["frequency_hz"] is None for p in per)

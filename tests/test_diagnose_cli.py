@@ -241,7 +241,6 @@ def test_clean_data_keeps_the_base_model(tmp_path):
 
 @pytest.mark.parametrize("argv, message", [
     (["--model", "pi_plya"], "pi_plya"),
-    (["--model", MODEL, "--likelihood", "cauchy"], "likelihood"),
     (["--model", MODEL, "--effects", "creep,creeep"], "creeep"),
     (["--model", MODEL, "--effects", ","], "--effects"),
 ])

@@ -115,7 +115,6 @@ def test_json_flag_prints_the_summary(data_csv, tmp_path, capsys):
 @pytest.mark.parametrize(("args", "message"), [
     (["missing.csv", "--model", "pi_play"], "missing.csv"),
     (["DATA", "--model", "pi_plya"], "unknown model 'pi_plya'"),
-    (["DATA", "--model", "pi_play", "--likelihood", "cauchy"], "unknown likelihood 'cauchy'"),
     (["DATA", "--model", "pi_play", "--steps", "0"], "positive integer"),
     # refused where the data are read, naming the file, the column, what was found and
     # the range (they used to end in sd = inf, or in a sampler error and a checkpoint)

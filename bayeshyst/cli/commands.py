@@ -29,16 +29,33 @@ __all__ = ["cmd_compare", "cmd_compensate", "cmd_demo", "cmd_diagnose", "cmd_fit
 
 
 def load_data(args: argparse.Namespace) -> Any:
-    """The command's data file with its ``--columns``; conversions and cautions on stderr.
+    """The command's data file with its ``--columns``, frequencies found where missing.
 
-    The unit conversions the header asked for and what does not look like a piezo stage
+    Records without a ``frequency_hz`` are labelled from their input's cycles (and split
+    where they hold several frequencies, :func:`bayeshyst.data.segment.label_frequencies`)
+    unless ``--no-frequency-labels``. The unit conversions the header asked for, the
+    frequencies found and what does not look like a piezo stage
     (:func:`bayeshyst.data.units.plausibility`) are printed unless ``--quiet``.
     """
-    from bayeshyst.data import load
+    from bayeshyst.data import label_frequencies, load
     from bayeshyst.data.units import plausibility
 
     data = load(args.data, columns=args.columns)
+    if not args.no_frequency_labels:
+        data = label_frequencies(data)
     if not args.quiet:
+        found: dict[str, list[str]] = {}
+        for r in data:
+            if "frequency_source" in r.metadata:
+                found.setdefault(str(r.metadata.get("parent", r.name)), []).append(
+                    f"{r.frequency_hz:g} Hz ({r.metadata['frequency_source']})")
+            elif "frequency_note" in r.metadata:
+                print(f"bayeshyst {args.command}: {args.data}: record {r.name!r}: "
+                      f"{r.metadata['frequency_note']}", file=sys.stderr)
+        for name, labels in found.items():
+            print(f"bayeshyst {args.command}: {args.data}: record {name!r} has no "
+                  f"frequency_hz; found from its input: {', '.join(labels)} "
+                  "(--no-frequency-labels to keep it unlabelled)", file=sys.stderr)
         notes = dict.fromkeys(n for r in data for n in r.metadata.get("unit_conversions", ()))
         for n in notes:
             print(f"bayeshyst {args.command}: {args.data}: {n}", file=sys.stderr)

@@ -42,6 +42,10 @@ def add_run_options(p: argparse.ArgumentParser, out_default: str, steps_help: st
                         "default: t,u,y, the sidecar's mapping, or names such as time, "
                         "voltage, displacement. Units in the header ('Time [ms]', 'x (nm)', "
                         "'U/V') are converted to s, V, um")
+    p.add_argument("--no-frequency-labels", action="store_true",
+                   help="leave records without a frequency_hz unlabelled (default: their "
+                        "excitation frequency is estimated from the input's cycles, and a "
+                        "record holding several frequencies is split into one per block)")
     p.add_argument("--likelihood", default="gaussian", choices=likelihood_names(),
                    help="observation model: gaussian (default), student_t or ar1")
     p.add_argument("--out", default=out_default, help=f"output folder (default {out_default})")

@@ -5,7 +5,7 @@
 * :func:`load`, ``read_*`` / ``write_*`` -- CSV/text, ``.npz``, ``.mat`` with JSON
   sidecars (:mod:`bayeshyst.data.io`, parser in :mod:`bayeshyst.data.parsing`);
 * :func:`find_reversals`, :func:`split_cycles`, :func:`estimate_frequency`,
-  :func:`split_by_frequency` -- cycles and frequency blocks
+  :func:`split_by_frequency`, :func:`label_frequencies` -- cycles and frequency blocks
   (:mod:`bayeshyst.data.segment`);
 * ``load_*`` -- the measured sets in the shared data folder
   (:mod:`bayeshyst.data.measured`);
@@ -33,6 +33,7 @@ from bayeshyst.data.segment import (
     default_prominence,
     estimate_frequency,
     find_reversals,
+    label_frequencies,
     split_by_frequency,
     split_cycles,
 )
@@ -69,6 +70,7 @@ __all__ = [
     "frequency_key",
     "hysteresis_only",
     "hysteresis_percent",
+    "label_frequencies",
     "load",
     "load_micromanipulator_reference",
     "load_mr_damper",

@@ -27,6 +27,7 @@ __all__ = [
     "default_prominence",
     "estimate_frequency",
     "find_reversals",
+    "label_frequencies",
     "split_by_frequency",
     "split_cycles",
 ]
@@ -434,3 +435,123 @@ def split_by_frequency(
                 "parent_slice": (a, b)}
         out.append(dataclasses.replace(piece, metadata=meta))
     return Dataset(out, name=record.name)
+
+
+#: consecutive cycles whose frequencies differ from their block's first cycle by less
+#: than this fraction form one block (a sweep is binned into blocks this wide)
+FREQUENCY_BIN = 0.05
+#: significant figures of an estimated frequency label, so that records at the same
+#: nominal frequency (10.0003 and 9.9998 Hz) share a group
+FREQUENCY_DIGITS = 3
+#: a block of at least this many cycles is labelled from its spectrum
+SPECTRAL_CYCLES = 4
+
+
+def _rounded(f: float) -> float:
+    return float(f"{f:.{FREQUENCY_DIGITS}g}")
+
+
+def _blocks_of(freqs: np.ndarray) -> list[list[int]]:
+    """Cycle indices grouped into blocks of at least two cycles at one frequency.
+
+    Consecutive cycles within :data:`FREQUENCY_BIN` of their run's first cycle form a
+    run. A run of one cycle is a transition (between two steps of a stepped sine: it
+    joins the block before it) or part of a fast sweep (consecutive single cycles pair
+    up into blocks of two).
+    """
+    runs: list[list[int]] = []
+    for k, f in enumerate(freqs):
+        if runs and abs(np.log(f / freqs[runs[-1][0]])) <= np.log1p(FREQUENCY_BIN):
+            runs[-1].append(k)
+        else:
+            runs.append([k])
+    blocks: list[list[int]] = []
+    lone: list[int] = []
+    for run in runs:
+        if len(run) == 1:
+            lone.extend(run)
+            if len(lone) == 2:
+                blocks.append(lone)
+                lone = []
+            continue
+        if lone:  # one transition cycle before a steady run: the block before takes it
+            if blocks:
+                blocks[-1].extend(lone)
+            else:
+                run[:0] = lone
+            lone = []
+        blocks.append(run)
+    if lone:
+        if blocks:
+            blocks[-1].extend(lone)
+        else:
+            blocks.append(lone)
+    return [sorted(b) for b in blocks]
+
+
+def label_frequencies(data: Record | Dataset) -> Dataset:
+    """Records without an excitation frequency, labelled (and split) from their input.
+
+    A record whose metadata has no ``frequency_hz`` is cut into whole input cycles
+    (:func:`split_cycles`); consecutive cycles within :data:`FREQUENCY_BIN` of each other
+    form a block (a stepped sine gives one block per step, a sweep is binned). One block:
+    the record is labelled with :func:`estimate_frequency`; several: it is split at the
+    blocks' first cycles, each piece labelled from its spectrum (at least
+    :data:`SPECTRAL_CYCLES` cycles) or its cycles' count over their duration (a sweep's
+    short bin), and given its first cycle as warm-up (a model starts from rest, the stage did not).
+    Labels are rounded to :data:`FREQUENCY_DIGITS` significant figures.
+    ``metadata["frequency_source"]`` says how a label was found; a record with fewer than
+    two whole cycles keeps no label and says why in ``metadata["frequency_note"]``.
+    Labelled records pass through unchanged.
+
+    Parameters
+    ----------
+    data : Record or Dataset
+
+    Returns
+    -------
+    Dataset
+    """
+    records = [data] if isinstance(data, Record) else list(data)
+    name = data.name
+    out: list[Record] = []
+    for rec in records:
+        if rec.frequency_hz is not None:
+            out.append(rec)
+            continue
+        split = split_cycles(rec)
+        if len(split) < 2:
+            out.append(rec.with_(metadata={
+                **rec.metadata, "frequency_note": f"{len(split)} whole input cycle(s): no "
+                "excitation frequency estimated"}))
+            continue
+        t = rec.t
+        freqs = np.array([1.0 / (t[c.stop] - t[c.start]) if c.stop < rec.n
+                          else 1.0 / (t[-1] - t[c.start]) for c in split.cycles])
+        blocks = _blocks_of(freqs)
+        if len(blocks) == 1:
+            f = _rounded(estimate_frequency(rec))
+            out.append(rec.with_(metadata={
+                **rec.metadata, "frequency_hz": f,
+                "frequency_source": f"estimated ({len(split)} cycles)"}))
+            continue
+        starts = [split.cycles[b[0]].start for b in blocks]
+        bounds = [0, *starts[1:], rec.n]
+        ends = np.array([t[c.stop] if c.stop < rec.n else t[-1] for c in split.cycles])
+        for k, (a, b) in enumerate(itertools.pairwise(bounds)):
+            first = split.cycles[blocks[k][0]]
+            warm = rec.warmup if k == 0 else first.stop - first.start
+            piece = rec.slice(a, b, warmup=min(warm, b - a - 2), name=f"{rec.name}/{k}")
+            # a steady block of several cycles: its spectrum (a noisy input's minima
+            # move by tens of samples, its spectral peak does not); a sweep's short bin:
+            # its cycles over their duration (a spectrum of two cycles is not resolved)
+            if len(blocks[k]) >= SPECTRAL_CYCLES:
+                f = _rounded(estimate_frequency(piece))
+            else:
+                span = ends[blocks[k][-1]] - t[first.start]
+                f = _rounded(len(blocks[k]) / span)
+            out.append(dataclasses.replace(piece, metadata={
+                **rec.metadata, "frequency_hz": f, "parent": rec.name,
+                "parent_slice": (a, b),
+                "frequency_source": f"estimated ({len(blocks[k])} cycles)"}))
+    return Dataset(out, name=name)

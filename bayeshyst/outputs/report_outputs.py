@@ -99,6 +99,14 @@ def _data_html(section: dict[str, Any], figure: Path | None) -> H.Markup:
                          "excitation frequencies [Hz]: "
                          f"{', '.join(f'{f:g}' for f in section['frequencies_hz']) or 'none'}"
                          f". File: {section['path'] or section['name']}.")]
+    estimated = [r for r in section["records"] if "frequency_source" in (r["metadata"] or {})]
+    if estimated:
+        parts.append(H.paragraph(
+            f"The file gave no excitation frequency for {len(estimated)} record(s): their "
+            "frequencies were estimated from the input's cycles ("
+            + ", ".join(f"{r['name']}: {r['frequency_hz']:g} Hz" for r in estimated[:8])
+            + (", …" if len(estimated) > 8 else "") + "); a record holding several "
+            "frequencies was split into one record per block."))
     parts.append(H.table(["record", "frequency [Hz]", "fs [Hz]", "samples", "scored",
                           "input range", "output range", "metadata"], rows,
                          numeric=[False, True, True, True, True, False, False, False]))
