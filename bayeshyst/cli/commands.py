@@ -24,8 +24,8 @@ from bayeshyst.cli.options import EXIT_OK, effect_list, sampler_settings
 from bayeshyst.errors import DataError, ModelError
 from bayeshyst.files import RunOutputs, json_text, removed_on_failure
 
-__all__ = ["cmd_compare", "cmd_compensate", "cmd_demo", "cmd_diagnose", "cmd_fit",
-           "cmd_invert", "cmd_models", "cmd_report", "cmd_study"]
+__all__ = ["cmd_compare", "cmd_compensate", "cmd_demo", "cmd_diagnose", "cmd_export",
+           "cmd_fit", "cmd_invert", "cmd_models", "cmd_report", "cmd_study"]
 
 
 def load_data(args: argparse.Namespace) -> Any:
@@ -327,6 +327,47 @@ def cmd_invert(args: argparse.Namespace) -> int:
     else:
         print(design)
         print(f"outputs in {out}/: command.csv, summary.json")
+    return EXIT_OK
+
+
+def cmd_export(args: argparse.Namespace) -> int:
+    """``bayeshyst export FIT --format json|c|table``: the inverse for a controller."""
+    from bayeshyst.inference.saved import load_fit
+    from bayeshyst.inverse.export import export_inverse, replay_error
+    from bayeshyst.inverse.numerical import invert
+    from bayeshyst.inverse.references import load_reference
+    from bayeshyst.outputs.export_outputs import write_export_outputs
+
+    if not args.prefix.isidentifier():
+        raise DataError(f"--prefix must be a C identifier, got {args.prefix!r}")
+    fit = load_fit(args.fit)
+    reference = None if args.reference is None else load_reference(args.reference)
+    out = Path(args.out)
+    if not args.quiet:
+        print(f"bayeshyst export: {args.fmt} inverse of {fit.path} ({fit.model.name})",
+              file=sys.stderr)
+    # a table is asked for: tabulate even a model with a closed form
+    method = "table" if args.fmt == "table" and args.method == "auto" else args.method
+    export = export_inverse(fit, method=method)
+    replay = None
+    if reference is not None:
+        theta, offset = fit.posterior.model_draws(fit.map_z[None, :])
+        exact = invert(fit.model, reference.y_d, reference.t, theta, offset=offset,
+                       u_limits=export.u_limits)
+        replay = {"t": reference.t, "y_d": reference.y_d, "u": export.apply(reference.y_d),
+                  "reference": str(args.reference),
+                  "error_percent": replay_error(export, exact.u, reference.y_d)}
+    with removed_on_failure(out):
+        summary = write_export_outputs(export, out, fmt=args.fmt, prefix=args.prefix,
+                                       fit_path=str(fit.path), replay=replay)
+    if args.json:
+        sys.stdout.write(json_text(summary))
+    else:
+        print(export)
+        if replay is not None:
+            print(f"on {args.reference}: max |u - exact inverse| = "
+                  f"{replay['error_percent']:.3g} % of the command span")
+        print(f"outputs in {out}/: " + ", ".join(summary["files"]))
     return EXIT_OK
 
 

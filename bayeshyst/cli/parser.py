@@ -10,6 +10,7 @@ from bayeshyst.cli.commands import (
     cmd_compensate,
     cmd_demo,
     cmd_diagnose,
+    cmd_export,
     cmd_fit,
     cmd_invert,
     cmd_models,
@@ -168,6 +169,28 @@ def build_parser() -> argparse.ArgumentParser:
     p_inv.add_argument("--json", action="store_true", help="print summary.json to stdout")
     p_inv.add_argument("--quiet", action="store_true", help="no progress line on stderr")
     p_inv.set_defaults(func=cmd_invert)
+
+    p_exp = sub.add_parser("export", help="a saved fit's inverse for a real-time controller: "
+                           "JSON parameters, C99 source or a lookup table")
+    p_exp.add_argument("fit", metavar="FIT",
+                       help="a fit's output folder or its posterior .nc file")
+    p_exp.add_argument("--format", choices=("json", "c", "table"), default="json",
+                       dest="fmt", help="json (default): the inverse's parameters; c: also "
+                                        "a C99 header and source; table: the branch tables "
+                                        "(also of a model with a closed form) as CSV too")
+    p_exp.add_argument("--method", choices=("auto", "play_pi", "table"), default="auto",
+                       help="auto (default): the closed-form inverse where the hysteresis is "
+                            "a play-PI, else branch tables")
+    p_exp.add_argument("--prefix", default="bh", metavar="NAME",
+                       help="C identifier prefix of the generated code (default bh)")
+    p_exp.add_argument("--reference", default=None, metavar="FILE",
+                       help="a t,y CSV to replay the exported inverse on: its error against "
+                            "the exact inverse goes into summary.json")
+    p_exp.add_argument("--out", default="bayeshyst-export", metavar="DIR",
+                       help="output folder (default bayeshyst-export)")
+    p_exp.add_argument("--json", action="store_true", help="print summary.json to stdout")
+    p_exp.add_argument("--quiet", action="store_true", help="no progress line on stderr")
+    p_exp.set_defaults(func=cmd_export)
 
     p_dg = sub.add_parser("diagnose", help="trace what a model leaves in its residual to a "
                           "missing effect, add it, refit, and report the error before and after")

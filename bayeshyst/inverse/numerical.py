@@ -43,7 +43,7 @@ from bayeshyst.inverse.lti import deconvolve
 from bayeshyst.inverse.rootfind import solve_increasing
 from bayeshyst.models.base import HysteresisModel
 from bayeshyst.models.blocks import EffectBlock
-from bayeshyst.models.compose import STATIC, Composite, _namespaces
+from bayeshyst.models.compose import STATIC, Composite, block_namespaces
 from bayeshyst.params import ParamSpace
 
 __all__ = ["OBJECTIVES", "Inversion", "Member", "invert", "invert_pooled"]
@@ -239,7 +239,7 @@ def _stages(model: HysteresisModel, theta: Mapping[str, np.ndarray]):
     if not isinstance(model, Composite):
         return _FirstStage(model, theta), [], model.name
     blocks = list(model.blocks)
-    names = _namespaces(blocks)
+    names = block_namespaces(blocks)
     thetas = [ParamSpace.sub_theta(theta, ns) for ns in names]
     lead = 0
     while lead < len(blocks) and not blocks[lead].needs_preview:

@@ -30,13 +30,15 @@ from bayeshyst.models.base import HysteresisModel, LinearDesign, LinearInParams
 from bayeshyst.models.blocks import Creep, EffectBlock, block_class, block_names
 from bayeshyst.params import ParamSpace
 
-__all__ = ["Composite", "Hammerstein", "WithCreep", "block_names", "model_spec", "parse_spec"]
+__all__ = ["Composite", "Hammerstein", "WithCreep", "block_names", "block_namespaces", "model_spec",
+           "parse_spec"]
 
 #: Namespace of the base model's parameters.
 STATIC = "static"
 
 
-def _namespaces(blocks: Sequence[EffectBlock]) -> tuple[str, ...]:
+def block_namespaces(blocks: Sequence[EffectBlock]) -> tuple[str, ...]:
+    """The parameter namespace of each block: its name, ``name_2`` for a second one."""
     seen: dict[str, int] = {}
     out = []
     for b in blocks:
@@ -187,7 +189,7 @@ class Composite(LinearInParams, HysteresisModel):
     @property
     def namespaces(self) -> tuple[str, ...]:
         """Parameter namespaces of the blocks, in order (``"creep"``, ``"creep_2"``)."""
-        return _namespaces(self.blocks)
+        return block_namespaces(self.blocks)
 
     def param_space(self, data: Any = None) -> ParamSpace:
         """The base's space under ``static.`` and each block's under its namespace.
