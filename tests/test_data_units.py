@@ -141,3 +141,43 @@ def test_cli_finds_the_frequencies_a_file_does_not_give(tmp_path, capsys):
     assert main([*args, "--no-frequency-labels", "--out", str(tmp_path / "b")]) == 0
     per = json.loads((tmp_path / "b" / "summary.json").read_text())["per_frequency"]
     assert all(p["frequency_hz"] is None for p in per)
+
+
+def test_an_unknown_unit_is_refused_and_other_quantities_stay_labels(tmp_path, capsys):
+    t, u, y = _signals()
+    odd = _write(tmp_path / "odd.csv", ["Time [s]", "Voltage [V]", "Displacement [furlong]"],
+                 [t, u, y])
+    with pytest.raises(DataError, match=r"odd\.csv: line 1 \(header\), column "
+                                        r"'Displacement \[furlong\]' \(y\): unknown unit"):
+        load(odd)
+    assert main(["fit", str(odd), "--model", "pi_play", "--out", str(tmp_path / "o")]) == 2
+    assert "unknown unit 'furlong'" in capsys.readouterr().err
+    assert not (tmp_path / "o").exists()
+    # an MR damper's file: a displacement input and a force output are labels, the
+    # numbers untouched (only t in time units, u in volts, y in lengths are converted)
+    force = _write(tmp_path / "force.csv", ["t [ms]", "u [mm]", "y [N]"], [t * 1e3, u, y])
+    (rec,) = load(force)
+    assert dict(rec.units) == {"t": "s", "u": "mm", "y": "N"}
+    assert np.array_equal(rec.u, u) and np.array_equal(rec.y, y)
+
+
+def test_an_instrument_file_fits_to_the_posterior_of_its_converted_twin(tmp_path):
+    import json
+
+    t, u, y = _signals(n=2000)
+    y = y + np.random.default_rng(3).normal(0, 0.02, y.size)
+    scope = _write(tmp_path / "scope.csv", ["Time [ms]", "Voltage [mV]", "Position [nm]"],
+                   [t * 1e3, u * 1e3, y * 1e3])
+    twin = _write(tmp_path / "twin.csv", ["t", "u", "y"], [t, u, y])
+    a, b = load(scope)[0], load(twin)[0]
+    for x, z in ((a.t, b.t), (a.u, b.u), (a.y, b.y)):
+        np.testing.assert_allclose(x, z, rtol=1e-14, atol=1e-15)
+    sums = []
+    for path in (scope, twin):
+        out = tmp_path / path.stem
+        assert main(["fit", str(path), "--model", "pi_play(n_operators=2)", "--steps", "600",
+                     "--no-figures", "--no-calibration", "--quiet", "--out", str(out)]) == 0
+        sums.append(json.loads((out / "summary.json").read_text()))
+    for name, p in sums[1]["params"].items():
+        q = sums[0]["params"][name]
+        assert q["mean"] == pytest.approx(p["mean"], abs=1e-6 * p["sd"]), name

@@ -62,7 +62,7 @@ from bayeshyst.data.parsing import (
     sidecar_path,
 )
 from bayeshyst.data.record import MIN_SAMPLES, Dataset, Record, check_fittable
-from bayeshyst.data.units import conversion, split_header
+from bayeshyst.data.units import conversion, known_unit, split_header
 from bayeshyst.errors import DataError
 from bayeshyst.files import atomic_paths
 
@@ -313,6 +313,11 @@ def _header_units(path: Path, header: str, resolved: Mapping[str, str],
         unit = split_header(resolved[role])[1]
         if unit is None:
             continue
+        if not known_unit(unit):
+            raise DataError(f"{path}: {header}, column {resolved[role]!r} ({role}): unknown "
+                            f"unit {unit!r}; expected s/ms/us/ns for t, V/mV/kV for u, "
+                            f"m/mm/um/nm for y (converted), or a unit of another quantity "
+                            f"(N, A, ...; kept as a label)")
         conv = conversion(role, unit)
         given = declared.get(role)
         if given is not None and given.strip() not in (unit, conv[1] if conv else unit):

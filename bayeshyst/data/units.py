@@ -22,8 +22,8 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["ROLE_NAMES", "WORKING_UNITS", "conversion", "plausibility", "recognise_roles",
-           "split_header"]
+__all__ = ["OTHER_UNITS", "ROLE_NAMES", "WORKING_UNITS", "conversion", "known_unit",
+           "plausibility", "recognise_roles", "split_header"]
 
 #: the units bayeshyst works in, per role
 WORKING_UNITS = {"t": "s", "u": "V", "y": "um"}
@@ -38,6 +38,13 @@ _UNITS: dict[str, tuple[str, float]] = {
     "pm": ("length", 1e-6),
 }
 _DIMENSION = {"t": "time", "u": "voltage", "y": "length"}
+#: units of other quantities an actuator's file may hold in the t, u, y roles (a force
+#: output, a current input): kept as labels, the numbers used as they are
+OTHER_UNITS = frozenset(
+    _k for _k in ("N", "kN", "mN", "A", "mA", "uA", "µA", "μA", "C", "nC", "uC", "µC",
+                  "Pa", "kPa", "MPa", "bar", "deg", "rad", "mrad", "urad", "%", "-", "1",
+                  "counts", "a.u.", "au", "um/V", "mm/s", "m/s", "g", "m/s^2", "m/s2",
+                  "N/m", "W", "mW", "Hz"))
 #: base names (lower case) that name a role in instrument exports
 ROLE_NAMES = {
     "t": ("t", "time", "times", "zeit", "timestamp", "time_s"),
@@ -70,6 +77,12 @@ def split_header(name: str) -> tuple[str, str | None]:
     if m and m.group(1) and _key(m.group(2)) in _UNITS:
         return m.group(1).strip(), m.group(2).strip()
     return text, None
+
+
+def known_unit(unit: str) -> bool:
+    """Whether ``unit`` is one bayeshyst converts or knows to keep as a label."""
+    return _key(unit) in _UNITS or unit.strip() in OTHER_UNITS or _key(unit) in {
+        _key(u) for u in OTHER_UNITS}
 
 
 def conversion(role: str, unit: str | None) -> tuple[float, str] | None:
