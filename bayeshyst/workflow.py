@@ -61,6 +61,7 @@ from bayeshyst.selection import (
 )
 from bayeshyst.selection.results import cycles_at
 from bayeshyst.selection.tasks import build_spec, is_parametric
+from bayeshyst.tables import TableRecord, frame
 
 __all__ = ["DEFAULT_MODELS", "DEMO_DEFAULT", "DEMO_QUICK", "DemoPlan", "ReportResult",
            "ReportSettings", "bundled_data", "choose_model", "run_report"]
@@ -149,7 +150,7 @@ class ReportSettings:
 
 
 @dataclass(frozen=True)
-class ReportResult:
+class ReportResult(TableRecord):
     """Everything :func:`run_report` found.
 
     Attributes
@@ -188,6 +189,27 @@ class ReportResult:
     warnings: tuple[str, ...] = ()
     runtime_s: dict[str, float] = field(default_factory=dict)
     averaged: AveragedResult | None = None
+
+    def to_dataframe(self) -> Any:
+        """One row per frequency of the study.
+
+        The comparison's best model, the feedforward's realised error with its band, and
+        the model-averaged design's models and error.
+        """
+        comp = {} if self.compensation is None else {
+            r.frequency_hz: r for r in self.compensation.rows}
+        avg = {} if self.averaged is None else {r.frequency_hz: r for r in self.averaged.rows}
+        rows = []
+        for fc in self.comparison.per_frequency:
+            c, a = comp.get(fc.frequency_hz), avg.get(fc.frequency_hz)
+            rows.append({
+                "frequency": fc.label, "best": fc.best, "best_lofo": fc.best_lofo,
+                "compensated_with": self.chosen_model,
+                "tracking_nrmse_percent": None if c is None else c.posterior_nrmse_percent,
+                "predicted_band_percent": None if c is None else c.predicted_band_percent,
+                "averaged_models": None if a is None else a.models,
+                "averaged_nrmse_percent": None if a is None else a.averaged_nrmse_percent})
+        return frame(rows)
 
     @property
     def final_fit(self) -> FitResult | None:

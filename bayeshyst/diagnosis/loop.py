@@ -47,6 +47,7 @@ from bayeshyst.models import get as get_model
 from bayeshyst.models.base import HysteresisModel
 from bayeshyst.selection import paired_difference
 from bayeshyst.selection.tasks import CompareSettings, fit_sampler, loo_scores
+from bayeshyst.tables import TableRecord, frame
 
 __all__ = ["DiagnosisFit", "DiagnosisResult", "DiagnosisSettings", "DiagnosisStep", "diagnose"]
 
@@ -171,7 +172,7 @@ def _te(e: TrackingError | None) -> dict[str, Any] | None:
 
 
 @dataclass(frozen=True)
-class DiagnosisStep:
+class DiagnosisStep(TableRecord):
     """One augmentation tried.
 
     Attributes
@@ -212,6 +213,10 @@ class DiagnosisStep:
     delta_elpd_se: float
     added_parameters: tuple[ParamSummary, ...]
     converged: bool
+
+    def to_dataframe(self) -> Any:
+        """One row: :meth:`to_dict` without the per-frequency and parameter lists."""
+        return frame([self.to_dict()], drop=("per_frequency", "added_parameters"))
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready; the keys of the issue's ``steps`` entries come first."""
@@ -254,7 +259,7 @@ class DiagnosisStep:
 
 
 @dataclass(frozen=True)
-class DiagnosisResult:
+class DiagnosisResult(TableRecord):
     """What the closed loop found.
 
     Attributes
@@ -280,6 +285,11 @@ class DiagnosisResult:
     rounds: tuple[ResidualAnalysis, ...]
     settings: DiagnosisSettings
     warnings: tuple[str, ...] = ()
+
+    def to_dataframe(self) -> Any:
+        """One row per step (effect tried): tests, errors before/after, held-out elpd."""
+        return frame([s.to_dict() for s in self.steps],
+                     drop=("per_frequency", "added_parameters"))
 
     def to_dict(self) -> dict[str, Any]:
         """The ``summary.json`` content."""

@@ -51,6 +51,7 @@ from bayeshyst.diagnosis.stats import (
 )
 from bayeshyst.inference.posterior import Posterior, cycle_units
 from bayeshyst.inference.sampling import SamplingResult
+from bayeshyst.tables import TableRecord, frame
 
 __all__ = ["CycleResidual", "EffectTest", "ResidualAnalysis", "analyse_residual", "best_point"]
 
@@ -59,7 +60,7 @@ _EVIDENCE_POINTS = 4000
 
 
 @dataclass(frozen=True)
-class EffectTest:
+class EffectTest(TableRecord):
     """The score test of one candidate effect on a fit's residual.
 
     Attributes
@@ -119,6 +120,10 @@ class EffectTest:
     coef: np.ndarray = field(default_factory=lambda: np.zeros(0), repr=False)
     cov: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)), repr=False)
     evidence: dict[str, Any] = field(default_factory=dict, repr=False)
+
+    def to_dataframe(self) -> Any:
+        """One row: :meth:`to_dict`."""
+        return frame([self.to_dict()])
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready (no evidence arrays)."""

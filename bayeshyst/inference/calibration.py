@@ -37,6 +37,7 @@ from bayeshyst.inference.optimize import MAPResult, conditional_mode
 from bayeshyst.inference.posterior import NOISE, Posterior
 from bayeshyst.inference.sampling import sample_posterior
 from bayeshyst.inference.settings import SamplerSettings
+from bayeshyst.tables import TableRecord, frame
 
 __all__ = [
     "Calibration",
@@ -114,7 +115,7 @@ def binomial_range(n_eff: float, p: float, mass: float = 0.95) -> tuple[float, f
 
 
 @dataclass(frozen=True)
-class FrequencyCalibration:
+class FrequencyCalibration(TableRecord):
     """The calibration check at one excitation frequency.
 
     Attributes
@@ -153,6 +154,10 @@ class FrequencyCalibration:
         return (f"{frequency_label(self.frequency_hz):>10}: {', '.join(parts)}; "
                 f"n={self.n_samples} (effective {self.n_effective:.0f}); {verdict}")
 
+    def to_dataframe(self) -> Any:
+        """One row: :meth:`to_dict` (without the PIT histogram)."""
+        return frame([self.to_dict()], drop=("pit_histogram",))
+
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready fields."""
         return {"frequency_hz": self.frequency_hz, "n_samples": self.n_samples,
@@ -163,7 +168,7 @@ class FrequencyCalibration:
 
 
 @dataclass(frozen=True)
-class Calibration:
+class Calibration(TableRecord):
     """Leave-cycles-out calibration check of a fit, per excitation frequency.
 
     Attributes
@@ -204,6 +209,10 @@ class Calibration:
         head = (f"calibration on {len(self.held_out)} held-out cycle(s) "
                 f"({', '.join(self.held_out)}):")
         return "\n".join([head, *[str(c) for c in self.per_frequency]])
+
+    def to_dataframe(self) -> Any:
+        """One row per frequency: coverage of the 50 and 90 % bands, expected ranges."""
+        return frame([c.to_dict() for c in self.per_frequency], drop=("pit_histogram",))
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready fields (summary.json's ``calibration``)."""
@@ -317,7 +326,7 @@ def check_calibration(post: Posterior, draws: np.ndarray, sampler: SamplerSettin
 
 
 @dataclass(frozen=True)
-class FrequencyBudget:
+class FrequencyBudget(TableRecord):
     """Predictive variance at one frequency split by source (output unit squared).
 
     ``noise`` = mean ``sigma^2``; ``parameters`` = mean over samples of the variance of
@@ -353,6 +362,10 @@ class FrequencyBudget:
                 f"{math.sqrt(self.total):.4g} = noise {100 * sh['noise']:.0f} %, parameters "
                 f"{100 * sh['parameters']:.0f} %, discrepancy {100 * sh['discrepancy']:.0f} % "
                 f"of the variance (dominant: {self.dominant})")
+
+    def to_dataframe(self) -> Any:
+        """One row: :meth:`to_dict`."""
+        return frame([self.to_dict()])
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready fields (variances and shares)."""

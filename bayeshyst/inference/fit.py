@@ -29,6 +29,7 @@ from bayeshyst.inference.settings import SamplerSettings
 from bayeshyst.likelihoods import Likelihood
 from bayeshyst.models.base import HysteresisModel
 from bayeshyst.params import ParamSpace
+from bayeshyst.tables import TableRecord, frame
 
 __all__ = [
     "FitResult", "TrackingError", "calibrate_fit", "errors_by_frequency", "fit_model",
@@ -123,7 +124,7 @@ def tracking_errors(
 
 
 @dataclass(frozen=True)
-class FitResult:
+class FitResult(TableRecord):
     """A fitted posterior with its tracking errors: the one fit record.
 
     :func:`fit_model` returns it; a diagnosis fit (:class:`~bayeshyst.diagnosis.DiagnosisFit`)
@@ -185,6 +186,13 @@ class FitResult:
     def elpd(self) -> float:
         """Summed cycle-wise elpd (NaN when the fit was not scored)."""
         return math.nan if self.pointwise_elpd is None else float(np.sum(self.pointwise_elpd))
+
+    def to_dataframe(self, prob: float = 0.9) -> Any:
+        """One row per scalar parameter: mean, sd and the ``prob`` HDI, with its unit."""
+        return frame([{"parameter": p.label, "mean": p.mean, "sd": p.sd,
+                       f"hdi_{round(100 * (1 - prob) / 2)}": p.hdi_lo,
+                       f"hdi_{round(100 * (1 + prob) / 2)}": p.hdi_hi, "unit": p.unit}
+                      for p in self.sampling.summary(prob)])
 
     def __str__(self) -> str:
         lines = [str(self.sampling), "tracking error of the posterior mean:", str(self.overall)]

@@ -33,6 +33,7 @@ from bayeshyst.errors import DataError, ModelError, ParameterError
 from bayeshyst.inference.posterior import Posterior
 from bayeshyst.models import get as get_model
 from bayeshyst.models.compose import model_spec
+from bayeshyst.tables import TableRecord
 
 __all__ = ["FIT_ATTR", "FIT_FORMAT", "FitDescription", "SavedFit", "fit_description",
            "load_fit"]
@@ -264,7 +265,7 @@ def _draws(path: Path, post: Posterior, posterior: Any) -> np.ndarray:
 
 
 @dataclass(frozen=True)
-class SavedFit:
+class SavedFit(TableRecord):
     """A posterior read back from disk: the model, its draws, the data it was fitted to.
 
     Attributes

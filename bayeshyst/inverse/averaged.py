@@ -30,6 +30,7 @@ from bayeshyst.inverse.feedforward import BAND, Draws, predict_outputs, tracking
 from bayeshyst.inverse.numerical import Member, invert_pooled
 from bayeshyst.inverse.references import Reference
 from bayeshyst.models.base import HysteresisModel
+from bayeshyst.tables import TableRecord, frame
 
 __all__ = ["POSTERIOR_WORDS", "AveragedDesign", "AveragedResult", "WeightedPosterior",
            "allocate_draws", "design_averaged"]
@@ -82,7 +83,7 @@ def _take(d: Draws, idx: np.ndarray) -> Draws:
 
 
 @dataclass(frozen=True)
-class AveragedDesign:
+class AveragedDesign(TableRecord):
     """The model-averaged design at one frequency, and how it tracked.
 
     Attributes
@@ -138,6 +139,10 @@ class AveragedDesign:
         """``"10 Hz"`` or ``"reference"`` for a reference without a frequency."""
         return "reference" if self.frequency_hz is None else f"{self.frequency_hz:g} Hz"
 
+    def to_dataframe(self) -> Any:
+        """One row: :meth:`to_dict` (models and weights as ``;``-joined text)."""
+        return frame([self.to_dict()])
+
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready row."""
         out = {k: v for k, v in self.__dict__.items() if k != "curves"}
@@ -166,7 +171,7 @@ POSTERIOR_WORDS = {
 
 
 @dataclass(frozen=True)
-class AveragedResult:
+class AveragedResult(TableRecord):
     """Model-averaged designs per frequency, and the frequencies or models left out.
 
     Attributes

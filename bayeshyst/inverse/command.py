@@ -26,6 +26,7 @@ from bayeshyst.inference.saved import SavedFit
 from bayeshyst.inverse.feedforward import BAND, Draws, design_feedforward
 from bayeshyst.inverse.references import Reference, command_limits
 from bayeshyst.models.compose import model_spec
+from bayeshyst.tables import TableRecord
 
 __all__ = ["OBJECTIVES", "CommandDesign", "design_command"]
 
@@ -34,7 +35,7 @@ OBJECTIVES = ("nominal", "mean", "robust")
 
 
 @dataclass(frozen=True)
-class CommandDesign:
+class CommandDesign(TableRecord):
     """A command for one reference and what the posterior predicts it does.
 
     Attributes

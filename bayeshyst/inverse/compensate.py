@@ -48,6 +48,7 @@ from bayeshyst.inverse.references import (
 )
 from bayeshyst.models import get as get_model
 from bayeshyst.models.base import HysteresisModel
+from bayeshyst.tables import TableRecord, frame
 
 __all__ = ["CompensationResult", "CompensationRow", "compensate"]
 
@@ -55,7 +56,7 @@ __all__ = ["CompensationResult", "CompensationRow", "compensate"]
 
 
 @dataclass(frozen=True)
-class CompensationRow:
+class CompensationRow(TableRecord):
     """Tracking errors at one frequency (all in % of the reference's stroke).
 
     Attributes
@@ -123,6 +124,10 @@ class CompensationRow:
     parameter_band_percent: tuple[float, float] | None = None
     curves: dict[str, np.ndarray] = field(default_factory=dict, repr=False)
 
+    def to_dataframe(self) -> Any:
+        """One row: :meth:`to_dict` (bands as ``_lo``/``_hi`` columns)."""
+        return frame([self.to_dict()], drop=("mean_over_plants",))
+
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready fields (no curves)."""
         out = {k: getattr(self, k) for k in self.__dataclass_fields__ if k != "curves"}
@@ -147,7 +152,7 @@ class CompensationRow:
 
 
 @dataclass(frozen=True)
-class CompensationResult:
+class CompensationResult(TableRecord):
     """Feedforward compensation of one model, per frequency.
 
     Attributes
@@ -173,6 +178,11 @@ class CompensationResult:
     statements: tuple[str, ...]
     converged: bool
     settings: dict[str, Any]
+
+    def to_dataframe(self) -> Any:
+        """One row per frequency: every command's realised error and the bands."""
+        return frame([{"model": self.model, **r.to_dict()} for r in self.rows],
+                     drop=("mean_over_plants",))
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready summary; ``per_frequency`` is the list of row dicts."""

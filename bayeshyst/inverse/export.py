@@ -36,6 +36,7 @@ from bayeshyst.inverse.references import command_limits
 from bayeshyst.models.compose import STATIC, Composite, block_namespaces, model_spec
 from bayeshyst.models.pi import PrandtlIshlinskii, play_pi_inverse
 from bayeshyst.params import ParamSpace
+from bayeshyst.tables import TableRecord
 
 __all__ = ["EXPORT_FORMAT", "InverseExport", "export_inverse", "replay_error"]
 
@@ -52,7 +53,7 @@ def _c_array(values: np.ndarray) -> str:
 
 
 @dataclass(frozen=True)
-class InverseExport:
+class InverseExport(TableRecord):
     """A fit's inverse, ready for a controller (see the module docstring).
 
     Attributes
@@ -91,6 +92,16 @@ class InverseExport:
                 "parameters": params, "dynamics": list(self.dynamics),
                 "u_limits": list(self.u_limits), "units": dict(self.units),
                 "fit_converged": self.fit_converged, "notes": list(self.notes)}
+
+    def to_dataframe(self) -> Any:
+        """The inverse's numbers: per operator (``w``, ``r``) or per table point."""
+        import pandas as pd
+
+        p = self.parameters
+        if self.method == "play_pi":
+            return pd.DataFrame({"operator": np.arange(1, np.size(p["w"]) + 1),
+                                 "w": p["w"], "r": p["r"]})
+        return pd.DataFrame({k: p[k] for k in ("y_up", "u_up", "y_down", "u_down")})
 
     def __str__(self) -> str:
         what = {"play_pi": "exact play-PI inverse",

@@ -16,6 +16,7 @@ import numpy as np
 from bayeshyst.errors import ParameterError
 from bayeshyst.selection.ranking import paired_difference
 from bayeshyst.selection.tasks import TaskResult
+from bayeshyst.tables import TableRecord, frame
 
 __all__ = ["ComparisonResult", "FrequencyComparison", "ModelScore", "cycles_at"]
 
@@ -33,7 +34,7 @@ def cycles_at(task: TaskResult, freq: float | None, joint: bool) -> np.ndarray:
 
 
 @dataclass(frozen=True)
-class ModelScore:
+class ModelScore(TableRecord):
     """One model at one frequency (or over all frequencies).
 
     Attributes
@@ -107,9 +108,13 @@ class ModelScore:
             out[k] = list(v) if isinstance(v, tuple) else v
         return out
 
+    def to_dataframe(self) -> Any:
+        """One row: :meth:`to_dict`."""
+        return frame([self.to_dict()])
+
 
 @dataclass(frozen=True)
-class FrequencyComparison:
+class FrequencyComparison(TableRecord):
     """The ranking at one excitation frequency.
 
     With ``frequency_hz`` None it ranks all frequencies jointly when ``joint`` is True,
@@ -139,6 +144,10 @@ class FrequencyComparison:
                 return s
         raise ParameterError(f"no model {model!r} at {self.label}; have "
                              f"{[s.model for s in self.scores]}")
+
+    def to_dataframe(self) -> Any:
+        """One row per model (the ranking's order): its scores at this frequency."""
+        return frame([{"frequency": self.label, **s.to_dict()} for s in self.scores])
 
     def to_dict(self) -> dict[str, Any]:
         """The ``per_frequency`` entry of ``summary.json``."""
@@ -172,7 +181,7 @@ class FrequencyComparison:
 
 
 @dataclass(frozen=True)
-class ComparisonResult:
+class ComparisonResult(TableRecord):
     """Everything :func:`compare_models` found.
 
     Attributes
@@ -225,6 +234,11 @@ class ComparisonResult:
                                  f"{'all frequencies' if joint else frequency_hz}")
         pw = [fits[m].pointwise[cycles_at(fits[m], frequency_hz, joint)] for m in (a, b)]
         return paired_difference(pw[0], pw[1])
+
+    def to_dataframe(self) -> Any:
+        """One row per (frequency, model), the joint ranking (frequency "all") last."""
+        return frame([{"frequency": fc.label, **s.to_dict()}
+                      for fc in (*self.per_frequency, self.overall) for s in fc.scores])
 
     def winners(self) -> dict[str, str | None]:
         """Best model by ``elpd_loo`` at each frequency label."""

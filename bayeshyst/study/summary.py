@@ -26,6 +26,7 @@ import numpy as np
 
 from bayeshyst.data.record import frequency_key, frequency_label
 from bayeshyst.selection.ranking import rank_by_elpd
+from bayeshyst.tables import TableRecord, frame
 
 __all__ = ["DatasetRanking", "FrequencySummary", "ModelAcrossDatasets", "ModelAtDataset",
            "frequency_label", "summarise"]
@@ -47,7 +48,7 @@ class ModelAtDataset:
 
 
 @dataclass(frozen=True)
-class DatasetRanking:
+class DatasetRanking(TableRecord):
     """The models ranked by elpd at one dataset and frequency.
 
     ``failed`` names the models without a score there (their errors are in the table).
@@ -63,6 +64,12 @@ class DatasetRanking:
     def best(self) -> str | None:
         """The model with the highest elpd (None when every fit failed)."""
         return self.ranking[0].model if self.ranking else None
+
+    def to_dataframe(self) -> Any:
+        """One row per model, ranked, with the dataset and frequency."""
+        return frame([{"likelihood": self.likelihood, "dataset": self.dataset,
+                       "frequency_hz": self.frequency_hz, **m.__dict__}
+                      for m in self.ranking])
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready (``best_by_dataset.json``)."""
@@ -88,7 +95,7 @@ class ModelAcrossDatasets:
 
 
 @dataclass(frozen=True)
-class FrequencySummary:
+class FrequencySummary(TableRecord):
     """Model selection at one frequency across datasets (see the module docstring)."""
 
     likelihood: str
@@ -101,6 +108,11 @@ class FrequencySummary:
     def best(self) -> str | None:
         """Highest pooled elpd (None when no dataset is complete)."""
         return self.models[0].model if self.models else None
+
+    def to_dataframe(self) -> Any:
+        """One row per model, pooled over the complete datasets at this frequency."""
+        return frame([{"likelihood": self.likelihood, "frequency_hz": self.frequency_hz,
+                       **m.__dict__} for m in self.models])
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready (``by_frequency.json``)."""
