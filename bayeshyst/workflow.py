@@ -30,6 +30,7 @@ back, not sampled again, and an interrupted report resumes where it stopped. Wri
 
 from __future__ import annotations
 
+import logging
 import sys
 import tempfile
 import time
@@ -65,6 +66,8 @@ from bayeshyst.tables import TableRecord, frame
 
 __all__ = ["DEFAULT_MODELS", "DEMO_DEFAULT", "DEMO_QUICK", "DemoPlan", "ReportResult",
            "ReportSettings", "bundled_data", "choose_model", "run_report"]
+
+_log = logging.getLogger(__name__)
 
 #: Models compared when the user names none: the two classic phenomenological families,
 #: a rate-dependent PI, and the Gaussian-process peer.
@@ -264,6 +267,7 @@ def choose_model(comparison: ComparisonResult) -> tuple[str | None, list[str]]:
 
 
 def _stage(progress: bool, text: str) -> None:
+    _log.info("%s", text)
     if progress:
         print(f"bayeshyst report: {text}", file=sys.stderr, flush=True)
 

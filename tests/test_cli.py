@@ -20,7 +20,7 @@ import bayeshyst.selection
 import bayeshyst.study
 import bayeshyst.workflow
 from bayeshyst import models
-from bayeshyst.cli import main
+from bayeshyst.cli import build_parser, main
 from bayeshyst.errors import ParameterError
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -74,6 +74,24 @@ def test_an_unknown_likelihood_is_refused_with_the_valid_names(command, tmp_path
     assert res.returncode == 2 and "Traceback" not in res.stderr
     assert "invalid choice: 'cauchy' (choose from 'ar1', 'gaussian', 'student_t')" in res.stderr
     assert not (tmp_path / "out").exists()
+
+
+def test_every_command_shows_an_example_and_verbose_logs_the_library(tmp_path):
+    from bayeshyst.cli.parser import EXAMPLES
+
+    parser = build_parser()
+    commands = parser._subparsers._group_actions[0].choices
+    assert set(commands) == set(EXAMPLES)
+    for name, sub in commands.items():
+        text = sub.format_help()
+        assert "example:\n  bayeshyst " + name in text, name
+    res = subprocess.run([sys.executable, "-m", "bayeshyst.cli", "fit", str(DATA), "--model",
+                          "pi_play(n_operators=2)", "--steps", "300", "--no-figures",
+                          "--no-calibration", "--quiet", "-v", "--out", str(tmp_path / "f")],
+                         capture_output=True, text=True)
+    assert res.returncode == 0, res.stderr[-500:]
+    assert "bayeshyst.data.io: " in res.stderr and "bayeshyst.inference.fit: fitting" in res.stderr
+    assert "bayeshyst.inference.sampling" not in res.stderr  # its step records are -vv
 
 
 def test_unknown_model_exits_2_with_one_line_and_no_traceback():

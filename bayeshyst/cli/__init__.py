@@ -8,6 +8,7 @@ Exit status: 0 success, 2 bad input (one clear line on stderr, nothing written h
 
 from __future__ import annotations
 
+import logging
 import os
 import sys
 from collections.abc import Sequence
@@ -29,10 +30,27 @@ __all__ = ["build_parser", "int_at_least", "main", "non_negative_float", "non_ne
            "positive_int", "probability", "sampler_settings"]
 
 
+def _log_to_stderr(level: int) -> None:
+    """Show the library's log records (logger ``bayeshyst``) on stderr at ``level``.
+
+    Only bayeshyst's own: third-party debug logs (numba, matplotlib) stay silent. One
+    handler, however often ``main`` runs in a process.
+    """
+    logger = logging.getLogger("bayeshyst")
+    logger.setLevel(level)
+    if not any(getattr(h, "_bayeshyst", False) for h in logger.handlers):
+        handler = logging.StreamHandler(sys.stderr)
+        handler.setFormatter(logging.Formatter("%(name)s: %(message)s"))
+        handler._bayeshyst = True  # type: ignore[attr-defined]
+        logger.addHandler(handler)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the command line; return the exit status."""
     parser = build_parser()
     args = parser.parse_args(argv)
+    if getattr(args, "verbose", 0):
+        _log_to_stderr(logging.DEBUG if args.verbose > 1 else logging.INFO)
     try:
         return int(args.func(args))
     except (DataError, ParameterError, ModelError) as exc:

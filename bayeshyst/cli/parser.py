@@ -67,6 +67,26 @@ def add_run_options(p: argparse.ArgumentParser, out_default: str, steps_help: st
     p.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
 
 
+#: one example per command, shown under its --help
+EXAMPLES = {
+    "models": ["bayeshyst models pi_play creep --json"],
+    "fit": ["bayeshyst fit scope.csv --model bouc_wen+second_order --out fit-bw",
+            "bayeshyst fit scope.csv --model pi_play --columns 't=Time [ms],u=Drive,y=Sensor' "
+            "--likelihood ar1"],
+    "compare": ["bayeshyst compare data/virtual_multifreq.csv --models pi_play,bouc_wen,gp "
+                "--out cmp"],
+    "compensate": ["bayeshyst compensate data/virtual_multifreq.csv --model "
+                   "'pi_play(n_operators=8)+second_order' --reference sine --out comp"],
+    "invert": ["bayeshyst invert fit-bw --reference ref.csv --objective robust --out cmd"],
+    "export": ["bayeshyst export fit-pi --format c --reference ref.csv --out ctrl"],
+    "diagnose": ["bayeshyst diagnose data/virtual_multifreq.csv --model pi_play --out diag"],
+    "report": ["bayeshyst report data/virtual_multifreq.csv --models pi_play,bouc_wen,gp_memory "
+               "--out rep"],
+    "demo": ["bayeshyst demo --quick --out demo"],
+    "study": ["bayeshyst study my-study.toml --jobs 8 --out my-study --report"],
+}
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of the ``bayeshyst`` command."""
     # argparse itself exits with status 2 on usage errors, as bad input should
@@ -270,5 +290,10 @@ def build_parser() -> argparse.ArgumentParser:
     p_st.add_argument("--quiet", action="store_true", help="no progress on stderr")
     p_st.add_argument("--no-figures", action="store_true", help="skip the figures")
     p_st.set_defaults(func=cmd_study)
+    for name, p in sub.choices.items():
+        p.add_argument("-v", "--verbose", action="count", default=0,
+                       help="log what the library does on stderr (-v: steps, -vv: details)")
+        p.epilog = "example:\n  " + "\n  ".join(EXAMPLES[name])
+        p.formatter_class = argparse.RawDescriptionHelpFormatter
     return parser
 

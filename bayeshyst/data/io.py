@@ -41,6 +41,7 @@ from __future__ import annotations
 
 import io
 import itertools
+import logging
 import os
 import zipfile
 from collections.abc import Callable, Iterator, Mapping, Sequence
@@ -77,6 +78,8 @@ __all__ = [
     "write_csv",
     "write_npz",
 ]
+
+_log = logging.getLogger(__name__)
 
 _INTEGER_ROLES = ("segment", "record")  # columns whose values must be integers
 
@@ -527,7 +530,10 @@ def load(path: str | os.PathLike[str], **options: Any) -> Dataset:
         raise DataError(
             f"{p}: unknown file suffix {p.suffix!r}; expected one of {sorted(SUFFIXES)}"
         )
-    return reader(p, **options)
+    data = reader(p, **options)
+    _log.info("%s: %d record(s), %d samples, frequencies %s", p, len(data), data.n_samples,
+              list(data.frequencies) or "none given")
+    return data
 
 
 # --------------------------------------------------------------------------- writers

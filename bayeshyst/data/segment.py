@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import dataclasses
 import itertools
+import logging
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass
 from typing import Literal
@@ -31,6 +32,8 @@ __all__ = [
     "split_by_frequency",
     "split_cycles",
 ]
+
+_log = logging.getLogger(__name__)
 
 #: Default prominence as a fraction of the input's peak-to-peak range.
 _RANGE_FRACTION = 0.01
@@ -531,10 +534,14 @@ def label_frequencies(data: Record | Dataset) -> Dataset:
         blocks = _blocks_of(freqs)
         if len(blocks) == 1:
             f = _rounded(estimate_frequency(rec))
+            _log.info("%s: no frequency_hz; %g Hz from %d input cycles", rec.name, f,
+                      len(split))
             out.append(rec.with_(metadata={
                 **rec.metadata, "frequency_hz": f,
                 "frequency_source": f"estimated ({len(split)} cycles)"}))
             continue
+        _log.info("%s: no frequency_hz; %d blocks of cycles at different frequencies",
+                  rec.name, len(blocks))
         starts = [split.cycles[b[0]].start for b in blocks]
         bounds = [0, *starts[1:], rec.n]
         ends = np.array([t[c.stop] if c.stop < rec.n else t[-1] for c in split.cycles])

@@ -19,6 +19,7 @@ no test fires, when every fired effect is rejected, or after ``max_rounds``.
 
 from __future__ import annotations
 
+import logging
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -50,6 +51,8 @@ from bayeshyst.selection.tasks import CompareSettings, fit_sampler, loo_scores
 from bayeshyst.tables import TableRecord, frame
 
 __all__ = ["DiagnosisFit", "DiagnosisResult", "DiagnosisSettings", "DiagnosisStep", "diagnose"]
+
+_log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
@@ -548,6 +551,8 @@ def diagnose(
             reason = (f"held-out elpd improves by {d:.1f} > {st.threshold:g} x se {se:.1f}"
                       if ok else f"held-out elpd changes by {d:.1f} (se {se:.1f}), not above "
                       f"{st.threshold:g} x se")
+            _log.info("round %d: %s %s (%s)", rnd, test.effect,
+                      "accepted" if ok else "rejected", reason)
             per = tuple(zip(current.per_frequency, cand.per_frequency, strict=True))
             steps.append(DiagnosisStep(rnd, test.effect, test, current.label, cand.label, ok,
                                        reason, current.overall, cand.overall, per, d, se,

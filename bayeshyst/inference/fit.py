@@ -7,6 +7,7 @@ the measurement — overall and per excitation frequency, as users report it.
 
 from __future__ import annotations
 
+import logging
 import math
 from dataclasses import dataclass, field, replace
 from typing import Any
@@ -35,6 +36,8 @@ __all__ = [
     "FitResult", "TrackingError", "calibrate_fit", "errors_by_frequency", "fit_model",
     "tracking_errors",
 ]
+
+_log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
@@ -241,6 +244,8 @@ def fit_model(
     """
     sampler = SamplerSettings() if sampler is None else sampler
     post = Posterior(data, model, likelihood, space=space, offset=offset)
+    _log.info("fitting %s (%s likelihood, %d parameters) to %s", post.model.name,
+              post.likelihood.name, post.ndim, post.data.name)
     scales = start = None
     if discrepancy is not None and discrepancy != "none":
         # anchored at the MAP without it, its scales by held-out prediction, then fixed
@@ -257,6 +262,9 @@ def fit_model(
     budget = uncertainty_budget(post, z, parts=(model_preds, deltas))
     fit = FitResult(post, res, overall, per, means, discrepancy_scales=scales,
                     budget=tuple(budget))
+    _log.info("%s: %s after %d steps in %.1f s; RMSE %.4g", post.model.name,
+              "converged" if res.converged else "NOT converged", res.convergence.n_steps,
+              res.runtime_s, overall.rmse)
     return calibrate_fit(fit, sampler, n_draws=4 * n_prediction_draws) if calibration else fit
 
 

@@ -22,6 +22,7 @@ uninterrupted run.
 from __future__ import annotations
 
 import hashlib
+import logging
 import math
 import sys
 import time
@@ -56,6 +57,8 @@ __all__ = [
     "MIN_MOVE_RATE", "ParamSummary", "SamplingResult", "adaptation_points", "chunk_boundaries",
     "extension_points", "sample_posterior", "summarise_draws",
 ]
+
+_log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
@@ -509,6 +512,9 @@ def _advance(samplers: list, indeps: list, other: np.ndarray, settings: SamplerS
         out.report = assess(chains, rhat_threshold=settings.rhat_threshold,
                             min_ess=settings.min_ess, tau_factor=settings.tau_factor,
                             min_burn=warm_end)
+        _log.debug("step %d: R-hat %.4f, ESS bulk %.0f, tail %.0f, tau %.1f%s", boundary,
+                   out.report.rhat_max, out.report.ess_bulk_min, out.report.ess_tail_min,
+                   out.report.tau_max, "" if out.report.converged else " (not yet)")
         if bar is not None:
             bar.set_postfix_str(f"R-hat {out.report.rhat_max:.3f}, ESS "
                                 f"{out.report.ess_bulk_min:.0f}, tau {out.report.tau_max:.0f}")
@@ -612,6 +618,8 @@ def sample_posterior(
             # the best walker and sample afresh from there (the chains so far started in
             # a minor mode; their draws are discarded, not mixed in)
             gain = run.best_log_prob - start.log_prob
+            _log.info("%s: a walker found log density %.3g above the MAP; restarting from "
+                      "it (restart %d)", post.model.name, gain, attempt + 1)
             if structure is not None and getattr(post, "discrepancy", None) is not None:
                 # with a discrepancy the linear block has ~100 coordinates: the polish
                 # keeps the best walker's nonlinear ones and moves the block and the

@@ -19,6 +19,7 @@ the record (written before it existed, or by another tool), is refused in words.
 from __future__ import annotations
 
 import json
+import logging
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -37,6 +38,8 @@ from bayeshyst.tables import TableRecord
 
 __all__ = ["FIT_ATTR", "FIT_FORMAT", "FitDescription", "SavedFit", "fit_description",
            "load_fit"]
+
+_log = logging.getLogger(__name__)
 
 #: version of the rebuild record (bump when its meaning changes)
 FIT_FORMAT = 1
@@ -440,6 +443,8 @@ def load_fit(path: str | Path) -> SavedFit:
                         f"likelihood in this bayeshyst ({__version__}) differ from those of "
                         f"the fit (written by {meta.get('written_by')})")
     post.reset_counts()
+    _log.info("%s: %s, %d draws, log densities reproduced to %.2g nats", path,
+              meta["model_spec"], z.shape[0], err)
     s = stats.attrs
     try:
         settings = json.loads(s.get("settings", "{}"))

@@ -20,6 +20,7 @@ the transient of the dynamics).
 
 from __future__ import annotations
 
+import logging
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
@@ -51,6 +52,8 @@ from bayeshyst.models.base import HysteresisModel
 from bayeshyst.tables import TableRecord, frame
 
 __all__ = ["CompensationResult", "CompensationRow", "compensate"]
+
+_log = logging.getLogger(__name__)
 
 # ------------------------------------------------------------------------------ results
 
@@ -371,6 +374,9 @@ def compensate(
     for ref, group in refs:
         rows.append(_evaluate(model, ref, group, nominal, design, predict, run_plant,
                               u_limits, robust_quantile, virtual))
+        _log.info("%s: realised tracking NRMSE %.3g %% (posterior command), band "
+                  "[%.3g, %.3g] %%", rows[-1].label, rows[-1].posterior_nrmse_percent,
+                  *rows[-1].predicted_band_percent)
     statements = _trend_statements(rows, model.name, model.rate_dependent)
     settings = {"reference": reference.kind if isinstance(reference, Reference) else reference,
                 "cycles": cycles, "warmup_cycles": warmup_cycles,
