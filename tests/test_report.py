@@ -13,6 +13,8 @@ import csv
 import json
 import math
 import re
+import shutil
+import subprocess
 from html.parser import HTMLParser
 from pathlib import Path
 
@@ -297,3 +299,44 @@ def test_html_builder_escapes_text_and_hides_missing_numbers() -> None:
         H.table(["a", "b"], [["only one"]])
     with pytest.raises(ValueError, match="not a PNG"):
         H.figure(b"GIF89a", "x")
+
+
+CHROMIUM = next((p for p in (shutil.which(n) for n in ("chromium", "chromium-browser",
+                                                       "google-chrome")) if p), None)
+
+
+@pytest.mark.skipif(CHROMIUM is None, reason="no headless Chromium on this machine (Debian: "
+                                             "apt install chromium)")
+def test_report_renders_in_a_real_browser_without_errors(demo: tuple[int, Path],
+                                                         tmp_path: Path) -> None:
+    # a wrapper page loads the report in a frame and counts the images the browser
+    # decoded (naturalWidth > 0): a broken image is one the browser could not show
+    _, out = demo
+    report = (out / "report.html").resolve()
+    wrapper = tmp_path / "wrapper.html"
+    wrapper.write_text(
+        f'<html><body><iframe id="f" src="{report.as_uri()}" style="width:1200px;'
+        'height:800px"></iframe><pre id="out">pending</pre><script>'
+        "document.getElementById('f').onload = function () {"
+        " var imgs = this.contentDocument.images, bad = [];"
+        " for (var i = 0; i < imgs.length; i++) {"
+        "  if (!(imgs[i].complete && imgs[i].naturalWidth > 0)) bad.push(imgs[i].alt || i); }"
+        " document.getElementById('out').textContent ="
+        "  'images ' + imgs.length + ' broken ' + JSON.stringify(bad); };"
+        "</script></body></html>")
+    common = [CHROMIUM, "--headless=new", "--no-sandbox", "--disable-gpu",
+              "--allow-file-access-from-files", "--enable-logging=stderr", "--v=0"]
+    run = subprocess.run([*common, "--virtual-time-budget=15000", "--dump-dom",
+                          wrapper.as_uri()], capture_output=True, text=True, timeout=180)
+    found = re.search(r"images (\d+) broken (\[[^<]*\])", run.stdout)
+    assert found, run.stdout[-500:] + run.stderr[-2000:]
+    n_img, broken = int(found.group(1)), json.loads(found.group(2))
+    html_imgs = (out / "report.html").read_text().count("<img ")
+    assert n_img == html_imgs > 0 and broken == []
+    console = [ln for ln in run.stderr.splitlines()
+               if "CONSOLE" in ln or "Uncaught" in ln or "Failed to load resource" in ln]
+    assert console == []
+    shot = tmp_path / "report.png"
+    subprocess.run([*common, f"--screenshot={shot}", "--window-size=1280,6000",
+                    report.as_uri()], capture_output=True, timeout=180)
+    assert shot.is_file() and shot.stat().st_size > 50_000  # a page, not a blank

@@ -218,6 +218,8 @@ def report_figures(result: ReportResult, posteriors: Mapping[str, Any]) -> dict[
     -------
     dict of str to Figure
         File name relative to the report's folder -> figure: ``figures/data_loops.png``,
+        ``figures/model_loops.png`` (every compared model's predicted loop per frequency,
+        :func:`~bayeshyst.selection.predictions.predicted_loops`),
         ``figures/corner_<model>.png`` (:func:`corner_figure_name`, for each joint fit
         with the Bouc–Wen shape parameters), ``figures/trace_final.png`` and
         ``figures/corner_final.png`` (the diagnosis' final fit), ``figures/uncertainty.png``
@@ -225,8 +227,14 @@ def report_figures(result: ReportResult, posteriors: Mapping[str, Any]) -> dict[
         figures under ``compare/``, ``diagnose/`` and ``compensate/``.
     """
     from bayeshyst import diagnostics, plotting
+    from bayeshyst.selection.predictions import predicted_loops
 
     out: dict[str, Any] = {"figures/data_loops.png": plotting.data_overview_figure(result.data)}
+    loops = predicted_loops(result.comparison, result.data, seed=result.seed)
+    if loops:
+        units = dict(result.data[0].units)
+        out["figures/model_loops.png"] = plotting.model_loops_figure(
+            loops, u_unit=str(units.get("u", "")), y_unit=str(units.get("y", "")))
     for task in joint_tasks(result):
         idata = posteriors[task.spec.key]
         if not set(BOUC_WEN_CORNER) <= set(idata.posterior.data_vars):

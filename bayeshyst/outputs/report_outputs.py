@@ -252,6 +252,12 @@ def _selection_html(summary: dict[str, Any], out: Path) -> H.Markup:
                              numeric=[False, True, True, True, True, True, True, True, False],
                              formats=[None, ".1f", ".1f", ".1f", ".1f", ".2f", ".1f", ".3f",
                                       None]))
+    fig = out / "figures" / "model_loops.png"
+    if fig.is_file():
+        parts.append(H.figure(fig, "Each compared model's predicted loop (posterior mean) "
+                                   "over the measured one per frequency, with the 90 % "
+                                   "band of the first-ranked parametric model, and their "
+                                   "errors against time."))
     fig = out / "compare" / "compare.png"
     if fig.is_file():
         parts.append(H.figure(fig, "elpd and tracking error of every model against "

@@ -32,6 +32,7 @@ from bayeshyst.plotting.fit import (
     residuals_figure,
     uncertainty_figure,
 )
+from bayeshyst.plotting.loops import LOOPS_MAX_COLUMNS, model_loops_figure, plot_model_loops
 from bayeshyst.plotting.posterior import (
     corner_figure,
     draws_corner_figure,
@@ -64,6 +65,7 @@ __all__ = [
     "COMPENSATION_MAX_ROWS",
     "DATA_OVERVIEW_DPI",
     "DPI",
+    "LOOPS_MAX_COLUMNS",
     "best_model_figure",
     "compensation_figure",
     "corner_figure",
@@ -74,6 +76,7 @@ __all__ = [
     "loops_figure",
     "model_colors",
     "model_comparison_figure",
+    "model_loops_figure",
     "plot_best_model",
     "plot_compensation",
     "plot_corner",
@@ -83,6 +86,7 @@ __all__ = [
     "plot_effect_evidence",
     "plot_loops",
     "plot_model_comparison",
+    "plot_model_loops",
     "plot_residuals",
     "plot_scores_vs_frequency",
     "plot_trace",
