@@ -35,6 +35,7 @@ MAIN = ('#include <stdio.h>\n#include "bh_inverse.h"\nint main(void) { bh_state 
 
 
 def _saved(tmp, spec):
+    tmp.mkdir(parents=True, exist_ok=True)
     _, rec, _ = pi_data(n_ops=3, n=900, warmup=100)
     post = Posterior(Dataset((rec,), name="bench"), spec)
     start = find_map(post, seed=0, global_search=False, n_screen=64, n_starts=1)
@@ -71,7 +72,7 @@ def _compile_and_run(tmp, export, y):
     (tmp / "main.c").write_text(MAIN)
     build = subprocess.run([CC, "-std=c99", "-O2", "-Wall", "-Wextra", "-pedantic", "-Werror",
                             "-o", str(tmp / "run"), str(tmp / "main.c"),
-                            str(tmp / "bh_inverse.c")], capture_output=True, text=True)
+                            str(tmp / "bh_inverse.c"), "-lm"], capture_output=True, text=True)
     assert build.returncode == 0, build.stderr
     run = subprocess.run([str(tmp / "run")], input="\n".join(repr(float(v)) for v in y),
                          capture_output=True, text=True, check=True)
@@ -93,6 +94,20 @@ def test_the_c_play_pi_inverse_is_the_closed_form_inverse(play, tmp_path):
     # and the MAP model, driven by the C command, follows the reference
     y_back = play.model.simulate(u_c, t, one) + offset[0]
     assert np.max(np.abs(y_back - y)) <= 1e-9 * np.ptp(y)
+
+
+@pytest.mark.skipif(CC is None, reason="no C compiler (cc, gcc or clang) on this machine")
+def test_the_c_mbw_inverse_is_the_closed_form_inverse(tmp_path):
+    mbw = _saved(tmp_path / "fit", "mbw")
+    ex = export_inverse(mbw)
+    assert ex.method == "mbw"
+    t, y = _reference(mbw)
+    u_c = _compile_and_run(tmp_path, ex, y)
+    theta, offset = mbw.posterior.model_draws(mbw.map_z[None, :])
+    one = {k: np.asarray(v)[0] for k, v in theta.items()}
+    u_exact = mbw.model.inverse(y - offset[0], t, one)  # review Eq. 55 in Python
+    assert np.max(np.abs(u_c - u_exact)) <= 1e-9 * np.ptp(u_exact)
+    np.testing.assert_allclose(u_c, ex.apply(y), rtol=0, atol=1e-12 * np.ptp(u_exact))
 
 
 @pytest.mark.skipif(CC is None, reason="no C compiler (cc, gcc or clang) on this machine")

@@ -198,9 +198,10 @@ def build_parser() -> argparse.ArgumentParser:
                        dest="fmt", help="json (default): the inverse's parameters; c: also "
                                         "a C99 header and source; table: the branch tables "
                                         "(also of a model with a closed form) as CSV too")
-    p_exp.add_argument("--method", choices=("auto", "play_pi", "table"), default="auto",
+    p_exp.add_argument("--method", choices=("auto", "play_pi", "mbw", "table"),
+                       default="auto",
                        help="auto (default): the closed-form inverse where the hysteresis is "
-                            "a play-PI, else branch tables")
+                            "a play-PI or a modified Bouc-Wen, else branch tables")
     p_exp.add_argument("--prefix", default="bh", metavar="NAME",
                        help="C identifier prefix of the generated code (default bh)")
     p_exp.add_argument("--reference", default=None, metavar="FILE",

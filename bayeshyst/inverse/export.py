@@ -6,6 +6,10 @@ into an :class:`InverseExport` at its MAP:
 * ``method="play_pi"`` -- the model's hysteresis is a play-PI: its exact inverse is again
   a play-PI (Kuhnen 2003, review ref. [52]; :func:`~bayeshyst.models.pi.play_pi_inverse`),
   ``u = p0' v + sum_i w'_i F_{r'_i}[v]`` with ``v = y_d - offset``;
+* ``method="mbw"`` -- the modified Bouc–Wen (review ref. [99]) of polynomial order <= 2:
+  its closed-form inverse, Eq. 55 (:meth:`~bayeshyst.models.bouc_wen.ModifiedBoucWen.
+  inverse`): the output polynomial's root, then the inverse MBW operator solved exactly
+  on every monotone step;
 * ``method="table"`` -- any other rate-independent model: its major loop's ascending and
   descending branches tabulated as monotone ``y -> u`` tables. After a reversal at
   ``(y_r, u_r)`` the command follows the new branch blended linearly so that it starts
@@ -24,6 +28,7 @@ reference the tests replay it against.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
@@ -33,6 +38,7 @@ import numpy as np
 from bayeshyst.errors import ModelError, ParameterError
 from bayeshyst.inference.saved import SavedFit
 from bayeshyst.inverse.references import command_limits
+from bayeshyst.models.bouc_wen import ModifiedBoucWen
 from bayeshyst.models.compose import STATIC, Composite, block_namespaces, model_spec
 from bayeshyst.models.pi import PrandtlIshlinskii, play_pi_inverse
 from bayeshyst.params import ParamSpace
@@ -60,10 +66,11 @@ class InverseExport(TableRecord):
     ----------
     model : str
         The fitted model's spec string.
-    method : {"play_pi", "table"}
+    method : {"play_pi", "mbw", "table"}
     parameters : dict of str to ndarray or float
         ``play_pi``: ``p0`` (V per output unit), ``w`` (n,), ``r`` (n,, output unit),
-        ``offset`` (output unit); ``table``: ``y_up``, ``u_up``, ``y_down``, ``u_down``
+        ``offset`` (output unit); ``mbw``: ``c1``, ``c2`` (0 for order 1), ``rho``,
+        ``lam``, ``offset``; ``table``: ``y_up``, ``u_up``, ``y_down``, ``u_down``
         (each (TABLE_POINTS,), strictly increasing ``y``).
     dynamics : tuple of dict
         Linear dynamics after the hysteresis: ``{"block": name, "parameters": {...}}``.
@@ -104,7 +111,7 @@ class InverseExport(TableRecord):
         return pd.DataFrame({k: p[k] for k in ("y_up", "u_up", "y_down", "u_down")})
 
     def __str__(self) -> str:
-        what = {"play_pi": "exact play-PI inverse",
+        what = {"play_pi": "exact play-PI inverse", "mbw": "exact MBW inverse (Eq. 55)",
                 "table": "branch tables with blended reversals"}[self.method]
         lines = [f"inverse of {self.model}: {what}"
                  + ("; dynamics to invert upstream: "
@@ -133,6 +140,21 @@ class InverseExport(TableRecord):
                     state[i] = vi
                     acc += w[i] * vi
                 u[k] = acc
+            return u
+        if self.method == "mbw":
+            half = (1.0 / p["rho"] - 1.0) / p["lam"]
+            wp = up_ = 0.0
+            for k in range(y.size):
+                v = y[k] - p["offset"]
+                w = 2.0 * v / (p["c1"] + math.sqrt(p["c1"] * p["c1"] + 4.0 * p["c2"] * v))
+                if k == 0:
+                    wp, up_ = w, w
+                dw = w - wp
+                if dw != 0.0:
+                    a = math.copysign(half, dw)
+                    up_ = w + a + (up_ - wp - a) * math.exp(-p["lam"] * abs(dw))
+                u[k] = up_
+                wp = w
             return u
         up = (np.asarray(p["y_up"], float), np.asarray(p["u_up"], float))
         down = (np.asarray(p["y_down"], float), np.asarray(p["u_down"], float))
@@ -197,6 +219,31 @@ class InverseExport(TableRecord):
                     f"        acc += {P}_W[i] * vi;",
                     "    }",
                     "    return acc;",
+                    "}"]
+        elif self.method == "mbw":
+            head += [f"typedef struct {{ double w_prev, u_prev; int started; }} {prefix}_state;"]
+            body = ["#include <math.h>", "",
+                    *[f"static const double {P}_{k.upper()} = {float(p[k]):.17g};"
+                      for k in ("c1", "c2", "rho", "lam", "offset")],
+                    "",
+                    f"void {prefix}_reset({prefix}_state *s) {{ s->started = 0; }}",
+                    "",
+                    f"double {prefix}_step({prefix}_state *s, double y_desired)",
+                    "{",
+                    f"    double half = (1.0 / {P}_RHO - 1.0) / {P}_LAM;",
+                    f"    double v = y_desired - {P}_OFFSET;",
+                    f"    double w = 2.0 * v / ({P}_C1 + sqrt({P}_C1 * {P}_C1 + 4.0 * {P}_C2 "
+                    "* v));",
+                    "    double dw;",
+                    "    if (!s->started) { s->w_prev = w; s->u_prev = w; s->started = 1; }",
+                    "    dw = w - s->w_prev;",
+                    "    if (dw != 0.0) {",
+                    "        double a = copysign(half, dw);",
+                    f"        s->u_prev = w + a + (s->u_prev - s->w_prev - a) * exp(-{P}_LAM "
+                    "* fabs(dw));",
+                    "    }",
+                    "    s->w_prev = w;",
+                    "    return s->u_prev;",
                     "}"]
         else:
             m = int(np.size(p["y_up"]))
@@ -357,8 +404,12 @@ def export_inverse(fit: SavedFit, *, method: str = "auto",
     if post.discrepancy is not None:
         notes.append("the fit's model discrepancy is not in the exported inverse (it is "
                      "the model's alone); bayeshyst invert designs with it")
-    if method not in ("auto", "play_pi", "table"):
-        raise ParameterError(f"method must be auto, play_pi or table, got {method!r}")
+    if method not in ("auto", "play_pi", "mbw", "table"):
+        raise ParameterError(f"method must be auto, play_pi, mbw or table, got {method!r}")
+    if method == "mbw" and not (isinstance(head, ModifiedBoucWen) and head.order <= 2):
+        raise ModelError(f"{model_spec(model)}: its hysteresis part ({head.name}) is not a "
+                         "modified Bouc-Wen of order <= 2; no closed-form inverse to export "
+                         "(use method='table')")
     if method == "play_pi" and not isinstance(head, PrandtlIshlinskii):
         raise ModelError(f"{model_spec(model)}: its hysteresis part ({head.name}) is not a "
                          "play-PI; no closed-form inverse to export (use method='table')")
@@ -367,6 +418,17 @@ def export_inverse(fit: SavedFit, *, method: str = "auto",
         params = {"p0": float(inv.p0), "w": np.asarray(inv.w, float),
                   "r": np.asarray(inv.r, float), "offset": off}
         return InverseExport(model_spec(model), "play_pi", params, tuple(dynamics), limits,
+                             units, fit.converged, tuple(notes))
+    if isinstance(head, ModifiedBoucWen) and head.order <= 2 and method != "table":
+        params = {"c1": float(head_theta["c1"]),
+                  "c2": float(head_theta["c2"]) if head.order == 2 else 0.0,
+                  "rho": float(head_theta["rho"]), "lam": float(head_theta["lam"]),
+                  "offset": off}
+        if not (params["c1"] > 0 and 0 < params["rho"] < 2 and params["lam"] > 0):
+            raise ModelError(f"{model_spec(model)}: the MAP has c1 = {params['c1']:.4g}, "
+                             f"rho = {params['rho']:.4g}, lam = {params['lam']:.4g}: the "
+                             "inverse needs c1 > 0, 0 < rho < 2, lam > 0")
+        return InverseExport(model_spec(model), "mbw", params, tuple(dynamics), limits,
                              units, fit.converged, tuple(notes))
     if head.rate_dependent:
         raise ModelError(f"{model_spec(model)}: its hysteresis part ({head.name}) is "
