@@ -67,6 +67,15 @@ def add_run_options(p: argparse.ArgumentParser, out_default: str, steps_help: st
     p.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
 
 
+def add_saved_fit_options(p: argparse.ArgumentParser, out_default: str, files: str) -> None:
+    """The options of the commands that read a saved fit: FIT, --out, --json, --quiet."""
+    p.add_argument("fit", metavar="FIT", help="a fit's output folder or its posterior .nc file")
+    p.add_argument("--out", default=out_default, metavar="DIR",
+                   help=f"output folder (default {out_default}): {files}")
+    p.add_argument("--json", action="store_true", help="print summary.json to stdout")
+    p.add_argument("--quiet", action="store_true", help="no progress line on stderr")
+
+
 #: one example per command, shown under its --help
 EXAMPLES = {
     "models": ["bayeshyst models pi_play creep --json"],
@@ -164,8 +173,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     p_inv = sub.add_parser("invert", help="a feedforward command for a reference from a saved "
                            "fit (fit/compare/diagnose/report output), without refitting")
-    p_inv.add_argument("fit", metavar="FIT",
-                       help="a fit's output folder or its posterior .nc file")
+    add_saved_fit_options(p_inv, "bayeshyst-invert", "command.csv, summary.json")
     p_inv.add_argument("--reference", required=True, metavar="FILE",
                        help="CSV file with header t,y (s, output unit): the trajectory to "
                             "follow")
@@ -183,17 +191,12 @@ def build_parser() -> argparse.ArgumentParser:
                        help="quantile of |error| the robust command minimises (default 0.9)")
     p_inv.add_argument("--seed", type=int, default=0,
                        help="seeds the choice of draws (default 0): same seed, same command")
-    p_inv.add_argument("--out", default="bayeshyst-invert", metavar="DIR",
-                       help="output folder (default bayeshyst-invert): command.csv, "
-                            "summary.json")
-    p_inv.add_argument("--json", action="store_true", help="print summary.json to stdout")
-    p_inv.add_argument("--quiet", action="store_true", help="no progress line on stderr")
     p_inv.set_defaults(func=cmd_invert)
 
     p_exp = sub.add_parser("export", help="a saved fit's inverse for a real-time controller: "
                            "JSON parameters, C99 source or a lookup table")
-    p_exp.add_argument("fit", metavar="FIT",
-                       help="a fit's output folder or its posterior .nc file")
+    add_saved_fit_options(p_exp, "bayeshyst-export", "inverse.json, the C files or the "
+                          "table, summary.json")
     p_exp.add_argument("--format", choices=("json", "c", "table"), default="json",
                        dest="fmt", help="json (default): the inverse's parameters; c: also "
                                         "a C99 header and source; table: the branch tables "
@@ -207,10 +210,6 @@ def build_parser() -> argparse.ArgumentParser:
     p_exp.add_argument("--reference", default=None, metavar="FILE",
                        help="a t,y CSV to replay the exported inverse on: its error against "
                             "the exact inverse goes into summary.json")
-    p_exp.add_argument("--out", default="bayeshyst-export", metavar="DIR",
-                       help="output folder (default bayeshyst-export)")
-    p_exp.add_argument("--json", action="store_true", help="print summary.json to stdout")
-    p_exp.add_argument("--quiet", action="store_true", help="no progress line on stderr")
     p_exp.set_defaults(func=cmd_export)
 
     p_dg = sub.add_parser("diagnose", help="trace what a model leaves in its residual to a "
