@@ -63,7 +63,7 @@ from bayeshyst.data.parsing import (
     sidecar_path,
 )
 from bayeshyst.data.record import MIN_SAMPLES, Dataset, Record, check_fittable
-from bayeshyst.data.units import conversion, known_unit, split_header
+from bayeshyst.data.units import header_units
 from bayeshyst.errors import DataError
 from bayeshyst.files import atomic_paths
 
@@ -282,7 +282,7 @@ def read_csv(
         role: table.floats(col, label=label[role], integer=role in _INTEGER_ROLES)
         for role, col in resolved.items()
     }
-    units, notes = _header_units(p, header, resolved, cols, units, side)
+    units, notes = header_units(p, header, resolved, cols, units, side)
     if notes:
         metadata = {**(metadata or {}), "unit_conversions": tuple(notes)}
     ignored = [c for c in table.names if c not in resolved.values()]
@@ -291,51 +291,6 @@ def read_csv(
         warmup=warmup, metadata=metadata, units=units, name=name, ignored=ignored,
         fittable=fittable,
     )
-
-
-def _header_units(path: Path, header: str, resolved: Mapping[str, str],
-                  cols: dict[str, np.ndarray], units: Mapping[str, str] | None,
-                  side: tuple[Path, dict[str, Any]] | None
-                  ) -> tuple[dict[str, str] | None, list[str]]:
-    """Units written in the header: convert ``cols`` in place to s, V, µm where known.
-
-    The header describes the file's numbers, so it wins; a unit declared for the same
-    role in the sidecar or the ``units`` argument must agree with it (else DataError).
-
-    Returns
-    -------
-    units : dict or None
-        ``units`` with the header's (converted) units over it.
-    notes : list of str
-        One line per conversion, e.g. ``"column 'Time [ms]' (t): ms -> s, x 0.001"``.
-    """
-    declared = {**((side[1].get("units") or {}) if side else {}), **(units or {})}
-    out = dict(units or {})
-    notes = []
-    for role in ("t", "u", "y"):
-        unit = split_header(resolved[role])[1]
-        if unit is None:
-            continue
-        if not known_unit(unit):
-            raise DataError(f"{path}: {header}, column {resolved[role]!r} ({role}): unknown "
-                            f"unit {unit!r}; expected s/ms/us/ns for t, V/mV/kV for u, "
-                            f"m/mm/um/nm for y (converted), or a unit of another quantity "
-                            f"(N, A, ...; kept as a label)")
-        conv = conversion(role, unit)
-        given = declared.get(role)
-        if given is not None and given.strip() not in (unit, conv[1] if conv else unit):
-            raise DataError(f"{path}: {header}, column {resolved[role]!r}: the header says "
-                            f"{unit!r}, the declared unit of {role!r} is {given!r}")
-        if conv is None:
-            out[role] = unit
-            continue
-        factor, working = conv
-        if factor != 1.0:
-            cols[role] = cols[role] * factor
-            notes.append(f"column {resolved[role]!r} ({role}): {unit} -> {working}, "
-                         f"x {factor:g}")
-        out[role] = working
-    return (out or None), notes
 
 
 def _vector(path: Path, key: str, value: Any, kind: str) -> np.ndarray:

@@ -17,13 +17,16 @@ from __future__ import annotations
 
 import math
 import re
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-__all__ = ["OTHER_UNITS", "ROLE_NAMES", "WORKING_UNITS", "conversion", "known_unit",
-           "plausibility", "recognise_roles", "split_header"]
+from bayeshyst.errors import DataError
+
+__all__ = ["OTHER_UNITS", "ROLE_NAMES", "WORKING_UNITS", "conversion", "header_units",
+           "known_unit", "plausibility", "recognise_roles", "split_header"]
 
 #: the units bayeshyst works in, per role
 WORKING_UNITS = {"t": "s", "u": "V", "y": "um"}
@@ -159,3 +162,50 @@ def plausibility(data: Any) -> list[str]:
                            f"stage gives ({lo:g}-{hi:g} {unit}): {hint} Give the units in "
                            "the header (e.g. 'Time [ms]') or the sidecar")
     return out
+
+
+def header_units(path: Path, header: str, resolved: Mapping[str, str],
+                  cols: dict[str, np.ndarray], units: Mapping[str, str] | None,
+                  side: tuple[Path, dict[str, Any]] | None
+                  ) -> tuple[dict[str, str] | None, list[str]]:
+    """Units written in the header: convert ``cols`` in place to s, V, µm where known.
+
+    Used by :func:`bayeshyst.data.io.read_csv` once the columns' roles are resolved.
+
+    The header describes the file's numbers, so it wins; a unit declared for the same
+    role in the sidecar or the ``units`` argument must agree with it (else DataError).
+
+    Returns
+    -------
+    units : dict or None
+        ``units`` with the header's (converted) units over it.
+    notes : list of str
+        One line per conversion, e.g. ``"column 'Time [ms]' (t): ms -> s, x 0.001"``.
+    """
+    declared = {**((side[1].get("units") or {}) if side else {}), **(units or {})}
+    out = dict(units or {})
+    notes = []
+    for role in ("t", "u", "y"):
+        unit = split_header(resolved[role])[1]
+        if unit is None:
+            continue
+        if not known_unit(unit):
+            raise DataError(f"{path}: {header}, column {resolved[role]!r} ({role}): unknown "
+                            f"unit {unit!r}; expected s/ms/us/ns for t, V/mV/kV for u, "
+                            f"m/mm/um/nm for y (converted), or a unit of another quantity "
+                            f"(N, A, ...; kept as a label)")
+        conv = conversion(role, unit)
+        given = declared.get(role)
+        if given is not None and given.strip() not in (unit, conv[1] if conv else unit):
+            raise DataError(f"{path}: {header}, column {resolved[role]!r}: the header says "
+                            f"{unit!r}, the declared unit of {role!r} is {given!r}")
+        if conv is None:
+            out[role] = unit
+            continue
+        factor, working = conv
+        if factor != 1.0:
+            cols[role] = cols[role] * factor
+            notes.append(f"column {resolved[role]!r} ({role}): {unit} -> {working}, "
+                         f"x {factor:g}")
+        out[role] = working
+    return (out or None), notes
