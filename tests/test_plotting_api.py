@@ -94,14 +94,29 @@ def _calls(fit, results) -> dict[str, Callable[..., Figure]]:
             results["study"], **kw),
         "uncertainty_figure": lambda **kw: P.uncertainty_figure(results["fit"].budget,
                                                                 y_unit="um", **kw),
+        "model_loops_figure": lambda **kw: P.model_loops_figure(_loops(results["fit"]),
+                                                                y_unit="um", **kw),
     }
+
+
+def _loops(fitted: Any) -> list[Any]:
+    """One frequency's measured loop and the fit's predicted one (what the report
+    reads back from the comparison's saved posteriors)."""
+    from bayeshyst.selection.predictions import FrequencyLoops, ModelLoop
+
+    rec = fitted.posterior.data[0]
+    pred = fitted.posterior.predict(fitted.sampling.draws(20, seed=0))[0]
+    lo, hi = np.quantile(pred, [0.05, 0.95], axis=0)
+    loop = ModelLoop(MODEL, pred.mean(axis=0), lo, hi, 1.0, True)
+    return [FrequencyLoops(rec.frequency_hz or 1.0, rec.name, rec.t, rec.u, rec.y,
+                           rec.scored_mask, (loop,), MODEL)]
 
 
 FIGURE_FUNCTIONS = ["loops_figure", "residuals_figure", "trace_figure", "corner_figure",
                     "draws_corner_figure", "data_overview_figure", "model_comparison_figure",
                     "compensation_figure", "diagnosis_residuals_figure",
                     "effect_evidence_figure", "best_model_figure",
-                    "scores_vs_frequency_figure", "uncertainty_figure"]
+                    "scores_vs_frequency_figure", "uncertainty_figure", "model_loops_figure"]
 ONE_PANEL = {"effect_evidence_figure"}  # take ax=, not fig=
 
 
