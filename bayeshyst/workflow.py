@@ -387,15 +387,7 @@ def _member_task(comparison: ComparisonResult, model: str, frequency_hz: float,
     """
     if posteriors == "auto":
         posteriors = "joint" if build_spec(model).rate_dependent else "frequency"
-    single = len(comparison.per_frequency) == 1
-    for t in comparison.tasks:
-        if not t.ok or t.spec.model != model:
-            continue
-        if ((posteriors == "joint" or single) and t.spec.scope == "joint") or (
-                posteriors == "frequency" and t.spec.scope == "frequency"
-                and t.spec.frequency_hz == frequency_hz):
-            return t
-    return None
+    return comparison.fit_of(model, frequency_hz, joint=posteriors == "joint")
 
 
 def model_averaged_design(data: Dataset, comparison: ComparisonResult,
@@ -444,7 +436,7 @@ def model_averaged_design(data: Dataset, comparison: ComparisonResult,
     plant = virtual_plant(data)
     plant_text = ("virtual actuator (" + ", ".join(plant.effects) + "), noise off"
                   if plant is not None else "held-out draws of the mixture (no ground truth)")
-    u_limits = command_limits(data, 0.25)
+    u_limits = command_limits(data)
     refs = {ref.frequency_hz: ref for ref, _ in design_references(data, "sine")}
     rows, notes = [], []
     for fc in comparison.per_frequency:
@@ -461,7 +453,7 @@ def model_averaged_design(data: Dataset, comparison: ComparisonResult,
                                  "design weighs the parametric models by their stacking "
                                  "weights among themselves")
                 continue
-            scoring = _member_task(comparison, score.model, fc.frequency_hz, "frequency")
+            scoring = comparison.fit_of(score.model, fc.frequency_hz)
             task = _member_task(comparison, score.model, fc.frequency_hz, posteriors)
             why = None
             if scoring is None or task is None or task.netcdf is None:
@@ -483,9 +475,8 @@ def model_averaged_design(data: Dataset, comparison: ComparisonResult,
                 if w < WEIGHT_FLOOR:
                     continue
                 saved = load_fit(task.netcdf)
-                theta, offset = saved.posterior.model_draws(saved.z)
-                members.append(WeightedPosterior(model, saved.model, Draws(theta, offset),
-                                                 float(w)))
+                members.append(WeightedPosterior(model, saved.model,
+                                                 Draws.of(saved.posterior, saved.z), float(w)))
         if not members:
             notes.append(f"{fc.label}: no model-averaged design (no member left)")
             continue

@@ -134,10 +134,20 @@ def test_linear_dynamics_are_split_off_and_a_bad_method_refused(play, stop):
     from bayeshyst.errors import ModelError
     from bayeshyst.inverse.export import _split_dynamics
 
-    head, dyn = _split_dynamics(get_model("pi_play+asym_output+second_order+delay"))
+    def prior_theta(model):
+        space = model.param_space()
+        return space.unpack(space.sample_prior(np.random.default_rng(0), 1)[0])
+
+    model = get_model("pi_play+asym_output+second_order+delay")
+    theta = prior_theta(model)
+    head, head_theta, dyn = _split_dynamics(model, theta)
     assert isinstance(head, Composite) and [b.name for b in head.blocks] == ["asym_output"]
-    assert [b.name for b in dyn] == ["second_order", "delay"]
-    head, dyn = _split_dynamics(get_model("bouc_wen"))
+    assert [d["block"] for d in dyn] == ["second_order", "delay"]
+    # the head keeps the full model's parameter names; each block's come without prefix
+    assert set(head_theta) == {k for k in theta if k.split(".")[0] in ("static", "asym_output")}
+    assert dyn[1]["parameters"] == {"d": float(theta["delay.d"])}
+    bw = get_model("bouc_wen")
+    head, head_theta, dyn = _split_dynamics(bw, prior_theta(bw))
     assert head.name == "bouc_wen" and dyn == []
     table = export_inverse(play, method="table")  # a play-PI tabulated, on request
     assert table.method == "table" and table.parameters["y_up"].size == 512

@@ -529,8 +529,9 @@ def label_frequencies(data: Record | Dataset) -> Dataset:
                 "excitation frequency estimated"}))
             continue
         t = rec.t
-        freqs = np.array([1.0 / (t[c.stop] - t[c.start]) if c.stop < rec.n
-                          else 1.0 / (t[-1] - t[c.start]) for c in split.cycles])
+        # each cycle's end time (the last sample for a cycle ending with the record)
+        ends = np.array([t[min(c.stop, rec.n - 1)] for c in split.cycles])
+        freqs = 1.0 / (ends - np.array([t[c.start] for c in split.cycles]))
         blocks = _blocks_of(freqs)
         if len(blocks) == 1:
             f = _rounded(estimate_frequency(rec))
@@ -544,7 +545,6 @@ def label_frequencies(data: Record | Dataset) -> Dataset:
                   rec.name, len(blocks))
         starts = [split.cycles[b[0]].start for b in blocks]
         bounds = [0, *starts[1:], rec.n]
-        ends = np.array([t[c.stop] if c.stop < rec.n else t[-1] for c in split.cycles])
         for k, (a, b) in enumerate(itertools.pairwise(bounds)):
             first = split.cycles[blocks[k][0]]
             warm = rec.warmup if k == 0 else first.stop - first.start

@@ -267,7 +267,9 @@ def design_averaged(members: Sequence[WeightedPosterior], reference: Reference, 
         raise ParameterError(f"{bad}: a model-averaged design takes members without a "
                              "discrepancy")
     weights = np.array([m.weight for m in members], dtype=float)
-    weights = weights / weights.sum() if np.all(weights > 0) else weights
+    if not (np.all(np.isfinite(weights)) and np.all(weights > 0)):
+        raise ParameterError(f"weights must be positive and finite, got {weights.tolist()}")
+    weights = weights / weights.sum()
     counts = {"design": allocate_draws(weights, n_design_draws),
               "predict": allocate_draws(weights, n_predict_draws),
               "plants": allocate_draws(weights, n_plants) if plant is None else

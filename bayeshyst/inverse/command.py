@@ -24,7 +24,7 @@ import numpy as np
 from bayeshyst.errors import ParameterError
 from bayeshyst.inference.saved import SavedFit
 from bayeshyst.inverse.feedforward import BAND, Draws, design_feedforward
-from bayeshyst.inverse.references import Reference, command_limits
+from bayeshyst.inverse.references import U_MARGIN, Reference, command_limits
 from bayeshyst.models.compose import model_spec
 from bayeshyst.tables import TableRecord
 
@@ -117,7 +117,7 @@ class CommandDesign(TableRecord):
 
 def design_command(fit: SavedFit, reference: Reference, *, objective: str = "mean",
                    n_design_draws: int = 24, n_predict_draws: int = 100,
-                   quantile: float = 0.9, u_margin: float = 0.25,
+                   quantile: float = 0.9, u_margin: float = U_MARGIN,
                    seed: int = 0) -> CommandDesign:
     """The command that makes the saved fit's model follow ``reference``.
 
@@ -180,8 +180,8 @@ def design_command(fit: SavedFit, reference: Reference, *, objective: str = "mea
         warnings.append(f"the reference leaves the fitted data's output range "
                         f"[{y_all.min():.4g}, {y_all.max():.4g}] at {int(outside.sum())} of "
                         f"{y_d.size} samples: the model extrapolates there")
-    inv = ff.inversion
-    if inv is not None and inv.n_saturated:
+    inv = ff.inversion  # a designed command always has its inversion
+    if inv.n_saturated:
         warnings.append(f"the command saturates at the limits [{limits[0]:.4g}, "
                         f"{limits[1]:.4g}] at {inv.n_saturated} samples: the reference is "
                         "out of the actuator's reach there")
@@ -192,7 +192,7 @@ def design_command(fit: SavedFit, reference: Reference, *, objective: str = "mea
         model=model_spec(post.model), objective=objective, reference=reference.kind,
         t=t, y_d=y_d, u=ff.u, y_mean=np.mean(ff.predicted[ok], axis=0), y_lo=lo, y_hi=hi,
         predicted_band_percent=(float(band[0]), float(band[1])),
-        model_error_percent=float(100.0 * inv.max_error / stroke) if inv is not None else 0.0,
-        n_saturated=0 if inv is None else int(inv.n_saturated), u_limits=limits,
+        model_error_percent=float(100.0 * inv.max_error / stroke),
+        n_saturated=int(inv.n_saturated), u_limits=limits,
         n_design_draws=design.size, n_predict_draws=predict.size,
         fit_converged=fit.converged, warnings=tuple(warnings))

@@ -42,6 +42,7 @@ from bayeshyst.inverse.feedforward import (
     tracking_percent,
 )
 from bayeshyst.inverse.references import (
+    U_MARGIN,
     Reference,
     command_limits,
     design_references,
@@ -271,7 +272,7 @@ def compensate(
     n_predict_draws: int = 100,
     n_plants: int = 50,
     robust_quantile: float = 0.9,
-    u_margin: float = 0.25,
+    u_margin: float = U_MARGIN,
     likelihood: str = "gaussian",
     sampler: SamplerSettings | None = None,
     discrepancy: str | None = None,

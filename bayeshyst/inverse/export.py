@@ -37,9 +37,9 @@ import numpy as np
 
 from bayeshyst.errors import ModelError, ParameterError
 from bayeshyst.inference.saved import SavedFit
-from bayeshyst.inverse.references import command_limits
+from bayeshyst.inverse.references import U_MARGIN, command_limits
 from bayeshyst.models.bouc_wen import ModifiedBoucWen
-from bayeshyst.models.compose import STATIC, Composite, block_namespaces, model_spec
+from bayeshyst.models.compose import Composite, block_namespaces, leading_part, model_spec
 from bayeshyst.models.pi import PrandtlIshlinskii, play_pi_inverse
 from bayeshyst.params import ParamSpace
 from bayeshyst.tables import TableRecord
@@ -50,8 +50,6 @@ __all__ = ["EXPORT_FORMAT", "InverseExport", "export_inverse", "replay_error"]
 EXPORT_FORMAT = 1
 #: points per branch table
 TABLE_POINTS = 512
-#: blocks whose inverse is linear dynamics, exported as parameters
-_DYNAMICS = ("second_order", "arx", "delay")
 
 
 def _c_array(values: np.ndarray) -> str:
@@ -338,26 +336,28 @@ def _blend(table: tuple[np.ndarray, np.ndarray], branch: int, y: float, y_r: flo
 
 
 # ------------------------------------------------------------------------------ building
-def _split_dynamics(model: Any) -> tuple[Any, list[Any]]:
-    """The part before the trailing linear dynamics, and those blocks."""
-    if not isinstance(model, Composite):
-        return model, []
-    blocks = list(model.blocks)
+def _split_dynamics(model: Any, theta: Mapping[str, Any]
+                    ) -> tuple[Any, dict[str, Any], list[dict[str, Any]]]:
+    """The part before the trailing linear dynamics with its parameters, and those blocks.
+
+    The trailing blocks are those whose inverse is non-causal (``needs_preview``); each
+    is ``{"block": name, "parameters": {...}}``.
+    """
+    blocks = list(model.blocks) if isinstance(model, Composite) else []
     k = len(blocks)
-    while k and blocks[k - 1].name in _DYNAMICS:
+    while k and blocks[k - 1].needs_preview:
         k -= 1
-    head = model.base if k == 0 else Composite(model.base, tuple(blocks[:k]))
-    return head, blocks[k:]
-
-
-def _block_parameters(model: Composite, theta: Mapping[str, Any], index: int) -> dict:
-    ns = block_namespaces(list(model.blocks))[index]
-    return {k[len(ns) + 1:]: np.asarray(v, float).tolist() for k, v in theta.items()
-            if k.startswith(ns + ".")}
+    head, head_theta = leading_part(model, k, theta)
+    names = block_namespaces(blocks)
+    dynamics = [{"block": b.name, "parameters": {
+        key: np.asarray(v, float).tolist()
+        for key, v in ParamSpace.sub_theta(theta, names[i]).items()}}
+        for i, b in enumerate(blocks[k:], start=k)]
+    return head, head_theta, dynamics
 
 
 def export_inverse(fit: SavedFit, *, method: str = "auto",
-                   u_margin: float = 0.25) -> InverseExport:
+                   u_margin: float = U_MARGIN) -> InverseExport:
     """The inverse of ``fit``'s model at its MAP (module docstring).
 
     Parameters
@@ -374,28 +374,14 @@ def export_inverse(fit: SavedFit, *, method: str = "auto",
         If the model's hysteresis part is rate-dependent and not a play-PI (no closed
         form and no branch table), or its branches are not monotone.
     """
+    if method not in ("auto", "play_pi", "mbw", "table"):
+        raise ParameterError(f"method must be auto, play_pi, mbw or table, got {method!r}")
     post = fit.posterior
     model = post.model
     theta, offset = post.model_draws(fit.map_z[None, :])
     theta1 = {k: np.asarray(v)[0] for k, v in theta.items()}
     off = float(offset[0])
-    head, dyn = _split_dynamics(model)
-    dynamics = []
-    if dyn:
-        first = len(model.blocks) - len(dyn)
-        for j, block in enumerate(dyn):
-            dynamics.append({"block": block.name,
-                             "parameters": _block_parameters(model, theta1, first + j)})
-    # a sub-composite names its parameters as the full one does; the bare base model
-    # takes the "static." ones without their namespace
-    dyn_ns = _dynamic_namespaces(model, len(dyn))
-    if isinstance(head, Composite):
-        head_theta = {k: v for k, v in theta1.items()
-                      if not any(k.startswith(ns + ".") for ns in dyn_ns)}
-    elif isinstance(model, Composite):
-        head_theta = ParamSpace.sub_theta(theta1, STATIC)
-    else:
-        head_theta = theta1
+    head, head_theta, dynamics = _split_dynamics(model, theta1)
     limits = command_limits(post.data, u_margin)
     units = {"u": post.data[0].units.get("u", ""), "y": post.data[0].units.get("y", "")}
     notes = []
@@ -404,8 +390,6 @@ def export_inverse(fit: SavedFit, *, method: str = "auto",
     if post.discrepancy is not None:
         notes.append("the fit's model discrepancy is not in the exported inverse (it is "
                      "the model's alone); bayeshyst invert designs with it")
-    if method not in ("auto", "play_pi", "mbw", "table"):
-        raise ParameterError(f"method must be auto, play_pi, mbw or table, got {method!r}")
     if method == "mbw" and not (isinstance(head, ModifiedBoucWen) and head.order <= 2):
         raise ModelError(f"{model_spec(model)}: its hysteresis part ({head.name}) is not a "
                          "modified Bouc-Wen of order <= 2; no closed-form inverse to export "
@@ -439,10 +423,6 @@ def export_inverse(fit: SavedFit, *, method: str = "auto",
                  "(reversals blended); bayeshyst export --reference reports the error")
     return InverseExport(model_spec(model), "table", params, tuple(dynamics), limits, units,
                          fit.converged, tuple(notes))
-
-
-def _dynamic_namespaces(model: Any, n: int) -> list[str]:
-    return list(block_namespaces(list(model.blocks))[len(model.blocks) - n:]) if n else []
 
 
 def _branch_tables(model: Any, theta: Mapping[str, Any], offset: float,

@@ -43,7 +43,7 @@ from bayeshyst.inverse.lti import deconvolve
 from bayeshyst.inverse.rootfind import solve_increasing
 from bayeshyst.models.base import HysteresisModel
 from bayeshyst.models.blocks import EffectBlock
-from bayeshyst.models.compose import STATIC, Composite, block_namespaces
+from bayeshyst.models.compose import Composite, block_namespaces, leading_part
 from bayeshyst.params import ParamSpace
 
 __all__ = ["OBJECTIVES", "Inversion", "Member", "invert", "invert_pooled"]
@@ -244,13 +244,7 @@ def _stages(model: HysteresisModel, theta: Mapping[str, np.ndarray]):
     lead = 0
     while lead < len(blocks) and not blocks[lead].needs_preview:
         lead += 1
-    if lead:
-        # the sub-composite names its parameters as the full one does (same namespaces)
-        first_model = Composite(model.base, tuple(blocks[:lead]))
-        first_theta = {k: v for k, v in theta.items()
-                       if k.split(".", 1)[0] in (STATIC, *names[:lead])}
-    else:
-        first_model, first_theta = model.base, ParamSpace.sub_theta(theta, STATIC)
+    first_model, first_theta = leading_part(model, lead, theta)
     later: list[Any] = []
     i = lead
     while i < len(blocks):

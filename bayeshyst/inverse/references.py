@@ -24,6 +24,7 @@ from bayeshyst.errors import DataError, ParameterError
 __all__ = [
     "REFERENCE_KINDS",
     "REFERENCE_MARGIN",
+    "U_MARGIN",
     "Reference",
     "command_limits",
     "design_references",
@@ -168,7 +169,12 @@ def load_reference(path: str | Path) -> Reference:
     return Reference(t, arr[:, 1].copy(), np.ones(t.size, dtype=bool), path.name, None, False)
 
 
-def command_limits(data: Dataset, u_margin: float) -> tuple[float, float]:
+#: how far beyond the data's input range a command may go, as a fraction of that range
+#: at each end (every design's default)
+U_MARGIN = 0.25
+
+
+def command_limits(data: Dataset, u_margin: float = U_MARGIN) -> tuple[float, float]:
     """The admissible command range (input unit).
 
     The data's input range widened by ``u_margin`` of its span at each end.

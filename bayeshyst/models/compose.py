@@ -30,8 +30,8 @@ from bayeshyst.models.base import HysteresisModel, LinearDesign, LinearInParams
 from bayeshyst.models.blocks import Creep, EffectBlock, block_class, block_names
 from bayeshyst.params import ParamSpace
 
-__all__ = ["Composite", "Hammerstein", "WithCreep", "block_names", "block_namespaces", "model_spec",
-           "parse_spec"]
+__all__ = ["Composite", "Hammerstein", "WithCreep", "block_names", "block_namespaces",
+           "leading_part", "model_spec", "parse_spec"]
 
 #: Namespace of the base model's parameters.
 STATIC = "static"
@@ -357,6 +357,24 @@ def _part_spec(part: Any) -> str:
                              "spec string (numbers, strings and tuples of them can)")
         settings.append(f"{f.name}={value!r}")
     return f"{part.name}({', '.join(settings)})" if settings else part.name
+
+
+def leading_part(model: HysteresisModel, n_blocks: int, theta: Mapping[str, Any]
+                 ) -> tuple[HysteresisModel, dict[str, Any]]:
+    """The base followed by the first ``n_blocks`` blocks of ``model``, with its parameters.
+
+    A sub-composite names its parameters as the full one does (same namespaces), so
+    its parameters are ``theta``'s of those namespaces; the bare base (``n_blocks`` 0)
+    takes the ``static.`` ones without their namespace. A model that is not a
+    :class:`Composite` is its own leading part.
+    """
+    if not isinstance(model, Composite):
+        return model, dict(theta)
+    if n_blocks == 0:
+        return model.base, ParamSpace.sub_theta(theta, STATIC)
+    keep = (STATIC, *block_namespaces(model.blocks)[:n_blocks])
+    return (Composite(model.base, tuple(model.blocks[:n_blocks])),
+            {k: v for k, v in theta.items() if k.split(".", 1)[0] in keep})
 
 
 def model_spec(model: HysteresisModel) -> str:

@@ -117,7 +117,6 @@ def predicted_loops(comparison: ComparisonResult, data: Dataset, *, n_draws: int
         One per frequency with a record and at least one saved posterior.
     """
     groups = data.by_frequency()
-    single = len(comparison.per_frequency) == 1
     out = []
     for fc in comparison.per_frequency:
         if fc.frequency_hz is None or fc.frequency_hz not in groups:
@@ -125,12 +124,8 @@ def predicted_loops(comparison: ComparisonResult, data: Dataset, *, n_draws: int
         rec = groups[fc.frequency_hz][0]
         loops = []
         for score in fc.scores:
-            task = next((t for t in comparison.tasks if t.ok and t.netcdf
-                         and t.spec.model == score.model
-                         and ((single and t.spec.scope == "joint")
-                              or (t.spec.scope == "frequency"
-                                  and t.spec.frequency_hz == fc.frequency_hz))), None)
-            if task is None:
+            task = comparison.fit_of(score.model, fc.frequency_hz)
+            if task is None or task.netcdf is None:
                 continue
             saved = load_fit(task.netcdf)
             names = [r.name for r in saved.data]

@@ -204,6 +204,22 @@ class ComparisonResult(TableRecord):
     settings: dict[str, Any] = field(default_factory=dict)
     runtime_s: float = 0.0
 
+    def fit_of(self, model: str, frequency_hz: float | None = None, *,
+               joint: bool = False) -> TaskResult | None:
+        """The successful fit of ``model`` behind the ranking at one frequency.
+
+        The fit to that frequency's records; the joint fit (all records) with ``joint``
+        or when the data have one frequency, as the comparison ranks them. None if that
+        fit failed or did not run.
+        """
+        joint = joint or len(self.per_frequency) == 1
+        for t in self.tasks:
+            if t.ok and t.spec.model == model and (
+                    t.spec.scope == "joint" if joint else
+                    (t.spec.scope == "frequency" and t.spec.frequency_hz == frequency_hz)):
+                return t
+        return None
+
     def difference(self, a: str, b: str, frequency_hz: float | None = None, *,
                    joint: bool = False) -> tuple[float, float]:
         """``elpd_loo(a) - elpd_loo(b)`` and its paired standard error at one frequency.
@@ -218,16 +234,8 @@ class ComparisonResult(TableRecord):
         joint : bool
             Compare the joint fits over all frequencies.
         """
-        fits = {}
-        single = len(self.per_frequency) == 1
-        for t in self.tasks:
-            if t.spec.model not in (a, b) or not t.ok:
-                continue
-            if joint or single:
-                if t.spec.scope == "joint":
-                    fits[t.spec.model] = t
-            elif t.spec.scope == "frequency" and t.spec.frequency_hz == frequency_hz:
-                fits[t.spec.model] = t
+        fits = {m: t for m in (a, b)
+                if (t := self.fit_of(m, frequency_hz, joint=joint)) is not None}
         missing = [m for m in (a, b) if m not in fits]
         if missing:
             raise ParameterError(f"no successful fit of {missing} at "
