@@ -364,6 +364,7 @@ def to_inference_data(
         extra[SEGMENT_VAR] = ("obs", rebuild.segment)
     if rebuild.constraint is not None:
         extra[CONSTRAINT_VAR] = (("disc_basis", "disc_direction"), rebuild.constraint)
+    extra.update({k: ("obs", v) for k, v in rebuild.covariate_variables().items()})
     constant = xr.Dataset(
         {"t": ("obs", np.concatenate([r.t for r in post.data]), {"unit": _unit_of(post, "t")}),
          "u": ("obs", np.concatenate([r.u for r in post.data]), {"unit": _unit_of(post, "u")}),

@@ -398,9 +398,11 @@ def test_constant_input_stays_at_rest(name):
 
 def test_parameters_are_declared_with_units_and_descriptions():
     assert set(block_names()) == {"arx", "second_order", "creep", "creep_fractional",
-                                  "drift", "delay", "asym_output"}
+                                  "drift", "delay", "asym_output", "aux", "change_point",
+                                  "disturbance"}
     for name in block_names():
-        space = block_class(name)().param_space(REC)
+        cls = block_class(name)
+        space = cls(**cls.example).param_space(REC)
         for p in (*space.params, *space.fixed_params):
             assert p.unit and p.description, (name, p.name)
 

@@ -126,12 +126,14 @@ def test_write_refuses_json_suffix(tmp_path):
 
 # --------------------------------------------------------------------------- reading
 def test_column_mapping_delimiters_and_ignored_columns(tmp_path):
-    rows = "\n".join(f"{k * 0.1}\t{k}\t{2 * k}\t9" for k in range(5))
+    rows = "\n".join(f"{k * 0.1}\t{k}\t{2 * k}\t9\tok" for k in range(5))
     path = tmp_path / "m.txt"
-    path.write_text("time\tvolt\tdisp\textra\n" + rows + "\n")
+    path.write_text("time\tvolt\tdisp\textra\tnote\n" + rows + "\n")
     rec = load(path, columns={"t": "time", "u": "volt", "y": "disp"})[0]
     np.testing.assert_array_equal(rec.y, 2 * np.arange(5.0))
-    assert rec.metadata["ignored_columns"] == ("extra",)
+    # a numeric column is kept as a covariate, a text column is left out and listed
+    assert rec.metadata["ignored_columns"] == ("note",)
+    np.testing.assert_array_equal(rec.covariates["extra"], np.full(5, 9.0))
     ws = tmp_path / "w.txt"
     ws.write_text("t u y\n" + "\n".join(f"  {k}   {k} {k}" for k in range(4)) + "\n")
     assert load(ws)[0].n == 4
@@ -492,3 +494,25 @@ def test_sidecar_frequency_must_be_finite(tmp_path):
     with pytest.raises(DataError, match=re.escape(str(side)) + r": key 'records\[0\]\.metadata"
                        r"\.frequency_hz': expected a positive number or null, got inf"):
         load(path)
+
+
+def test_covariates_survive_writing_reading_slicing_and_pickling(tmp_path):
+    import pickle
+
+    t = np.arange(40) * 1e-3
+    temp = 20 + np.arange(40) * 0.1
+    rec = Record(t, np.sin(50 * t), np.cos(50 * t), covariates={"temperature_c": temp},
+                 name="r")
+    path = tmp_path / "c.csv"
+    write_csv(Dataset((rec,)), path)
+    back = read_csv(path, fittable=False)[0]
+    np.testing.assert_allclose(back.covariates["temperature_c"], temp, rtol=1e-15)
+    np.testing.assert_array_equal(rec.slice(10, 20).covariates["temperature_c"], temp[10:20])
+    assert pickle.loads(pickle.dumps(rec)) == rec
+    assert rec != rec.with_(covariates={"temperature_c": temp + 1})
+    with pytest.raises(DataError, match=r"covariate 'x'.*expected 40 samples"):
+        rec.with_(covariates={"x": temp[:5]})
+    with pytest.raises(DataError, match=r"covariate 'x', sample index 3"):
+        bad = temp.copy()
+        bad[3] = np.nan
+        rec.with_(covariates={"x": bad})

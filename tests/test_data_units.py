@@ -60,7 +60,8 @@ def test_an_instrument_export_is_read_and_converted(tmp_path):
     assert rec.metadata["unit_conversions"] == (
         "column 'Time [ms]' (t): ms -> s, x 0.001",
         "column 'Displacement [nm]' (y): nm -> um, x 0.001")
-    assert rec.metadata["ignored_columns"] == ("Temperature [C]",)
+    assert "ignored_columns" not in rec.metadata  # the temperature is kept, by its name
+    np.testing.assert_array_equal(rec.covariates["Temperature [C]"], np.full(t.size, 21.5))
     assert plausibility(load(path)) == []
     # semicolons and slashed units, as some exports write them
     (rec2,) = load(_write(tmp_path / "b.csv", ["t/s", "U/V", "x (um)"], [t, u, y], ";"))

@@ -97,11 +97,14 @@ def _models_summary(names: Sequence[str]) -> dict[str, list[dict[str, Any]]]:
                 "use": "a nonparametric peer: fit, compare and report score it like the "
                        "parametric models; no parameters to sample, no inverse"})
         elif name in block_names():
-            block = block_class(name)()
+            cls = block_class(name)
+            block = cls(**cls.example)
+            example = ", ".join(f"{k}={v!r}" for k, v in cls.example.items())
             out["effect_blocks"].append({
                 "name": name, "class": type(block).__name__, "equation": block.equation,
                 "rate_dependent": bool(block.rate_dependent), "summary": _first_line(block),
-                "use": f"append to a model spec: pi_play+{name}",
+                "use": f"append to a model spec: pi_play+{name}"
+                       + (f"({example})" if example else ""),
                 "settings": {k: v for k, v in vars(block).items() if not k.startswith("_")},
                 "parameters": _params(block.param_space())})
         else:

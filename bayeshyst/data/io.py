@@ -26,7 +26,9 @@ Columns (roles)
 ``t``, ``u``, ``y`` are required; ``segment`` (integer labels), ``frequency_hz`` and
 ``record`` (integer block index, written by :func:`write_csv` for multi-record
 datasets) are optional. Rows are split into one Record per maximal run of constant
-(``record``, ``frequency_hz``). Other columns are ignored and listed in
+(``record``, ``frequency_hz``). Every other column that holds a finite number in every
+row is kept as a covariate (:attr:`Record.covariates`, named as in the file: a
+temperature, a load, a second sensor); the rest (text, gaps) are listed in
 ``metadata["ignored_columns"]``.
 
 Fittable data
@@ -108,12 +110,14 @@ def _assemble(
     units: Mapping[str, str] | None,
     name: str | None,
     ignored: Sequence[str] = (),
+    covariates: Mapping[str, np.ndarray] | None = None,
     kind: str = "column",
     fittable: bool = True,
 ) -> Dataset:
     """Split validated columns into Records, reporting problems at file positions."""
     label = role_labels(resolved, kind)
     n = cols["t"].size
+    covariates = {k: v for k, v in (covariates or {}).items() if v.size == n}
     for role in ("u", "y", *(r for r in OPTIONAL_ROLES if r in cols)):
         if cols[role].size != n:
             raise DataError(
@@ -197,6 +201,7 @@ def _assemble(
                     metadata=meta,
                     units={**sc.get("units", {}), **entry.get("units", {}), **(units or {})},
                     name=rec_name,
+                    covariates={k: v[a:b] for k, v in covariates.items()},
                 )
             )
     with _naming(path):
@@ -285,11 +290,20 @@ def read_csv(
     units, notes = header_units(p, header, resolved, cols, units, side)
     if notes:
         metadata = {**(metadata or {}), "unit_conversions": tuple(notes)}
-    ignored = [c for c in table.names if c not in resolved.values()]
+    covariates, ignored = {}, []
+    for c in table.names:
+        if c in resolved.values():
+            continue
+        try:  # a covariate must be a number in every row; anything else is left out
+            values = table.floats(c, label=f"column {c!r}")
+        except DataError:
+            ignored.append(c)
+            continue
+        covariates[c] = values
     return _assemble(
         p, cols, lambda i: f"line {table.lines[i]}", resolved, side,
         warmup=warmup, metadata=metadata, units=units, name=name, ignored=ignored,
-        fittable=fittable,
+        covariates=covariates, fittable=fittable,
     )
 
 
@@ -336,10 +350,22 @@ def _read_arrays(
                 f"{path}: index {i} (0-based), {kind} {key!r}: expected an integer label, "
                 f"got {float(cols[role][i])!r}"
             )
-    ignored = [k for k in variables if k not in resolved.values()]
+    covariates, ignored = {}, []
+    for k in variables:
+        if k in resolved.values():
+            continue
+        try:  # a numeric vector of the record's length is a covariate; the rest is left out
+            values = _vector(path, k, variables[k], kind)
+        except DataError:
+            ignored.append(k)
+            continue
+        if values.size == cols["t"].size:
+            covariates[k] = values
+        else:
+            ignored.append(k)
     return _assemble(
         path, cols, lambda i: f"index {i} (0-based)", resolved, side,
-        ignored=ignored, kind=kind, **options,
+        ignored=ignored, covariates=covariates, kind=kind, **options,
     )
 
 
@@ -508,6 +534,11 @@ def _columns(records: Sequence[Record]) -> dict[str, np.ndarray]:
         )
     if len(records) > 1:
         cols["record"] = np.repeat(np.arange(len(records)), [r.n for r in records])
+    # covariates every record has are written (and read back as covariates)
+    shared = [k for k in records[0].covariates if all(k in r.covariates for r in records)]
+    for k in shared:
+        if k not in cols:
+            cols[k] = np.concatenate([r.covariates[k] for r in records])
     return cols
 
 

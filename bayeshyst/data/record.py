@@ -139,6 +139,29 @@ def _as_vector(values: Any, column: str, where: str, dtype: type = np.float64) -
     return out
 
 
+def _covariates(values: Any, n: int, where: str) -> Mapping[str, np.ndarray]:
+    """Validated read-only covariate columns (see :class:`Record`)."""
+    if not isinstance(values, Mapping):
+        raise DataError(f"{where}: covariates: expected a mapping name -> (n,) array, "
+                        f"found {type(values).__name__}")
+    out = {}
+    for name, raw in values.items():
+        if not isinstance(name, str) or not name or name in ("t", "u", "y", "segment"):
+            raise DataError(f"{where}: covariates: expected a column name other than "
+                            f"t, u, y, segment, found {name!r}")
+        arr = _as_vector(raw, name, where)
+        if arr.size != n:
+            raise DataError(f"{where}: covariate {name!r}: expected {n} samples (the length "
+                            f"of 't'), found {arr.size}")
+        finite = np.isfinite(arr)
+        if not finite.all():
+            i = _first_bad(~finite)
+            raise DataError(f"{where}: covariate {name!r}, sample index {i} (0-based): "
+                            f"expected a finite value, found {float(arr[i])!r}")
+        out[name] = arr
+    return MappingProxyType(out)
+
+
 def _first_bad(mask: np.ndarray) -> int:
     """Index of the first True in a boolean mask (caller knows there is one)."""
     return int(np.argmax(mask))
@@ -226,6 +249,12 @@ class Record:
         Units of the columns; missing keys take :data:`DEFAULT_UNITS`.
     name : str, default "record"
         Identifier, unique within a :class:`Dataset`.
+    covariates : mapping of str to array_like, optional
+        Other measured channels of the same samples (temperature, load, a second sensor,
+        a coil current), ``name -> (n,)`` finite values, named as in the file. No model
+        reads them unless it asks for one by name; the diagnosis looks at every one as a
+        candidate driver of what the model misses. Stored as a read-only mapping of
+        read-only float64 copies.
 
     Raises
     ------
@@ -248,6 +277,7 @@ class Record:
     metadata: Mapping[str, Any] = field(default_factory=dict)
     units: Mapping[str, str] = field(default_factory=_default_units)
     name: str = "record"
+    covariates: Mapping[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         if not isinstance(self.name, str) or not self.name:
@@ -345,8 +375,11 @@ class Record:
                 )
             metadata = MappingProxyType({**metadata, "frequency_hz": float(freq)})
 
+        covariates = _covariates(self.covariates, n, where)
+
         # frozen dataclass: object.__setattr__ is the sanctioned way to normalise fields
         for key, value in (
+            ("covariates", covariates),
             *columns.items(),
             ("segment", segment),
             ("warmup", warmup),
@@ -455,6 +488,7 @@ class Record:
         seg = None if self.segment is None else self.segment[lo:hi]
         return dataclasses.replace(
             self,
+            covariates={k: v[lo:hi] for k, v in self.covariates.items()},
             t=self.t[lo:hi],
             u=self.u[lo:hi],
             y=self.y[lo:hi],
@@ -469,7 +503,7 @@ class Record:
         return (
             Record,
             (self.t, self.u, self.y, self.segment, self.warmup, _thaw(self.metadata),
-             dict(self.units), self.name),
+             dict(self.units), self.name, dict(self.covariates)),
         )
 
     # -- comparison and display --------------------------------------------------
@@ -485,6 +519,8 @@ class Record:
             and dict(self.units) == dict(other.units)
             and self.metadata == other.metadata
             and all(np.array_equal(getattr(self, a), getattr(other, a)) for a in arrays)
+            and set(self.covariates) == set(other.covariates)
+            and all(np.array_equal(v, other.covariates[k]) for k, v in self.covariates.items())
         )
 
     __hash__ = None  # type: ignore[assignment]  # mutable-looking arrays: not hashable

@@ -390,15 +390,19 @@ class LinearStructure:
         out = []
         for i, rec in enumerate(self._records):
             if self.model_names:
+                cov = rec["covariates"]
                 if self._base_designs is not None:
                     d = model.apply_blocks_to_design(self._base_designs[i], rec["t"], theta,
-                                                     self.model_names)
+                                                     self.model_names, covariates=cov)
+                elif cov is not None:  # only a composite reads covariates
+                    d = model.linear_design(rec["u"], rec["t"], theta, self.model_names,
+                                            covariates=cov)
                 else:
                     d = model.linear_design(rec["u"], rec["t"], theta, self.model_names)
                 phi, const = d.phi, d.const
                 failed |= np.broadcast_to(d.failed, (w,))
             else:
-                traj = model.run_batch(rec["u"], rec["t"], theta)
+                traj = model.run_batch(rec["u"], rec["t"], theta, covariates=rec["covariates"])
                 phi = np.zeros((1, traj.y.shape[1], 0))
                 const = traj.y
                 failed |= traj.failed

@@ -28,7 +28,7 @@ from bayeshyst.models import get as get_model
 from bayeshyst.models.base import HysteresisModel
 from bayeshyst.params import Normal, Param, ParamSpace
 
-__all__ = ["EvalCounts", "Posterior", "Unit", "cycle_units"]
+__all__ = ["EvalCounts", "Posterior", "Unit", "cycle_units", "record_covariates"]
 
 OBS, NOISE = "obs", "noise"
 
@@ -95,6 +95,26 @@ def cycle_units(record: Record) -> list[tuple[int, int]]:
     return [(bounds[j], bounds[j + 1]) for j in range(len(ids))]
 
 
+def record_covariates(model: HysteresisModel, record: Record) -> dict[str, np.ndarray] | None:
+    """The measured columns of ``record`` that ``model`` reads; None if it reads none.
+
+    Raises
+    ------
+    DataError
+        If the record lacks a column the model reads (naming both).
+    """
+    needed = model.covariates
+    if not needed:
+        return None
+    missing = [c for c in needed if c not in record.covariates]
+    if missing:
+        have = ", ".join(record.covariates) or "none"
+        raise DataError(f"record {record.name!r}: the model {model.name} reads the column(s) "
+                        f"{missing}, which the record does not have (its extra columns: "
+                        f"{have})")
+    return {c: np.ascontiguousarray(record.covariates[c]) for c in needed}
+
+
 def _offset_prior(model: HysteresisModel, space: ParamSpace,
                   data: Dataset) -> tuple[float, float]:
     """Centre and width of the observation offset's Normal prior.
@@ -115,7 +135,7 @@ def _offset_prior(model: HysteresisModel, space: ParamSpace,
         theta = space.unpack(z0)
         resid, mag = [], []
         for rec in data:
-            yhat = model.simulate(rec.u, rec.t, theta)
+            yhat = model.simulate(rec.u, rec.t, theta, covariates=record_covariates(model, rec))
             resid.append(rec.y - yhat)
             mag.append(np.abs(yhat))
         r, m = np.concatenate(resid), np.concatenate(mag)
@@ -218,6 +238,7 @@ class Posterior:
                 "y": np.ascontiguousarray(rec.y[s0:]), "s0": s0,
                 "unit_starts": np.array([a - s0 for a, _ in spans]), "unit_first": first,
                 "keep": None, "frequency_hz": rec.frequency_hz,
+                "covariates": record_covariates(self.model, rec),
                 # the discrepancy's basis over the whole record (N, m), fixed by the data
                 "basis": (None if self.discrepancy is None else np.ascontiguousarray(
                     self.discrepancy.basis(rec.u, rec.frequency_hz))),
@@ -385,7 +406,8 @@ class Posterior:
         noise = {k: np.asarray(v, dtype=float) for k, v in noise.items()}
         coef = self._coefficients(theta, zi.shape[0])
         for rec in self._records:
-            traj = self.model.run_batch(rec["u"], rec["t"], model_theta)
+            traj = self.model.run_batch(rec["u"], rec["t"], model_theta,
+                                        covariates=rec["covariates"])
             yhat = traj.y[:, rec["s0"]:] + off
             if coef is not None:
                 yhat = yhat + self._delta(rec, coef)[:, rec["s0"]:]
@@ -490,8 +512,8 @@ class Posterior:
         model_theta, _, off = self._split_theta(theta)
         off = np.asarray(off, dtype=float).reshape(-1, 1) if self.offset else 0.0
         coef = self._coefficients(theta, z.shape[0]) if discrepancy else None
-        return [self.model.run_batch(r["u"], r["t"], model_theta).y + off + self._delta(r, coef)
-                for r in self._records]
+        return [self.model.run_batch(r["u"], r["t"], model_theta, covariates=r["covariates"]).y
+                + off + self._delta(r, coef) for r in self._records]
 
     def discrepancy_draws(self, z: np.ndarray) -> list[np.ndarray] | None:
         """The discrepancy ``delta`` (W, N_record) per record, None without one."""

@@ -36,7 +36,8 @@ from bayeshyst.models import get as get_model
 from bayeshyst.models.compose import model_spec
 from bayeshyst.tables import TableRecord
 
-__all__ = ["FIT_ATTR", "FIT_FORMAT", "FitDescription", "SavedFit", "fit_description",
+__all__ = ["FIT_ATTR", "FIT_FORMAT", "FitDescription", "SavedFit", "covariate_variable",
+           "fit_description",
            "load_fit"]
 
 _log = logging.getLogger(__name__)
@@ -70,11 +71,24 @@ class FitDescription:
     segment : ndarray of int, shape (N,), or None
         Every record's segment labels end to end (-1 where a record has none), over
         the ``obs`` dimension (``constant_data`` variable :data:`SEGMENT_VAR`).
+    covariates : dict of str to ndarray
+        The measured columns the model reads, end to end over the ``obs`` dimension
+        (``constant_data`` variables ``covariate_<i>``, names in ``meta["covariates"]``).
     """
 
     meta: dict[str, Any]
     constraint: np.ndarray | None = None
     segment: np.ndarray | None = None
+    covariates: dict[str, np.ndarray] = field(default_factory=dict)
+
+    def covariate_variables(self) -> dict[str, np.ndarray]:
+        """``constant_data`` variable name -> values of every covariate."""
+        return {covariate_variable(i): v for i, v in enumerate(self.covariates.values())}
+
+
+def covariate_variable(i: int) -> str:
+    """Name of the ``constant_data`` variable holding the ``i``-th covariate the model reads."""
+    return f"covariate_{i}"
 
 
 def _plain(value: Any) -> Any:
@@ -136,7 +150,10 @@ def fit_description(post: Posterior) -> FitDescription:
             constraint = np.asarray(disc.constraint, dtype=float)
     else:
         meta["discrepancy"] = None
-    return FitDescription(meta, constraint, segment)
+    meta["covariates"] = list(post.model.covariates)
+    covariates = {c: np.concatenate([np.asarray(r.covariates[c], dtype=float) for r in post.data])
+                  for c in post.model.covariates}
+    return FitDescription(meta, constraint, segment, covariates)
 
 
 # ------------------------------------------------------------------------------ reading
@@ -211,9 +228,12 @@ def _records(path: Path, meta: dict[str, Any], groups: dict[str, Any]) -> Datase
         seg = None
         if spec.get("has_segment") and segment is not None:
             seg = segment[sel]
+        covariates = {c: np.asarray(const[covariate_variable(j)].values, float)[sel]
+                      for j, c in enumerate(meta.get("covariates") or [])}
         records.append(Record(t[sel], u[sel], y[sel], segment=seg, warmup=int(spec["warmup"]),
                               metadata=spec.get("metadata") or {},
-                              units=spec.get("units") or {}, name=str(spec["name"])))
+                              units=spec.get("units") or {}, name=str(spec["name"]),
+                              covariates=covariates))
     return Dataset(tuple(records), name=str(meta.get("data_name", path.stem)))
 
 

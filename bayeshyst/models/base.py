@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import functools
 from abc import ABC, abstractmethod
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
@@ -33,6 +33,7 @@ __all__ = [
     "Trajectory",
     "batch_theta",
     "check_count",
+    "check_covariates",
     "check_signal",
     "data_scales",
     "kernel_buffers",
@@ -257,6 +258,43 @@ def kernel_buffers(state0: np.ndarray,
     return np.empty((state.shape[0], n_samples)), state, np.zeros(state.shape[0], dtype=bool)
 
 
+def check_covariates(covariates: Mapping[str, Any] | None, needed: Sequence[str], n: int,
+                     who: str) -> dict[str, np.ndarray] | None:
+    """The measured channels a model reads, as float64 (n,) arrays; None if none given.
+
+    Parameters
+    ----------
+    covariates : mapping or None
+        ``column -> (n,)`` values; None runs the model at its nominal conditions (every
+        covariate block at its reference value).
+    needed : sequence of str
+        Columns the model reads (:attr:`HysteresisModel.covariates`).
+    n : int
+        Samples of the input.
+    who : str
+        The model's name, for messages.
+
+    Raises
+    ------
+    ModelError
+        A needed column missing from a given mapping, of the wrong length or not finite.
+    """
+    if covariates is None or not needed:
+        return None
+    missing = [c for c in needed if c not in covariates]
+    if missing:
+        raise ModelError(f"{who}: reads the measured column(s) {missing}; the covariates "
+                         f"given are {sorted(covariates)}")
+    out = {}
+    for c in needed:
+        arr = np.ascontiguousarray(covariates[c], dtype=np.float64)
+        if arr.shape != (n,) or not np.all(np.isfinite(arr)):
+            raise ModelError(f"{who}: covariate {c!r} must be {n} finite values (one per "
+                             f"input sample), got shape {arr.shape}")
+        out[c] = arr
+    return out
+
+
 def check_signal(u: Any, t: Any) -> tuple[np.ndarray, np.ndarray]:
     """``u`` and ``t`` as C-contiguous float64, 1-D, equal length, finite; else raise."""
     u = np.ascontiguousarray(u, dtype=np.float64)
@@ -318,6 +356,22 @@ class HysteresisModel(ABC):
         ``theta`` holds C-contiguous float64 arrays with a leading ``W`` axis.
         """
 
+    @property
+    def covariates(self) -> tuple[str, ...]:
+        """Measured columns besides ``u`` the model reads (none for a hysteresis model).
+
+        A composite with a covariate block (``aux(column=temperature_c)``) names them;
+        its simulations take them as ``covariates={column: values}`` and, without them,
+        run at the block's reference value (nominal conditions).
+        """
+        return ()
+
+    def _run_with(self, u: np.ndarray, t: np.ndarray, theta: Mapping[str, np.ndarray],
+                  state0: np.ndarray, covariates: Mapping[str, np.ndarray] | None
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """:meth:`_run` with the measured channels (models that read none ignore them)."""
+        return self._run(u, t, theta, state0)
+
     # ------------------------------------------------------------------ public API
     @functools.cached_property
     def _shapes(self) -> dict[str, tuple[int, ...]]:
@@ -334,7 +388,8 @@ class HysteresisModel(ABC):
         return self._initial_state(tb, float(u0))[0]
 
     def run(self, u: Any, t: Any, theta: Mapping[str, Any], *,
-            state0: np.ndarray | None = None) -> Trajectory:
+            state0: np.ndarray | None = None,
+            covariates: Mapping[str, Any] | None = None) -> Trajectory:
         """Simulate one parameter vector and return output and final state.
 
         Parameters
@@ -347,6 +402,9 @@ class HysteresisModel(ABC):
             Physical parameter values by name (as from ``param_space().unpack(z)``).
         state0 : ndarray, shape (S,), optional
             State before the first sample; default :meth:`initial_state` at ``u[0]``.
+        covariates : mapping of str to array_like, optional
+            Measured channels ``column -> (N,)`` for a model that reads some
+            (:attr:`covariates`); None runs it at nominal conditions.
 
         Raises
         ------
@@ -354,10 +412,11 @@ class HysteresisModel(ABC):
             If the simulation fails (non-finite output or state).
         """
         u, t = check_signal(u, t)
+        cov = check_covariates(covariates, self.covariates, u.size, self.name)
         tb, _ = self._batch_theta(theta, batched=False)
         s0 = (self._initial_state(tb, float(u[0])) if state0 is None
               else np.ascontiguousarray(np.asarray(state0, dtype=np.float64)[None, :]))
-        y, state, failed = self._run(u, t, tb, s0)
+        y, state, failed = self._run_with(u, t, tb, s0, cov)
         if failed[0]:
             raise SimulationError(f"{self.name}: simulation failed for theta={dict(theta)}")
         return Trajectory(y[0], state[0], np.asarray(False))
@@ -388,12 +447,14 @@ class HysteresisModel(ABC):
                         state0=state)
 
     def simulate(self, u: Any, t: Any, theta: Mapping[str, Any], *,
-                 state0: np.ndarray | None = None) -> np.ndarray:
+                 state0: np.ndarray | None = None,
+                 covariates: Mapping[str, Any] | None = None) -> np.ndarray:
         """Model output ``y`` (shape (N,)) for input ``u``; see :meth:`run`."""
-        return self.run(u, t, theta, state0=state0).y
+        return self.run(u, t, theta, state0=state0, covariates=covariates).y
 
     def run_batch(self, u: Any, t: Any, thetas: Mapping[str, Any], *,
-                  state0: np.ndarray | None = None) -> Trajectory:
+                  state0: np.ndarray | None = None,
+                  covariates: Mapping[str, Any] | None = None) -> Trajectory:
         """Simulate ``W`` parameter vectors at once (e.g. a whole emcee ensemble).
 
         Parameters
@@ -404,6 +465,8 @@ class HysteresisModel(ABC):
             ``name -> array (W, *shape)`` (as from ``param_space().unpack(Z)`` with
             ``Z`` of shape ``(W, ndim)``).
         state0 : ndarray, shape (W, S), optional
+        covariates : mapping of str to array_like, optional
+            As in :meth:`run`.
 
         Returns
         -------
@@ -411,6 +474,7 @@ class HysteresisModel(ABC):
             ``y (W, N)``, ``state (W, S)``, ``failed (W,)``; failed rows of ``y`` are NaN.
         """
         u, t = check_signal(u, t)
+        cov = check_covariates(covariates, self.covariates, u.size, self.name)
         tb, width = self._batch_theta(thetas, batched=True)
         if state0 is None:
             s0 = self._initial_state(tb, float(u[0]))
@@ -418,14 +482,15 @@ class HysteresisModel(ABC):
             s0 = np.ascontiguousarray(state0, dtype=np.float64)
             if s0.ndim != 2 or s0.shape[0] != width:
                 raise ParameterError(f"state0 must have shape (W={width}, S), got {s0.shape}")
-        y, state, failed = self._run(u, t, tb, s0)
+        y, state, failed = self._run_with(u, t, tb, s0, cov)
         y[failed] = np.nan
         return Trajectory(y, state, failed)
 
     def simulate_batch(self, u: Any, t: Any, thetas: Mapping[str, Any], *,
-                       state0: np.ndarray | None = None) -> np.ndarray:
+                       state0: np.ndarray | None = None,
+                       covariates: Mapping[str, Any] | None = None) -> np.ndarray:
         """Outputs ``(W, N)`` for ``W`` parameter vectors; raises if any simulation fails."""
-        traj = self.run_batch(u, t, thetas, state0=state0)
+        traj = self.run_batch(u, t, thetas, state0=state0, covariates=covariates)
         if traj.n_failed:
             raise SimulationError(f"{self.name}: {traj.n_failed} of {traj.y.shape[0]} "
                                   f"simulations failed (rows {np.flatnonzero(traj.failed)[:10]})")

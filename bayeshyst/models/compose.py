@@ -26,7 +26,12 @@ import numpy as np
 
 from bayeshyst.errors import ModelError, ParameterError
 from bayeshyst.models import registry
-from bayeshyst.models.base import HysteresisModel, LinearDesign, LinearInParams
+from bayeshyst.models.base import (
+    HysteresisModel,
+    LinearDesign,
+    LinearInParams,
+    check_covariates,
+)
 from bayeshyst.models.blocks import Creep, EffectBlock, block_class, block_names
 from bayeshyst.params import ParamSpace
 
@@ -124,11 +129,12 @@ class Composite(LinearInParams, HysteresisModel):
         return True
 
     def linear_design(self, u: Any, t: Any, thetas: Mapping[str, Any],
-                      names: tuple[str, ...] | None = None) -> LinearDesign:
+                      names: tuple[str, ...] | None = None, *,
+                      covariates: Mapping[str, Any] | None = None) -> LinearDesign:
         """``Phi`` and ``c`` of ``W`` parameter vectors: the base's, through the blocks.
 
         See :meth:`LinearInParams.linear_design` (same parameters, ``static.`` names)
-        and :meth:`apply_blocks_to_design`.
+        and :meth:`apply_blocks_to_design`; ``covariates`` as in :meth:`run`.
         """
         names = self.linear_params if names is None else tuple(names)
         bad = [n for n in names if n not in self.linear_params]
@@ -138,10 +144,11 @@ class Composite(LinearInParams, HysteresisModel):
         base_theta, _ = self._split(thetas)
         base = self.base.linear_design(u, t, base_theta,
                                        tuple(n[len(STATIC) + 1:] for n in names))
-        return self.apply_blocks_to_design(base, t, thetas, names)
+        return self.apply_blocks_to_design(base, t, thetas, names, covariates=covariates)
 
     def apply_blocks_to_design(self, base: LinearDesign, t: Any, thetas: Mapping[str, Any],
-                               names: tuple[str, ...]) -> LinearDesign:
+                               names: tuple[str, ...], *,
+                               covariates: Mapping[str, Any] | None = None) -> LinearDesign:
         """Pass a base design through the blocks: ``B[const]``, ``B[phi_j] - B[0]``.
 
         Exact for affine blocks: ``B[sum_j b_j phi_j + c] = sum_j b_j (B[phi_j] - B[0])
@@ -158,10 +165,13 @@ class Composite(LinearInParams, HysteresisModel):
             Every parameter of the composite, batched (the blocks' are used).
         names : tuple of str
             ``static.`` names of the columns.
+        covariates : mapping of str to array_like, optional
+            Measured channels ``column -> (N,)`` the blocks read (None: nominal).
         """
         if not all(b.affine for b in self.blocks):
             raise ModelError(f"{self.name}: a block is not affine in its input")
         t = np.ascontiguousarray(t, dtype=np.float64)
+        covariates = check_covariates(covariates, self.covariates, t.size, self.name)
         _, block_thetas = self._split(thetas)
         widths = [int(np.shape(v)[0]) for v in thetas.values()]
         width = max([*widths, base.phi.shape[0], base.const.shape[0]])
@@ -178,7 +188,7 @@ class Composite(LinearInParams, HysteresisModel):
                 np.broadcast_to(np.asarray(v, dtype=np.float64), (width, *np.shape(v)[1:])),
                 n_sig, axis=0)) for k, v in th.items()}
             s0 = block._initial_state(rep, np.ascontiguousarray(w[:, 0]), math.nan)
-            w, _, f = block._apply(w, t, rep, s0)
+            w, _, f = block._apply_with(w, t, rep, s0, covariates)
             w = np.ascontiguousarray(w)
             failed |= np.asarray(f, dtype=bool).reshape(width, n_sig).any(axis=1)
         out = w.reshape(width, n_sig, n)
@@ -223,7 +233,15 @@ class Composite(LinearInParams, HysteresisModel):
                 w0 = np.ascontiguousarray(out[:, 0])
         return np.ascontiguousarray(np.concatenate(states, axis=1))
 
+    @property
+    def covariates(self) -> tuple[str, ...]:  # type: ignore[override]
+        """Measured columns the blocks read, in order of first use."""
+        return tuple(dict.fromkeys(c for b in self.blocks for c in b.covariates))
+
     def _run(self, u, t, theta, state0):
+        return self._run_with(u, t, theta, state0, None)
+
+    def _run_with(self, u, t, theta, state0, covariates):
         base_theta, block_thetas = self._split(theta)
         sizes = [b.state_size for b in self.blocks]
         n_base = state0.shape[1] - sum(sizes)
@@ -237,7 +255,7 @@ class Composite(LinearInParams, HysteresisModel):
         start = n_base
         for block, th, size in zip(self.blocks, block_thetas, sizes, strict=True):
             s0 = np.ascontiguousarray(state0[:, start:start + size])
-            w, s, f = block._apply(np.ascontiguousarray(w), t, th, s0)
+            w, s, f = block._apply_with(np.ascontiguousarray(w), t, th, s0, covariates)
             failed |= f
             states.append(s)
             start += size

@@ -1,4 +1,4 @@
-"""Effect blocks: linear dynamics, creep, drift, delay and output maps that follow a model.
+"""Effect blocks: dynamics, creep, drift, delay, output maps and external drivers after a model.
 
 A block maps the output ``w`` of whatever precedes it (a hysteresis model or another
 block) to a new signal, sample by sample, with an explicit state (MODELS.md §7, review
@@ -23,8 +23,10 @@ Conventions shared by every block:
 
 The package holds the contract and the registry (:mod:`~bayeshyst.models.blocks.base`),
 linear dynamics (:mod:`~bayeshyst.models.blocks.linear`), creep
-(:mod:`~bayeshyst.models.blocks.creep`) and the drift, delay and output-map blocks
-(:mod:`~bayeshyst.models.blocks.output`); every public name is importable from here.
+(:mod:`~bayeshyst.models.blocks.creep`), the drift, delay and output-map blocks
+(:mod:`~bayeshyst.models.blocks.output`) and the blocks driven by a measured column or a
+moment in time (:mod:`~bayeshyst.models.blocks.external`); every public name is
+importable from here.
 """
 
 from __future__ import annotations
@@ -40,6 +42,7 @@ from bayeshyst.models.blocks.base import (
     time_scales,
 )
 from bayeshyst.models.blocks.creep import Creep, FractionalCreep
+from bayeshyst.models.blocks.external import AuxInput, ChangePoint, Disturbance
 from bayeshyst.models.blocks.linear import ARX, SecondOrder
 from bayeshyst.models.blocks.output import AsymmetricOutput, Delay, Drift
 
@@ -48,8 +51,11 @@ __all__ = [
     "DEFAULT_DT",
     "DEFAULT_DURATION",
     "AsymmetricOutput",
+    "AuxInput",
+    "ChangePoint",
     "Creep",
     "Delay",
+    "Disturbance",
     "Drift",
     "EffectBlock",
     "FractionalCreep",

@@ -10,12 +10,13 @@ import math
 from abc import ABC, abstractmethod
 from collections.abc import Mapping
 from dataclasses import dataclass
+from types import MappingProxyType
 from typing import Any, ClassVar
 
 import numpy as np
 
 from bayeshyst.errors import ModelError, ParameterError, SimulationError
-from bayeshyst.models.base import Trajectory, batch_theta, sample_period
+from bayeshyst.models.base import Trajectory, batch_theta, check_covariates, sample_period
 from bayeshyst.params import ParamSpace
 
 __all__ = [
@@ -94,6 +95,8 @@ class EffectBlock(ABC):
         dynamics, creep, delay, drift). A model that is linear in some parameters stays
         so after affine blocks (:meth:`Composite.linear_design`), which lets the
         sampler draw those parameters exactly.
+    example : mapping
+        Settings to build an instance for listings when some setting has no default.
     needs_preview : bool
         Whether the block is linear time-invariant dynamics whose output responds to its
         present input weakly or not at all (a delay, sampled second-order dynamics): its
@@ -106,6 +109,9 @@ class EffectBlock(ABC):
     equation: ClassVar[str] = ""
     affine: ClassVar[bool] = False
     needs_preview: ClassVar[bool] = False
+    #: settings that a block without defaults for all of them is shown with
+    #: (``bayeshyst models``): ``aux`` needs a column to read
+    example: ClassVar[Mapping[str, Any]] = MappingProxyType({})
 
     @property
     @abstractmethod
@@ -133,6 +139,17 @@ class EffectBlock(ABC):
         arguments are not modified. ``theta`` holds float64 arrays with a leading W axis.
         """
 
+    @property
+    def covariates(self) -> tuple[str, ...]:
+        """Measured columns the block reads besides its input (none for most blocks)."""
+        return ()
+
+    def _apply_with(self, w: np.ndarray, t: np.ndarray, theta: Mapping[str, np.ndarray],
+                    state: np.ndarray, covariates: Mapping[str, np.ndarray] | None
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """:meth:`_apply` with the measured channels ``column -> (N,)`` (None: nominal)."""
+        return self._apply(w, t, theta, state)
+
     # ------------------------------------------------------------------ conveniences
     @functools.cached_property
     def _shapes(self) -> dict[str, tuple[int, ...]]:
@@ -150,21 +167,25 @@ class EffectBlock(ABC):
         return self._initial_state(tb, np.array([float(w0)]), float(t0))[0]
 
     def apply(self, w: Any, t: Any, theta: Mapping[str, Any], *,
-              state0: np.ndarray | None = None) -> Trajectory:
+              state0: np.ndarray | None = None,
+              covariates: Mapping[str, Any] | None = None) -> Trajectory:
         """Apply the block to one signal ``w`` (N,) at times ``t`` (N,) (s).
 
-        ``state0`` (S,) defaults to the steady state at ``w[0]``. Raises
+        ``state0`` (S,) defaults to the steady state at ``w[0]``; ``covariates`` as in
+        :meth:`~bayeshyst.models.base.HysteresisModel.run`. Raises
         :class:`SimulationError` if the parameter vector fails.
         """
         tb, _ = self._batch_theta(theta, batched=False)
         traj = self.apply_batch(np.asarray(w, float)[None, :], t, tb,
-                                state0=None if state0 is None else np.asarray(state0)[None])
+                                state0=None if state0 is None else np.asarray(state0)[None],
+                                covariates=covariates)
         if traj.failed[0]:
             raise SimulationError(f"{self.name}: block failed for theta={dict(theta)}")
         return Trajectory(traj.y[0], traj.state[0], np.asarray(False))
 
     def apply_batch(self, w: Any, t: Any, thetas: Mapping[str, Any], *,
-                    state0: np.ndarray | None = None) -> Trajectory:
+                    state0: np.ndarray | None = None,
+                    covariates: Mapping[str, Any] | None = None) -> Trajectory:
         """Apply ``W`` parameter vectors (arrays ``(W, *shape)``) to ``w`` (W, N) or (N,)."""
         t = np.ascontiguousarray(t, dtype=np.float64)
         w = np.asarray(w, dtype=np.float64)
@@ -181,7 +202,8 @@ class EffectBlock(ABC):
         if s0.shape != (width, self.state_size):
             raise ParameterError(f"{self.name}: state0 must have shape ({width}, "
                                  f"{self.state_size}), got {s0.shape}")
-        y, state, failed = self._apply(w, t, tb, s0)
+        cov = check_covariates(covariates, self.covariates, t.size, self.name)
+        y, state, failed = self._apply_with(w, t, tb, s0, cov)
         return Trajectory(y, state, failed)
 
     def describe(self) -> str:
