@@ -107,7 +107,10 @@ def test_diagnose_writes_every_output(diagnosed):
     last = {t["effect"]: t for t in summary["rounds"][-1]["tests"]}
     assert last["drift"]["skipped"] and last["drift"]["p_value"] is None
 
-    figures = ["residuals.png", *(f"evidence_{e}.png" for e in EFFECTS)]
+    # every effect tested has its evidence; aux has nothing to test without extra columns
+    assert [t["skipped"] is not None for t in summary["rounds"][0]["tests"]] == [
+        e == "aux" for e in EFFECTS]
+    figures = ["residuals.png", *(f"evidence_{e}.png" for e in EFFECTS if e != "aux")]
     expected = ["diagnosis.txt", "steps.csv", "posterior_base.nc", "posterior_final.nc",
                 *figures, "summary.json"]
     assert summary["outputs"] == expected
@@ -236,7 +239,7 @@ def test_clean_data_keeps_the_base_model(tmp_path):
         "summary.json"]
     assert sorted(p.name for p in out.iterdir()) == sorted(summary["outputs"])
     assert (out / "steps.csv").read_text().strip() == ",".join(STEP_COLUMNS)
-    assert "effects found: none" in stdout and "outputs in" in stdout
+    assert "the base model explains the data" in stdout and "outputs in" in stdout
 
 
 @pytest.mark.parametrize("argv, message", [

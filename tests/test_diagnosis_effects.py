@@ -19,8 +19,8 @@ import pytest
 
 from bayeshyst.data.excitation import sine
 from bayeshyst.data.record import Record
+from bayeshyst.diagnosis.catalogue import EFFECTS, get_effect
 from bayeshyst.diagnosis.effects import (
-    EFFECTS,
     Asymmetry,
     ColoredNoise,
     CreepEffect,
@@ -28,7 +28,6 @@ from bayeshyst.diagnosis.effects import (
     DriftEffect,
     RateDependence,
     RecordSignals,
-    get_effect,
 )
 from bayeshyst.errors import ModelError
 from bayeshyst.models import get
@@ -231,7 +230,7 @@ def test_nothing_is_skipped_for_the_plain_model():
 def test_get_effect_names_the_valid_effects():
     assert get_effect("drift") is EFFECTS["drift"]
     assert list(EFFECTS) == ["creep", "rate_dependence", "asymmetry", "drift", "delay",
-                             "colored_noise"]
+                             "aux", "change_point", "colored_noise"]
     with pytest.raises(ModelError) as err:
         get_effect("nope")
     for name in EFFECTS:
@@ -273,3 +272,39 @@ def test_delay_history_covers_three_times_the_estimate(coef):
     # a small estimate keeps the default history of 10 samples
     small = DelayEffect().augment(BASE, "gaussian", np.array([0.5 * DT]), DATA)[0]
     assert small.blocks[-1].max_delay_samples == 10
+
+
+# ------------------------------------------------------- effects with several variants
+def test_aux_and_change_point_regressors_are_their_blocks_derivatives():
+    # the score regressors are d y / d (g, h) of the block at g = h = 0, per variant
+    from bayeshyst.data.record import Dataset
+    from bayeshyst.diagnosis.driven import AuxEffect, ChangePointEffect
+    from bayeshyst.models.blocks import AuxInput, ChangePoint
+
+    rec = DATA if isinstance(DATA, Record) else DATA[0]
+    temp = 20 + 3 * np.sin(np.linspace(0, 3, rec.n))
+    rec = rec.with_(covariates={"temperature_c": temp})
+    data = Dataset((rec,))
+    w = np.sin(np.linspace(0, 20, rec.n))
+    sig = RecordSignals(rec.name, rec.t, rec.u, w, rec.scored.start or 0, None)
+    (label, x, _), = AuxEffect().variants([sig], data, BASE)
+    assert label == "temperature_c"
+    blk = AuxInput(column="temperature_c")
+    fixed = blk.param_space(data).fixed
+    h = 1e-6
+    for j, name in enumerate(("g", "h")):
+        theta = {**fixed, "g": np.zeros(1), "h": np.zeros(1)}
+        theta[name] = np.array([h])
+        y = blk.apply(w, rec.t, theta, covariates={"temperature_c": temp}).y
+        np.testing.assert_allclose((y - w)[sig.s0:] / h, x[:, j], rtol=1e-6, atol=1e-9)
+    variants = ChangePointEffect().variants([sig], data, BASE)
+    label, x, _ = variants[len(variants) // 2]
+    cp = ChangePoint()
+    theta = {**cp.param_space(data).fixed, "t_c": float(label), "g": h, "h": 0.0}
+    y = cp.apply(w, rec.t, theta).y
+    np.testing.assert_allclose((y - w)[sig.s0:] / h, x[:, 0], rtol=1e-4, atol=1e-9)
+    # augmenting names the column and rebuilds from its spec
+    model, _, suffix = AuxEffect().augment(BASE, "gaussian", np.zeros(2), data,
+                                           variant="temperature_c")
+    assert suffix == "+aux(column='temperature_c')"
+    assert get(BASE_SPEC + suffix) == model

@@ -11,7 +11,8 @@ The chain is residual → missing effect → augmented model → error before an
   (test fires, held-out elpd improves).
 """
 
-from bayeshyst.diagnosis.effects import EFFECTS, Effect, get_effect
+from bayeshyst.diagnosis.catalogue import EFFECTS, get_effect
+from bayeshyst.diagnosis.effects import Effect
 from bayeshyst.diagnosis.loop import (
     DiagnosisFit,
     DiagnosisResult,

@@ -32,20 +32,19 @@ from __future__ import annotations
 
 import math
 from abc import ABC, abstractmethod
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
 import numpy as np
 
-from bayeshyst.errors import ModelError, SimulationError
+from bayeshyst.errors import SimulationError
 from bayeshyst.models.base import HysteresisModel
 from bayeshyst.models.blocks import AsymmetricOutput, Creep, Delay, Drift, SecondOrder
 from bayeshyst.models.blocks.base import EffectBlock, time_scales
 from bayeshyst.models.compose import Composite
 
 __all__ = [
-    "EFFECTS",
     "Asymmetry",
     "ColoredNoise",
     "CreepEffect",
@@ -54,7 +53,6 @@ __all__ = [
     "Effect",
     "RateDependence",
     "RecordSignals",
-    "get_effect",
 ]
 
 
@@ -121,10 +119,25 @@ class Effect(ABC):
         """The explaining variable of the evidence plot (N,)."""
         return rec.t - rec.t[0]
 
+    def variants(self, sigs: Sequence[RecordSignals], data: Any, model: HysteresisModel
+                 ) -> list[tuple[str, np.ndarray, np.ndarray]]:
+        """What is tested: ``(variant, regressors, evidence axis)`` on the stacked samples.
+
+        One unnamed variant for an effect of the classic catalogue: its
+        :meth:`regressors` and :meth:`evidence_axis` on every record's scored samples.
+        Effects with several variants (which column, which change time) override it.
+        """
+        x = np.concatenate([self.regressors(s, data)[s.s0:] for s in sigs])
+        ax = np.concatenate([self.evidence_axis(s)[s.s0:] for s in sigs])
+        return [("", x, ax)]
+
     @abstractmethod
     def augment(self, model: HysteresisModel, likelihood: str, coef: np.ndarray,
-                data: Any) -> tuple[HysteresisModel, str, str]:
-        """(augmented model, likelihood, spec suffix) given the test's coefficients."""
+                data: Any, variant: str = "") -> tuple[HysteresisModel, str, str]:
+        """(augmented model, likelihood, spec suffix) given the test's coefficients.
+
+        ``variant`` is the variant the test chose (:meth:`variants`; empty for most).
+        """
 
     def initial(self, coef: np.ndarray, estimates: Mapping[str, float]) -> dict[str, Any]:
         """The added parameters at the test's estimate: a warm start for the augmented fit.
@@ -148,6 +161,11 @@ class Effect(ABC):
         ``coef`` (k,) are the coefficients and ``cov`` (k, k) their covariance.
         """
         return {}
+
+    def interpret_variant(self, variant: str, coef: np.ndarray, cov: np.ndarray,
+                          data: Any) -> dict[str, float]:
+        """:meth:`interpret` for the variant the test chose (the same for most effects)."""
+        return self.interpret(coef, cov, data)
 
 
 class _BlockEffect(Effect):
@@ -174,7 +192,7 @@ class _BlockEffect(Effect):
                                f"record {rec.name!r}")
         return ((out.y - rec.w[None, :]) / h).T
 
-    def augment(self, model, likelihood, coef, data):
+    def augment(self, model, likelihood, coef, data, variant=""):
         blk = self.block(data)
         return Composite(model, (blk,)), likelihood, f"+{self.spec(blk)}"
 
@@ -338,7 +356,7 @@ class DelayEffect(_BlockEffect):
         """Rate of the model output ``dw/dt`` (N,) (output unit per s)."""
         return np.gradient(rec.w, rec.t)
 
-    def augment(self, model, likelihood, coef, data):
+    def augment(self, model, likelihood, coef, data, variant=""):
         """Append a delay block sized to cover three times the estimated delay ``|coef[0]|``.
 
         Returns the composite, the unchanged likelihood and the spec suffix
@@ -382,7 +400,7 @@ class RateDependence(Effect):
         """Rate of the model output ``dw/dt`` (N,) (output unit per s)."""
         return np.gradient(rec.w, rec.t)
 
-    def augment(self, model, likelihood, coef, data):
+    def augment(self, model, likelihood, coef, data, variant=""):
         """Append :class:`~bayeshyst.models.blocks.SecondOrder` (suffix ``+second_order``).
 
         The likelihood is unchanged.
@@ -441,7 +459,7 @@ class ColoredNoise(Effect):
         """Not used: raises TypeError (the effect is tested on the residual by ``lag_test``)."""
         raise TypeError("colored_noise is tested on the residual itself (lag_test)")
 
-    def augment(self, model, likelihood, coef, data):
+    def augment(self, model, likelihood, coef, data, variant=""):
         """The same model with the AR(1) likelihood; suffix ``" with likelihood ar1"``."""
         return model, "ar1", " with likelihood ar1"
 
@@ -452,16 +470,3 @@ class ColoredNoise(Effect):
     def interpret(self, coef, cov, data):
         """The residual's lag-1 autocorrelation ``lag1_autocorrelation``, ``coef[0]``."""
         return {"lag1_autocorrelation": float(coef[0])}
-
-
-#: The candidate effects in reporting order.
-EFFECTS: Mapping[str, Effect] = {e.name: e for e in (
-    CreepEffect(), RateDependence(), Asymmetry(), DriftEffect(), DelayEffect(), ColoredNoise())}
-
-
-def get_effect(name: str) -> Effect:
-    """The effect called ``name``; ModelError listing the valid names."""
-    try:
-        return EFFECTS[name]
-    except KeyError:
-        raise ModelError(f"unknown effect {name!r}; valid: {', '.join(EFFECTS)}") from None

@@ -15,325 +15,76 @@ Fired effects are tried in order of support (Bayes factor; coloured noise last);
 first that passes gate 2 is kept and the loop starts again from the augmented fit.
 Effects that fire but fail gate 2 are recorded as rejected steps. The loop stops when
 no test fires, when every fired effect is rejected, or after ``max_rounds``.
+
+Beyond the catalogue (:mod:`bayeshyst.diagnosis.verdict` has the rules):
+
+* every residual is also scanned for dependence on anything observed
+  (:mod:`bayeshyst.diagnosis.drivers`); when the hysteresis model's own branch shape is
+  what is left (the loop position is a kept driver), a shape correction -- the
+  discrepancy over the loop's coordinates, :mod:`bayeshyst.discrepancy` -- is a
+  candidate, tried *before* any time-domain effect (creep, rate, delay, drift, a change
+  point);
+* with fewer than ``MIN_GATE_UNITS`` cycles gate 2 cannot decide, and the step says so
+  and falls back to the score test's Bayes factor (or, for the shape, to the scan);
+* an accepted effect ties with the effects whose Bayes factors are within 3 nats of its
+  own, and an implausible physical reading makes it a warning, not a finding;
+* the verdict says what is left: "the base model explains the data" only when nothing
+  fires and nothing observed explains the residual.
 """
 
 from __future__ import annotations
 
 import logging
 import math
-from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
+from types import MappingProxyType
 from typing import Any
 
 import numpy as np
 
 from bayeshyst.data.record import Dataset, Record
-from bayeshyst.diagnosis.effects import EFFECTS, get_effect
+from bayeshyst.diagnosis.candidates import (
+    BRANCH_SHAPE,
+    DISTURBANCE,
+    SHAPE_DISCREPANCY,
+    judge,
+    line_candidate,
+    shape_candidate,
+)
+from bayeshyst.diagnosis.catalogue import EFFECTS, get_effect
+from bayeshyst.diagnosis.effects import ColoredNoise
+from bayeshyst.diagnosis.records import (
+    DiagnosisFit,
+    DiagnosisResult,
+    DiagnosisSettings,
+    DiagnosisStep,
+)
 from bayeshyst.diagnosis.residual import (
-    EffectTest,
-    ResidualAnalysis,
     analyse_residual,
     best_point,
 )
+from bayeshyst.diagnosis.verdict import (
+    PLAUSIBLE,
+    TIME_DOMAIN,
+)
 from bayeshyst.errors import DataError, ParameterError
 from bayeshyst.inference.calibration import uncertainty_budget
-from bayeshyst.inference.fit import FitResult, TrackingError, errors_by_frequency
+from bayeshyst.inference.fit import FitResult, errors_by_frequency
 from bayeshyst.inference.optimize import find_map
 from bayeshyst.inference.posterior import Posterior
-from bayeshyst.inference.sampling import ParamSummary, SamplingResult, sample_posterior
+from bayeshyst.inference.sampling import sample_posterior
 from bayeshyst.inference.settings import SamplerSettings
 from bayeshyst.likelihoods import get_likelihood
 from bayeshyst.models import get as get_model
 from bayeshyst.models.base import HysteresisModel
-from bayeshyst.selection import paired_difference
+from bayeshyst.models.blocks import Disturbance
+from bayeshyst.models.compose import Composite
 from bayeshyst.selection.tasks import CompareSettings, fit_sampler, loo_scores
-from bayeshyst.tables import TableRecord, frame
 
 __all__ = ["DiagnosisFit", "DiagnosisResult", "DiagnosisSettings", "DiagnosisStep", "diagnose"]
 
 _log = logging.getLogger(__name__)
-
-
-@dataclass(frozen=True)
-class DiagnosisSettings:
-    """Settings of a diagnosis (see :func:`diagnose`)."""
-
-    effects: tuple[str, ...] = tuple(EFFECTS)
-    alpha: float = 0.01
-    threshold: float = 2.0
-    max_rounds: int = 6
-    max_candidates: int = 2
-    max_ar_order: int = 10
-    sampler: SamplerSettings = field(default_factory=SamplerSettings)
-    n_draws: int = 200
-    draws_per_chain: int = 30
-    max_refits: int = 5
-
-    @property
-    def seed(self) -> int:
-        """The diagnosis' seed (the sampler settings')."""
-        return self.sampler.seed
-
-    def to_dict(self) -> dict[str, Any]:
-        """JSON-ready settings: every field (tuples as lists), the sampler's dict, the seed."""
-        out = {k: (list(v) if isinstance(v, tuple) else v)
-               for k, v in self.__dict__.items() if k != "sampler"}
-        out["sampler"] = self.sampler.to_dict()
-        out["seed"] = self.seed
-        return out
-
-
-@dataclass(frozen=True)
-class DiagnosisFit:
-    """One fitted model of the loop: the fit record and its residual analysis.
-
-    Attributes
-    ----------
-    label : str
-        Spec string (``"pi_play+creep"``) and likelihood (``" with likelihood ar1"``).
-    fit : FitResult
-        The fit, as :func:`~bayeshyst.inference.fit.fit_model` returns one, with its
-        cycle-wise elpd, warnings and InferenceData; the compensation and the writers
-        take it as it is.
-    analysis : ResidualAnalysis
-        Residual and every effect's test on it.
-
-    The fit's fields read through (``posterior``, ``sampling``, ``model``,
-    ``likelihood``, ``overall``, ``per_frequency``, ``pointwise_elpd``, ``warnings``,
-    ``idata``, ``elpd``, ``converged``).
-    """
-
-    label: str
-    fit: FitResult
-    analysis: ResidualAnalysis
-
-    @property
-    def model(self) -> HysteresisModel:
-        """The fitted model."""
-        return self.fit.model
-
-    @property
-    def likelihood(self) -> str:
-        """The likelihood's name."""
-        return self.fit.likelihood
-
-    @property
-    def posterior(self) -> Posterior:
-        """The fitted posterior."""
-        return self.fit.posterior
-
-    @property
-    def sampling(self) -> SamplingResult:
-        """Its samples."""
-        return self.fit.sampling
-
-    @property
-    def overall(self) -> TrackingError:
-        """Tracking error of the posterior-mean prediction over all scored samples."""
-        return self.fit.overall
-
-    @property
-    def per_frequency(self) -> list[TrackingError]:
-        """The same per excitation frequency."""
-        return self.fit.per_frequency
-
-    @property
-    def pointwise_elpd(self) -> np.ndarray | None:
-        """Cycle-wise PSIS-LOO elpd (exact where refitted), shape (n_cycles,).
-
-        A diagnosis always scores its fits.
-        """
-        return self.fit.pointwise_elpd
-
-    @property
-    def warnings(self) -> tuple[str, ...]:
-        """What the fit noticed."""
-        return self.fit.warnings
-
-    @property
-    def idata(self) -> Any:
-        """The thinned posterior (arviz.InferenceData) behind the elpd."""
-        return self.fit.idata
-
-    @property
-    def elpd(self) -> float:
-        """Summed cycle-wise elpd."""
-        return self.fit.elpd
-
-    @property
-    def converged(self) -> bool:
-        """Whether the sampler converged."""
-        return self.fit.converged
-
-
-def _te(e: TrackingError | None) -> dict[str, Any] | None:
-    if e is None:
-        return None
-    return {"frequency_hz": e.frequency_hz, "rmse": e.rmse, "max_error": e.max_error,
-            "nrmse_percent": e.nrmse_percent, "max_error_percent": e.max_error_percent}
-
-
-@dataclass(frozen=True)
-class DiagnosisStep(TableRecord):
-    """One augmentation tried.
-
-    Attributes
-    ----------
-    index : int
-        Round of the loop (1-based).
-    effect : str
-    test : EffectTest
-        The test that proposed it, on the residual of ``model_before``.
-    model_before, model_after : str
-        Labels of the fit before and the augmented fit.
-    accepted : bool
-    reason : str
-        Plain words: why it was kept or not.
-    before, after : TrackingError
-        Overall error of the posterior-mean prediction.
-    per_frequency : tuple of (TrackingError, TrackingError)
-        Before and after at each excitation frequency.
-    delta_elpd, delta_elpd_se : float
-        Paired cycle-wise elpd difference (after − before) and its standard error.
-    added_parameters : tuple of ParamSummary
-        Posterior of the added block's (or noise model's) parameters.
-    converged : bool
-        Whether the augmented fit's sampler converged.
-    """
-
-    index: int
-    effect: str
-    test: EffectTest
-    model_before: str
-    model_after: str
-    accepted: bool
-    reason: str
-    before: TrackingError
-    after: TrackingError
-    per_frequency: tuple[tuple[TrackingError, TrackingError], ...]
-    delta_elpd: float
-    delta_elpd_se: float
-    added_parameters: tuple[ParamSummary, ...]
-    converged: bool
-
-    def to_dataframe(self) -> Any:
-        """One row: :meth:`to_dict` without the per-frequency and parameter lists."""
-        return frame([self.to_dict()], drop=("per_frequency", "added_parameters"))
-
-    def to_dict(self) -> dict[str, Any]:
-        """JSON-ready; the keys of the issue's ``steps`` entries come first."""
-        return {
-            "effect": self.effect, "statistic": self.test.statistic,
-            "statistic_value": self.test.value, "p_value": self.test.p_value,
-            "p_adjusted": self.test.p_adjusted,
-            "bayes_factor_log": self.test.log_bayes_factor,
-            "rmse_before": self.before.rmse, "rmse_after": self.after.rmse,
-            "max_error_before": self.before.max_error, "max_error_after": self.after.max_error,
-            "delta_elpd": self.delta_elpd, "delta_elpd_se": self.delta_elpd_se,
-            "accepted": self.accepted, "reason": self.reason, "round": self.index,
-            "model_before": self.model_before, "model_after": self.model_after,
-            "nrmse_percent_before": self.before.nrmse_percent,
-            "nrmse_percent_after": self.after.nrmse_percent,
-            "per_frequency": [{"frequency_hz": b.frequency_hz, "rmse_before": b.rmse,
-                               "rmse_after": a.rmse, "max_error_before": b.max_error,
-                               "max_error_after": a.max_error} for b, a in self.per_frequency],
-            "test": self.test.to_dict(),
-            "added_parameters": [{"name": p.label, "unit": p.unit, "mean": p.mean, "sd": p.sd,
-                                  "hdi_low": p.hdi_lo, "hdi_high": p.hdi_hi, "hdi_prob": p.prob}
-                                 for p in self.added_parameters],
-            "converged": self.converged,
-        }
-
-    def __str__(self) -> str:
-        verdict = "ACCEPTED" if self.accepted else "rejected"
-        lines = [f"round {self.index}: {self.effect} -> {self.model_after}: {verdict} "
-                 f"({self.reason})",
-                 f"  test: {self.test}",
-                 f"  RMSE {self.before.rmse:.4g} -> {self.after.rmse:.4g}, max "
-                 f"{self.before.max_error:.4g} -> {self.after.max_error:.4g}; "
-                 f"delta elpd {self.delta_elpd:.1f} +- {self.delta_elpd_se:.1f}"]
-        for b, a in self.per_frequency:
-            if b.frequency_hz is not None:
-                lines.append(f"  {b.frequency_hz:>8g} Hz: RMSE {b.rmse:.4g} -> {a.rmse:.4g}, "
-                             f"max {b.max_error:.4g} -> {a.max_error:.4g}")
-        lines += [f"  {p}" for p in self.added_parameters]
-        return "\n".join(lines)
-
-
-@dataclass(frozen=True)
-class DiagnosisResult(TableRecord):
-    """What the closed loop found.
-
-    Attributes
-    ----------
-    base_model, final_model : str
-        Labels (spec and likelihood).
-    effects_found : tuple of str
-        Accepted effects in the order added; empty when the base model explains the data.
-    steps : tuple of DiagnosisStep
-        Every augmentation tried (accepted or not).
-    base, final : DiagnosisFit
-    rounds : tuple of ResidualAnalysis
-        The tests of every round (the last one is the final model's).
-    settings : DiagnosisSettings
-    """
-
-    base_model: str
-    final_model: str
-    effects_found: tuple[str, ...]
-    steps: tuple[DiagnosisStep, ...]
-    base: DiagnosisFit
-    final: DiagnosisFit
-    rounds: tuple[ResidualAnalysis, ...]
-    settings: DiagnosisSettings
-    warnings: tuple[str, ...] = ()
-
-    def to_dataframe(self) -> Any:
-        """One row per step (effect tried): tests, errors before/after, held-out elpd."""
-        return frame([s.to_dict() for s in self.steps],
-                     drop=("per_frequency", "added_parameters"))
-
-    def to_dict(self) -> dict[str, Any]:
-        """The ``summary.json`` content."""
-        return {
-            "base_model": self.base_model,
-            "final_model": self.final_model,
-            "effects_found": list(self.effects_found),
-            "steps": [s.to_dict() for s in self.steps],
-            "before": _te(self.base.overall), "after": _te(self.final.overall),
-            "per_frequency": [{"frequency_hz": b.frequency_hz, "before": _te(b),
-                               "after": _te(a)}
-                              for b, a in zip(self.base.per_frequency,
-                                              self.final.per_frequency, strict=True)],
-            "rounds": [{"model": lab, "ar_order": r.ar_order,
-                        "tests": [t.to_dict() for t in r.tests]}
-                       for lab, r in zip(self._round_labels(), self.rounds, strict=True)],
-            "cycles": [{"record": c.record, "cycle": c.cycle, "frequency_hz": c.frequency_hz,
-                        "rms_before": c.rms, "max_before": c.max_abs,
-                        "rms_after": d.rms, "max_after": d.max_abs}
-                       for c, d in zip(self.base.analysis.cycles, self.final.analysis.cycles,
-                                       strict=True)],
-            "converged": bool(self.base.sampling.converged and self.final.sampling.converged),
-            "warnings": list(self.warnings),
-            "settings": self.settings.to_dict(),
-        }
-
-    def _round_labels(self) -> list[str]:
-        labels = [self.base_model]
-        labels += [s.model_after for s in self.steps if s.accepted]
-        return labels[:len(self.rounds)]
-
-    def __str__(self) -> str:
-        found = ", ".join(self.effects_found) or "none (the base model explains the data)"
-        lines = [f"diagnosis of {self.base_model}: effects found: {found}",
-                 f"final model: {self.final_model}",
-                 f"error before: {self.base.overall}", f"error after:  {self.final.overall}"]
-        for lab, r in zip(self._round_labels(), self.rounds, strict=True):
-            lines += [f"-- tests on the residual of {lab} (AR({r.ar_order}) whitening)", str(r)]
-        lines += [str(s) for s in self.steps]
-        lines += [f"warning: {w}" for w in self.warnings]
-        return "\n".join(lines)
 
 
 # --------------------------------------------------------------------------- the loop
@@ -385,8 +136,9 @@ def _warm_start(post: Posterior, previous: DiagnosisFit, added: dict[str, Any],
 
 def _fit(data: Dataset, model: HysteresisModel, likelihood: str, label: str,
          st: DiagnosisSettings, checkpoint_dir: Path | None,
-         warm: tuple[DiagnosisFit, dict[str, Any]] | None = None) -> DiagnosisFit:
-    post = Posterior(data, model, likelihood)
+         warm: tuple[DiagnosisFit, dict[str, Any]] | None = None,
+         discrepancy: str | None = None) -> DiagnosisFit:
+    post = Posterior(data, model, likelihood, discrepancy=discrepancy)
     # the seed, checkpoint and walkers follow from what is fitted: the base fit of a report
     # is the comparison's joint fit (same posterior, same settings, same checkpoint folder)
     sampler = fit_sampler(post, st.sampler, st.seed, checkpoint_dir)
@@ -409,24 +161,13 @@ def _fit(data: Dataset, model: HysteresisModel, likelihood: str, label: str,
         notes.append(f"{label}: {res.counts.failed} simulations failed during sampling "
                      f"(log-probability -inf)")
     analysis = analyse_residual(post, res, draws, effects=st.effects, alpha=st.alpha,
-                                max_ar_order=st.max_ar_order)
+                                max_ar_order=st.max_ar_order,
+                                n_permutations=st.n_permutations, seed=seed)
     overall, per = errors_by_frequency(data, analysis.mean_prediction)
     fit = FitResult(post, res, overall, list(per), list(analysis.mean_prediction),
                     pointwise_elpd=scores.pointwise, warnings=tuple(notes), idata=scores.idata,
                     budget=tuple(uncertainty_budget(post, draws)))
     return DiagnosisFit(label, fit, analysis)
-
-
-def _added(fit: DiagnosisFit, before: DiagnosisFit) -> tuple[ParamSummary, ...]:
-    """Posterior summaries of the parameters the augmentation added.
-
-    A composite carries the previous model's parameters under ``static.``.
-    """
-    def base(name: str) -> str:
-        return name.removeprefix("static.")
-
-    old = {base(n) for n in before.posterior.space.names}
-    return tuple(p for p in fit.sampling.summary() if base(p.label.split("[")[0]) not in old)
 
 
 def _check_settings(st: DiagnosisSettings) -> None:
@@ -455,6 +196,8 @@ def diagnose(
     sampler: SamplerSettings | None = None,
     n_draws: int = 200,
     max_refits: int = 5,
+    n_permutations: int = 999,
+    plausible: Mapping[str, tuple[float, float, str]] | None = None,
     checkpoint_dir: str | Path | None = None,
     on_fit: Callable[[DiagnosisFit], None] | None = None,
 ) -> DiagnosisResult:
@@ -489,6 +232,13 @@ def diagnose(
     max_refits : int
         Cycles per fit whose PSIS-LOO is unreliable (Pareto k > 0.7) that are refitted
         exactly, worst first (each refit costs a fit).
+    n_permutations : int
+        Sign patterns calibrating the driver scan on every residual
+        (:func:`~bayeshyst.diagnosis.drivers.scan_drivers`); 0 skips the scan.
+    plausible : mapping, optional
+        ``parameter -> (low, high, why)``: posterior means of an added block outside
+        these ranges make the step a warning, not a finding (default
+        :data:`~bayeshyst.diagnosis.verdict.PLAUSIBLE`).
     checkpoint_dir : path, optional
         Each fit checkpoints here (``<identity>.h5``); a rerun resumes finished fits,
         and a fit another command made with the same data and settings into the same
@@ -509,7 +259,8 @@ def diagnose(
         threshold=float(threshold), max_rounds=int(max_rounds),
         max_candidates=int(max_candidates),
         sampler=SamplerSettings() if sampler is None else sampler, n_draws=int(n_draws),
-        max_refits=int(max_refits))
+        max_refits=int(max_refits), n_permutations=int(n_permutations),
+        plausible=PLAUSIBLE if plausible is None else MappingProxyType(dict(plausible)))
     _check_settings(st)
     base_label = model if isinstance(model, str) else model.name
     base_model = get_model(model) if isinstance(model, str) else model
@@ -519,50 +270,70 @@ def diagnose(
         ckdir.mkdir(parents=True, exist_ok=True)
 
     def fit(m: HysteresisModel, lik: str, label: str,
-            warm: tuple[DiagnosisFit, dict[str, Any]] | None = None) -> DiagnosisFit:
-        f = _fit(data, m, lik, label, st, ckdir, warm)
+            warm: tuple[DiagnosisFit, dict[str, Any]] | None = None,
+            disc: str | None = None) -> DiagnosisFit:
+        f = _fit(data, m, lik, label, st, ckdir, warm, disc)
         if on_fit is not None:
             on_fit(f)
         return f
 
-    def lab(spec: str, lik: str) -> str:
-        return spec if lik == "gaussian" else f"{spec} with likelihood {lik}"
+    def lab(spec: str, lik: str, disc: str | None) -> str:
+        out = spec if lik == "gaussian" else f"{spec} with likelihood {lik}"
+        return out + (f" with discrepancy {disc}" if disc else "")
 
-    current = fit(base_model, likelihood, lab(base_label, likelihood))
-    base, spec = current, base_label
+    current = fit(base_model, likelihood, lab(base_label, likelihood, None))
+    base, spec, disc = current, base_label, None
     rounds, steps, found = [current.analysis], [], []
     warnings = list(current.warnings)
     for rnd in range(1, st.max_rounds + 1):
-        fired = current.analysis.fired()
-        if not fired:
+        candidates = list(current.analysis.fired())
+        shape = shape_candidate(current, st.alpha)
+        if shape is not None and disc is None:
+            # residual structure in where-on-the-loop is the model's own shape: it is tried
+            # before any time-domain effect (creep, a lag, a delay, drift) is credited
+            timed = [i for i, t in enumerate(candidates) if t.effect in TIME_DOMAIN]
+            candidates.insert(timed[0] if timed else len(candidates), shape)
+        line = line_candidate(current, st.alpha)
+        if line is not None:
+            # a line is structure, which an AR(1) noise model would only blur: it goes
+            # before coloured noise
+            noise = [i for i, t in enumerate(candidates) if t.effect == ColoredNoise.name]
+            candidates.insert(noise[0] if noise else len(candidates), line)
+        if not candidates:
             break
         accepted = None
-        for test in fired[:st.max_candidates]:
-            eff = get_effect(test.effect)
-            new_model, new_lik, suffix = eff.augment(current.model, current.likelihood,
-                                                     test.coef, data)
-            new_spec = spec if suffix.startswith(" ") else spec + suffix
-            cand = fit(new_model, new_lik, lab(new_spec, new_lik),
-                       (current, eff.initial(test.coef, test.estimates)))
+        for test in candidates[:st.max_candidates]:
+            if test.effect == BRANCH_SHAPE:
+                new_model, new_lik, new_spec, new_disc = (current.model, current.likelihood,
+                                                          spec, SHAPE_DISCREPANCY)
+                warm = None
+            elif test.effect == DISTURBANCE:
+                blk = Disturbance(frequency_hz=float(test.variant))
+                new_model, new_lik, new_disc = (Composite(current.model, (blk,)),
+                                                current.likelihood, disc)
+                new_spec = f"{spec}+disturbance(frequency_hz={blk.frequency_hz!r})"
+                warm = (current, {})
+            else:
+                eff = get_effect(test.effect)
+                new_model, new_lik, suffix = eff.augment(current.model, current.likelihood,
+                                                         test.coef, data, variant=test.variant)
+                new_spec = spec if suffix.startswith(" ") else spec + suffix
+                new_disc = disc
+                warm = (current, eff.initial(test.coef, test.estimates))
+            cand = fit(new_model, new_lik, lab(new_spec, new_lik, new_disc), warm, new_disc)
             warnings += [w for w in cand.warnings if w not in warnings]
-            d, se = paired_difference(cand.pointwise_elpd, current.pointwise_elpd)
-            ok = bool(math.isfinite(d) and math.isfinite(se) and d > st.threshold * se
-                      and d > 0)
-            reason = (f"held-out elpd improves by {d:.1f} > {st.threshold:g} x se {se:.1f}"
-                      if ok else f"held-out elpd changes by {d:.1f} (se {se:.1f}), not above "
-                      f"{st.threshold:g} x se")
+            step = judge(rnd, test, current, cand, st)
+            if not step.accepted and step.reason.startswith("implausible"):
+                warnings.append(f"{test.effect}: {step.reason}")
             _log.info("round %d: %s %s (%s)", rnd, test.effect,
-                      "accepted" if ok else "rejected", reason)
-            per = tuple(zip(current.per_frequency, cand.per_frequency, strict=True))
-            steps.append(DiagnosisStep(rnd, test.effect, test, current.label, cand.label, ok,
-                                       reason, current.overall, cand.overall, per, d, se,
-                                       _added(cand, current), cand.sampling.converged))
-            if ok:
-                accepted = (cand, new_spec)
+                      "accepted" if step.accepted else "rejected", step.reason)
+            steps.append(step)
+            if step.accepted:
+                accepted = (cand, new_spec, new_disc)
                 break
         if accepted is None:
             break
-        current, spec = accepted
+        current, spec, disc = accepted
         found.append(steps[-1].effect)
         rounds.append(current.analysis)
     return DiagnosisResult(base.label, current.label, tuple(found), tuple(steps), base,

@@ -31,14 +31,15 @@ import numpy as np
 from scipy import stats
 
 from bayeshyst.data.record import Dataset
+from bayeshyst.diagnosis.catalogue import EFFECTS
+from bayeshyst.diagnosis.drivers import DriverScan, scan_drivers
 from bayeshyst.diagnosis.effects import (
-    EFFECTS,
     ColoredNoise,
     DelayEffect,
-    Effect,
     RateDependence,
     RecordSignals,
 )
+from bayeshyst.diagnosis.spectrum import SpectralLine, spectral_lines
 from bayeshyst.diagnosis.stats import (
     FTest,
     f_test,
@@ -54,6 +55,9 @@ from bayeshyst.inference.sampling import SamplingResult
 from bayeshyst.tables import TableRecord, frame
 
 __all__ = ["CycleResidual", "EffectTest", "ResidualAnalysis", "analyse_residual", "best_point"]
+
+#: Shares of the family-wise level for the score tests, the driver scan, the lines.
+LEVEL_SHARES = (0.5, 0.25, 0.25)
 
 #: points kept per evidence plot (evenly thinned)
 _EVIDENCE_POINTS = 4000
@@ -95,6 +99,11 @@ class EffectTest(TableRecord):
         Why the effect was not tested (already in the model); the numbers are NaN.
     ar_order : int
         Order of the AR error model the columns were whitened with.
+    variant : str
+        The variant the test chose, for effects with several (the column of ``aux``,
+        the change time of ``change_point``); empty otherwise.
+    n_variants : int
+        How many variants were tested (the p-value and Bayes factor pay for them).
     evidence : dict
         Arrays for the evidence plot: ``x`` (explaining variable), ``partial_residual``
         (residual minus what the fit's own directions explain), ``component`` (the
@@ -117,6 +126,8 @@ class EffectTest(TableRecord):
     significant: bool
     skipped: str | None = None
     ar_order: int = 0
+    variant: str = ""
+    n_variants: int = 1
     coef: np.ndarray = field(default_factory=lambda: np.zeros(0), repr=False)
     cov: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)), repr=False)
     evidence: dict[str, Any] = field(default_factory=dict, repr=False)
@@ -135,7 +146,7 @@ class EffectTest(TableRecord):
             "explained_percent": self.explained_percent,
             "per_frequency_rms": dict(self.per_frequency_rms), "estimates": dict(self.estimates),
             "significant": self.significant, "skipped": self.skipped,
-            "ar_order": self.ar_order,
+            "ar_order": self.ar_order, "variant": self.variant, "n_variants": self.n_variants,
         }
 
     def __str__(self) -> str:
@@ -143,6 +154,8 @@ class EffectTest(TableRecord):
             return f"{self.effect:>16}: not tested ({self.skipped})"
         flag = "FIRES" if self.significant else "     "
         est = ", ".join(f"{k} {v:.3g}" for k, v in self.estimates.items())
+        if self.variant:
+            est = f"{self.variant!r} best of {self.n_variants}" + (f", {est}" if est else "")
         return (f"{self.effect:>16}: {flag} {self.statistic} = {self.value:.3g} "
                 f"({self.df1}, {self.df2}), p = {self.p_value:.2g} (Holm {self.p_adjusted:.2g}),"
                 f" log BF {self.log_bayes_factor:.1f}, explains {self.explained_percent:.3f} %"
@@ -167,7 +180,7 @@ class ResidualAnalysis:
     Attributes
     ----------
     tests : tuple of EffectTest
-        In :data:`~bayeshyst.diagnosis.effects.EFFECTS` order.
+        In :data:`~bayeshyst.diagnosis.catalogue.EFFECTS` order.
     residual : list of ndarray
         Per record, on its scored samples (output unit).
     time : list of ndarray
@@ -178,7 +191,12 @@ class ResidualAnalysis:
     ar_order : int
         Order of the AR error model used for whitening.
     alpha : float
-        Family-wise level of the tests.
+        Family-wise level of the score tests (their share of the diagnosis' level).
+    drivers : DriverScan or None
+        What the residual still depends on among everything observed
+        (:func:`~bayeshyst.diagnosis.drivers.scan_drivers`), None if not scanned.
+    lines : tuple of SpectralLine
+        Lines in the residual's spectrum away from the excitation's harmonics.
     """
 
     tests: tuple[EffectTest, ...]
@@ -188,6 +206,21 @@ class ResidualAnalysis:
     mean_prediction: list[np.ndarray]
     ar_order: int
     alpha: float
+    drivers: DriverScan | None = None
+    lines: tuple[SpectralLine, ...] = ()
+
+    @property
+    def structure_left(self) -> bool:
+        """Whether anything observed still explains the residual (a driver or a line)."""
+        return bool(self.lines) or bool(self.drivers is not None and self.drivers.found)
+
+    def remaining(self) -> str:
+        """What is left in the residual, in words."""
+        if self.drivers is None:
+            return "not scanned"
+        parts = [self.drivers.summary()] if self.drivers.found or not self.lines else []
+        parts += [str(x) for x in self.lines]
+        return "; ".join(parts)
 
     def fired(self) -> list[EffectTest]:
         """Significant tests, most supported first.
@@ -221,7 +254,11 @@ class ResidualAnalysis:
         raise KeyError(effect)
 
     def __str__(self) -> str:
-        return "\n".join(str(t) for t in self.tests)
+        lines = [str(t) for t in self.tests]
+        if self.drivers is not None:
+            lines.append(str(self.drivers))
+        lines += [str(x) for x in self.lines]
+        return "\n".join(lines)
 
 
 def _z_crit(alpha: float) -> float:
@@ -311,6 +348,8 @@ def analyse_residual(
     effects: Sequence[str] | None = None,
     alpha: float = 0.01,
     max_ar_order: int = 10,
+    n_permutations: int = 999,
+    seed: int = 0,
 ) -> ResidualAnalysis:
     """Residual of the posterior-mean prediction and the score test of every effect.
 
@@ -323,14 +362,26 @@ def analyse_residual(
     draws : ndarray, shape (S, ndim)
         Posterior draws averaged for the mean prediction.
     effects : sequence of str, optional
-        Candidate effects (default: all of :data:`~bayeshyst.diagnosis.effects.EFFECTS`).
+        Candidate effects (default: all of :data:`~bayeshyst.diagnosis.catalogue.EFFECTS`).
     alpha : float
-        Family-wise significance level (Holm) over the effects tested.
+        Family-wise significance level of everything tested on this residual, shared
+        (:data:`LEVEL_SHARES`) between the effects' score tests (Holm), the driver scan
+        and the spectral lines.
     max_ar_order : int
         Largest AR order of the error model used for whitening.
+    n_permutations : int
+        Sign patterns of the driver scan's randomisation test; 0 skips the scan and the
+        spectral lines.
+    seed : int
+        Seed of the driver scan's sign patterns.
     """
     names = list(EFFECTS) if effects is None else list(effects)
     data = post.data
+    # the family-wise level is shared (Bonferroni over the three families): half for the
+    # catalogue's score tests (Holm within), a quarter each for the driver scan and the
+    # spectral lines, so that clean data raise nothing at rate alpha, not 3 alpha
+    level = float(alpha)
+    alpha = LEVEL_SHARES[0] * level
     sigs, means = _signals(post, draws)
     jac = _jacobian(post, best_point(res))
     resid, times, segs, js, freqs = [], [], [], [], []
@@ -351,7 +402,7 @@ def analyse_residual(
     ptp = float(np.ptp(np.concatenate([np.asarray(rec.y[s.s0:], float)
                                         for rec, s in zip(data, sigs, strict=True)]))) or math.nan
     lik = post.likelihood.name
-    structural: dict[str, tuple[Effect, np.ndarray, np.ndarray]] = {}
+    structural: dict[str, list[tuple[str, np.ndarray, np.ndarray]]] = {}
     skipped: dict[str, str] = {}
     for name in names:
         eff = EFFECTS[name]
@@ -359,27 +410,50 @@ def analyse_residual(
         if why:
             skipped[name] = why
         elif name != ColoredNoise.name:
-            x = np.concatenate([eff.regressors(s, data)[s.s0:] for s in sigs])
-            ax = np.concatenate([eff.evidence_axis(s)[s.s0:] for s in sigs])
-            if not np.all(np.isfinite(x)):
+            variants = eff.variants(sigs, data, post.model)
+            if not variants:
+                skipped[name] = "nothing to test on these data (no extra column)"
+                continue
+            if not all(np.all(np.isfinite(x)) for _, x, _ in variants):
                 raise RuntimeError(f"{name}: non-finite score regressors")
-            structural[name] = (eff, x, ax)
+            structural[name] = variants
 
-    # one error model for all tests: AR(p) of the widest regression's residual
-    wide = np.column_stack([z_all, *[x for _, x, _ in structural.values()]])
+    # one error model for all tests: AR(p) of the widest regression's residual, with one
+    # variant of each effect that has several (the best by an unwhitened F test): all 24
+    # change times at once would absorb structure the AR model must see
+    wide_cols = []
+    for variants in structural.values():
+        if len(variants) == 1:
+            wide_cols.append(variants[0][1])
+        else:
+            raw_f = [f_test(r_all, z_all, x).statistic for _, x, _ in variants]
+            wide_cols.append(variants[int(np.argmax(raw_f))][1])
+    wide = np.column_stack([z_all, *wide_cols])
     e_wide = r_all - wide @ np.linalg.lstsq(wide, r_all, rcond=None)[0]
     ar = fit_ar(e_wide, segs, max_order=max_ar_order)
     rw, zw = whiten(r_all, segs, ar.phi), whiten(z_all, segs, ar.phi)
 
     qz = orthonormal_basis(z_all)
-    raw: dict[str, tuple[FTest, np.ndarray]] = {}
-    for name, (_, x, _) in structural.items():
-        t = f_test(rw, zw, whiten(x, segs, ar.phi))
+    raw: dict[str, tuple[FTest, np.ndarray, int, str, np.ndarray]] = {}
+    for name, variants in structural.items():
+        tests_v = [f_test(rw, zw, whiten(x, segs, ar.phi)) for _, x, _ in variants]
+        best = int(np.argmax([t.statistic for t in tests_v]))
+        t = tests_v[best]
+        k = len(variants)
+        if k > 1:
+            # a search over k variants pays for itself: Bonferroni on the p-value, and
+            # the Bayes factor averaged over a uniform prior on the variants
+            lbf = np.array([v.log_bayes_factor for v in tests_v])
+            mean_lbf = float(np.max(lbf) + np.log(np.mean(np.exp(lbf - np.max(lbf)))))
+            t = FTest(t.statistic, t.df1, t.df2, min(1.0, k * t.p_value), mean_lbf,
+                      t.partial_r2, t.coef, t.n, t.cov)
+        label, x, ax = variants[best]
         # the effect's contribution beyond what the fit's own directions can absorb
-        raw[name] = (t, project_out(qz, x @ t.coef))
+        raw[name] = (t, project_out(qz, x @ t.coef), k, label, ax)
     lag = None
     if ColoredNoise.name in names and ColoredNoise.name not in skipped:
-        nominal = [x for n, (_, x, _) in structural.items() if raw[n][0].p_value < alpha]
+        nominal = [structural[n][[v[0] for v in structural[n]].index(raw[n][3])][1]
+                   for n in structural if raw[n][0].p_value < alpha]
         zc = np.column_stack([z_all, *nominal]) if nominal else z_all
         e0 = r_all - zc @ np.linalg.lstsq(zc, r_all, rcond=None)[0]
         lag = (*lag_test(e0, zc, segs), e0)
@@ -397,6 +471,7 @@ def analyse_residual(
             continue
         if name == ColoredNoise.name:
             t, rho, e0 = lag
+            n_var, variant = 1, ""
             comp = t.coef[0] * np.concatenate([np.r_[0.0, e0[a:b - 1]] for a, b in segs])
             keep = _thin(r_all.size)
             prev = np.concatenate([np.r_[nan, e0[a:b - 1]] for a, b in segs])
@@ -405,14 +480,13 @@ def analyse_residual(
             est = eff.interpret(np.array([rho]), np.zeros((1, 1)), data)
             stat, order = "Breusch-Godfrey F", 0
         else:
-            t, comp = raw[name]
-            _, x, ax = structural[name]
+            t, comp, n_var, variant, ax = raw[name]
             # the residual beyond the fit's own directions, against which comp is drawn
             partial = project_out(qz, r_all)
             keep = _thin(r_all.size)
             evidence = {"x": ax[keep], "partial_residual": partial[keep],
                         "component": comp[keep], "x_label": eff.evidence_label}
-            est = eff.interpret(t.coef, t.cov, data)
+            est = eff.interpret_variant(variant, t.coef, t.cov, data)
             stat, order = "F", ar.order
         per_f = {}
         for f in np.unique(freq_all[np.isfinite(freq_all)]):
@@ -423,7 +497,12 @@ def analyse_residual(
         tests.append(EffectTest(
             name, stat, t.statistic, t.df1, t.df2, t.p_value, float(adj[name]),
             t.log_bayes_factor, t.partial_r2, rms, 100.0 * rms / ptp, per_f, est,
-            bool(adj[name] < alpha), ar_order=order, coef=t.coef, cov=t.cov,
-            evidence=evidence))
+            bool(adj[name] < alpha), ar_order=order, variant=variant, n_variants=n_var,
+            coef=t.coef, cov=t.cov, evidence=evidence))
+    scan, lines = None, ()
+    if n_permutations > 0:
+        scan = scan_drivers(data, resid, [s.w for s in sigs], alpha=LEVEL_SHARES[1] * level,
+                            n_permutations=n_permutations, seed=seed)
+        lines = spectral_lines(data, resid, alpha=LEVEL_SHARES[2] * level)
     return ResidualAnalysis(tuple(tests), resid, times, _cycles(data, resid), means, ar.order,
-                            float(alpha))
+                            float(alpha), scan, lines)

@@ -285,9 +285,10 @@ def _diagnosis_html(summary: dict[str, Any] | None, out: Path,
             f"{summary['final_model']}. RMSE {b['rmse']:.4g} → {a['rmse']:.4g} {unit}; max "
             f"error {b['max_error']:.4g} → {a['max_error']:.4g} {unit}."))
     else:
-        parts.append(H.paragraph(f"No effect was added: {summary['base_model']} leaves no "
-                                 "structure the candidate effects explain (or none improved "
-                                 f"held-out elpd). RMSE {b['rmse']:.4g} {unit}."))
+        parts.append(H.paragraph(f"No effect was added. RMSE {b['rmse']:.4g} {unit}."))
+    if summary.get("verdict"):
+        parts.append(H.paragraph(f"Verdict: {summary['verdict']}."))
+    parts += _remaining_html(summary.get("remaining"))
     rows = [[s["round"], s["effect"], s.get("bayes_factor_log"), s.get("p_adjusted"),
              s.get("delta_elpd"), s.get("delta_elpd_se"), s.get("rmse_before"),
              s.get("rmse_after"), H.badge(s["accepted"], "kept", "rejected"),
@@ -315,6 +316,37 @@ def _diagnosis_html(summary: dict[str, Any] | None, out: Path,
         parts.append(H.figure(out / "diagnose" / name,
                               f"Evidence behind the test of {name[9:-4].replace('_', ' ')}."))
     return H.join(parts)
+
+
+def _remaining_html(remaining: dict[str, Any] | None) -> list[H.Markup]:
+    """What the final residual still depends on: the driver scan's table and the lines."""
+    if not remaining or remaining.get("drivers") is None:
+        return []
+    scan = remaining["drivers"]
+    rows = [[d["driver"], d["gain_percent"], d["conditional_percent"], d["p_value"],
+             H.badge(d["selected"], "relevant", "—"), ", ".join(d["tied_with"]),
+             d["reading"]] for d in scan["drivers"][:8]]
+    parts = [H.paragraph(
+        "What the final residual still depends on, among everything the data record "
+        "(every extra column of the file, the loop position, rates, times since reversals, "
+        "time, frequency): held-out share of its variance each driver explains, with a "
+        "threshold calibrated by randomly flipping the sign of whole cycles "
+        f"({scan['n_permutations']} patterns, family-wise level {scan['alpha']:g}). "
+        f"{scan['summary'].capitalize()}."),
+        H.table(["driver", "held-out gain alone [%]", "given kept [%]", "p", "decision",
+                 "tied with", "what it would mean"], rows,
+                numeric=[False, True, True, True, False, False, False],
+                caption="Open-world driver scan of the final residual")]
+    lines = remaining.get("lines") or []
+    if lines:
+        parts.append(H.table(
+            ["record", "frequency [Hz]", "amplitude", "share of residual variance [%]", "p"],
+            [[x["record"], x["frequency_hz"], x["amplitude"], x["share_percent"],
+              x["p_value"]] for x in lines],
+            numeric=[False, True, True, True, True],
+            caption="Lines in the final residual's spectrum that are no harmonic of the "
+                    "excitation"))
+    return parts
 
 
 # ---------------------------------------------------------------------- uncertainty

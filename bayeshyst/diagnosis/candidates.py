@@ -1,0 +1,140 @@
+"""The candidates beyond the catalogue and the gate every candidate passes or fails.
+
+The base model's own branch shape (when the driver scan keeps the loop position) and a
+periodic disturbance (a spectral line) join the fired effects as candidates;
+:func:`judge` keeps an augmented fit or not (held-out elpd, or its documented fallback,
+plausibility, ties; :mod:`bayeshyst.diagnosis.verdict`).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from bayeshyst.diagnosis.records import DiagnosisFit, DiagnosisSettings, DiagnosisStep
+from bayeshyst.diagnosis.residual import EffectTest
+from bayeshyst.diagnosis.verdict import (
+    FALLBACK_LOG_BF,
+    LAG_LIKE,
+    MIN_GATE_UNITS,
+    experiment_for,
+    implausible,
+    shape_tied,
+    tied_effects,
+)
+from bayeshyst.inference.sampling import ParamSummary
+from bayeshyst.selection import paired_difference
+
+__all__ = ["BRANCH_SHAPE", "DISTURBANCE", "SHAPE_DISCREPANCY", "added_parameters", "judge",
+           "line_candidate", "shape_candidate"]
+
+
+#: Name of the base model's own misfit among the loop's candidates.
+BRANCH_SHAPE = "branch shape"
+#: The discrepancy that stands for it: a smooth function of where on the loop a sample is.
+SHAPE_DISCREPANCY = "hsgp"
+
+
+def shape_candidate(current: DiagnosisFit, alpha: float) -> EffectTest | None:
+    """The base model's branch-shape misfit as a candidate, when the driver scan finds it.
+
+    Returned as an :class:`EffectTest` named :data:`BRANCH_SHAPE` carrying the scan's
+    numbers (held-out gain, randomisation p-value); None when the loop position is not
+    among the drivers the scan kept.
+    """
+    scan = current.analysis.drivers
+    if scan is None or not scan.found:
+        return None
+    for d in scan.selected:
+        if d.driver == "loop position":
+            nan = math.nan
+            return EffectTest(BRANCH_SHAPE, "held-out gain (%)", d.conditional_percent, 0, 0,
+                              d.p_value, d.p_value, nan, d.conditional_percent / 100.0, nan,
+                              nan, {}, {"heldout_gain_percent": d.conditional_percent},
+                              bool(d.p_value < alpha))
+    return None
+
+
+#: Name of a periodic disturbance (a spectral line) among the loop's candidates.
+DISTURBANCE = "disturbance"
+
+
+def line_candidate(current: DiagnosisFit, alpha: float) -> EffectTest | None:
+    """The strongest spectral line of the residual as a candidate (None without one).
+
+    Lines within a frequency bin of a disturbance the model already has are skipped.
+    """
+    model = current.model
+    have = [b.frequency_hz for b in getattr(model, "blocks", ()) if b.name == DISTURBANCE]
+    for line in current.analysis.lines:
+        tol = 1.0 / max(float(np.ptp(current.analysis.time[0])), 1e-12)
+        if any(abs(line.frequency_hz - f) <= tol for f in have):
+            continue
+        nan = math.nan
+        return EffectTest(DISTURBANCE, "spectral line", line.share_percent, 0, 0,
+                          line.p_value, line.p_value, nan, line.share_percent / 100.0,
+                          line.amplitude / math.sqrt(2.0), nan, {},
+                          {"frequency_hz": line.frequency_hz, "amplitude": line.amplitude},
+                          bool(line.p_value < alpha), variant=f"{line.frequency_hz:.6g}")
+    return None
+
+
+def judge(rnd: int, test: EffectTest, current: DiagnosisFit, cand: DiagnosisFit,
+           st: DiagnosisSettings) -> DiagnosisStep:
+    """Keep the augmented fit or not: held-out elpd, or the fallback when it cannot decide."""
+    d, se = paired_difference(cand.pointwise_elpd, current.pointwise_elpd)
+    n_units = current.posterior.n_units
+    better = cand.overall.rmse < current.overall.rmse
+    if n_units >= MIN_GATE_UNITS and math.isfinite(d) and math.isfinite(se):
+        decided_by = "elpd"
+        ok = bool(d > st.threshold * se and d > 0)
+        reason = (f"held-out elpd improves by {d:.1f} > {st.threshold:g} x se {se:.1f}" if ok
+                  else f"held-out elpd changes by {d:.1f} (se {se:.1f}), not above "
+                  f"{st.threshold:g} x se")
+    else:
+        cannot = (f"held-out elpd cannot decide on these data ({n_units} cycles, fewer than "
+                  f"{MIN_GATE_UNITS}; change {d:.3g}, se {se:.3g})")
+        if test.effect in (BRANCH_SHAPE, DISTURBANCE):
+            decided_by = "residual scan"
+            ok = bool(test.p_value < st.alpha and better)
+            reason = (f"{cannot}; the residual scan's calibrated test ({test.statistic}, "
+                      f"p = {test.p_value:.3g}) and the error "
+                      f"({current.overall.rmse:.4g} -> {cand.overall.rmse:.4g}) decide")
+        else:
+            decided_by = "bic"
+            lbf = test.log_bayes_factor
+            ok = bool(math.isfinite(lbf) and lbf > FALLBACK_LOG_BF and better)
+            reason = (f"{cannot}; the score test's BIC Bayes factor decides: log BF "
+                      f"{lbf:.1f} {'>' if lbf > FALLBACK_LOG_BF else '<='} {FALLBACK_LOG_BF:g}"
+                      f" and the error {current.overall.rmse:.4g} -> {cand.overall.rmse:.4g}")
+    added = added_parameters(cand, current)
+    if ok:
+        means: dict[str, list[float]] = {}
+        for p in added:
+            means.setdefault(p.label.split("[")[0], []).append(p.mean)
+        bad = implausible(means, st.plausible)
+        if bad:
+            ok, reason = False, "implausible for a piezo stage: " + "; ".join(bad)
+    tied: list[str] = []
+    if ok and test.effect not in (BRANCH_SHAPE, DISTURBANCE):
+        tied = tied_effects(test.effect, current.analysis.tests)
+        if test.effect in LAG_LIKE and shape_tied(current.analysis.drivers):
+            tied.append(BRANCH_SHAPE)
+    per = tuple(zip(current.per_frequency, cand.per_frequency, strict=True))
+    return DiagnosisStep(rnd, test.effect, test, current.label, cand.label, ok, reason,
+                         current.overall, cand.overall, per, d, se, added,
+                         cand.sampling.converged, tuple(tied),
+                         experiment_for(test.effect, tied[0]) if tied else "", decided_by)
+
+
+def added_parameters(fit: DiagnosisFit, before: DiagnosisFit) -> tuple[ParamSummary, ...]:
+    """Posterior summaries of the parameters the augmentation added.
+
+    A composite carries the previous model's parameters under ``static.``.
+    """
+    def base(name: str) -> str:
+        return name.removeprefix("static.")
+
+    old = {base(n) for n in before.posterior.space.names}
+    return tuple(p for p in fit.sampling.summary() if base(p.label.split("[")[0]) not in old)

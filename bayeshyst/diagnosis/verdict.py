@@ -1,0 +1,123 @@
+"""Honest verdicts of the closed loop: ties, plausibility, undecidable gates, what is left.
+
+* **Ties.** Two effects whose score tests' Bayes factors lie within
+  :data:`TIE_NATS` of each other explain the same residual within the evidence's
+  resolution (3 nats: a Bayes factor of 20, Kass & Raftery 1995's "strong" boundary).
+  Under one sine, creep, a first-order lag and a delay are the same phase lag; a
+  branch-shape error of the hysteresis model is another copy of it (the driver scan
+  says so when the loop position and the time since a reversal tie). The report says
+  "cannot tell A from B on these data" and names the experiment that would.
+* **Plausibility.** An accepted effect whose physical reading is outside the range a
+  piezo stage can have (:data:`PLAUSIBLE`, overridable) is a warning, not a finding.
+* **Gates that cannot decide.** The held-out elpd gate compares cycles; with fewer
+  than :data:`MIN_GATE_UNITS` its standard error says nothing, so the loop falls back
+  to the score test's BIC Bayes factor against :data:`FALLBACK_LOG_BF` ("very strong")
+  and says so.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable, Mapping, Sequence
+from types import MappingProxyType
+from typing import Any
+
+from bayeshyst.diagnosis.drivers import DriverScan
+
+__all__ = [
+    "FALLBACK_LOG_BF",
+    "LAG_LIKE",
+    "MIN_GATE_UNITS",
+    "PLAUSIBLE",
+    "TIE_NATS",
+    "TIME_DOMAIN",
+    "experiment_for",
+    "implausible",
+    "shape_tied",
+    "tied_effects",
+]
+
+#: Bayes factors closer than this (nats) do not tell two effects apart.
+TIE_NATS = 3.0
+#: Fewest held-out cycles with which the elpd gate's standard error means anything.
+MIN_GATE_UNITS = 8
+#: Log Bayes factor the score test must reach when the elpd gate cannot decide
+#: (Kass & Raftery 1995: above 5 is "very strong").
+FALLBACK_LOG_BF = 5.0
+
+#: Effects that act as a phase lag under one periodic excitation.
+LAG_LIKE = ("creep", "delay", "rate_dependence")
+#: Effects credited with structure in time rather than in where on the loop.
+TIME_DOMAIN = (*LAG_LIKE, "drift", "change_point")
+
+#: Plausible posterior means of an added block's parameters on a piezo stage:
+#: ``parameter -> (low, high, why)``. A delay beyond 2 ms is not a piezo amplifier
+#: and sensor chain (tens of microseconds to a millisecond); a resonance below 10 Hz
+#: is not a stage's; creep gains beyond 50 % of the output are not creep.
+PLAUSIBLE: Mapping[str, tuple[float, float, str]] = MappingProxyType({
+    "delay.d": (0.0, 2e-3, "a piezo amplifier and sensor chain delays by at most ~2 ms"),
+    "second_order.f_n": (10.0, 1e6, "a piezo stage resonates between 10 Hz and 1 MHz"),
+    "creep.c": (-0.5, 0.5, "creep moves the output by less than half its static value"),
+})
+
+
+def experiment_for(a: str, b: str) -> str:
+    """The experiment that separates effects (or drivers) ``a`` and ``b``."""
+    pair = {a, b}
+    if "creep" in pair or "branch shape" in pair:
+        return ("steps with holds of several seconds (creep keeps moving while the input "
+                "holds; a lag, a delay or a branch shape does not) and several excitation "
+                "frequencies")
+    if pair <= {"delay", "rate_dependence"}:
+        return ("several excitation frequencies (a delay's phase lag grows in proportion "
+                "to frequency, dynamics' does not)")
+    return "records at several frequencies and amplitudes, with steps and holds"
+
+
+def tied_effects(accepted: str, tests: Iterable[Any]) -> list[str]:
+    """Fired lag-like effects whose Bayes factor is within :data:`TIE_NATS` of ``accepted``'s."""
+    tests = list(tests)
+    by = {t.effect: t for t in tests if t.significant and not t.skipped}
+    if accepted not in by or accepted not in LAG_LIKE:
+        return []
+    ref = by[accepted].log_bayes_factor
+    return [n for n, t in by.items() if n != accepted and n in LAG_LIKE
+            and math.isfinite(t.log_bayes_factor) and abs(t.log_bayes_factor - ref) < TIE_NATS]
+
+
+def shape_tied(scan: DriverScan | None) -> bool:
+    """Whether the scan cannot tell the loop position from a time since reversal or a rate."""
+    if scan is None or not scan.found:
+        return False
+    lagged = {"time since reversal or hold", "input rate", "input acceleration"}
+    for d in scan.selected:
+        if d.driver == "loop position" and lagged & set(d.tied_with):
+            return True
+        if d.driver in lagged and "loop position" in d.tied_with:
+            return True
+    return False
+
+
+def implausible(means: Mapping[str, Sequence[float] | float],
+                ranges: Mapping[str, tuple[float, float, str]]) -> list[str]:
+    """Readings outside their plausible range, in words (empty when all are plausible).
+
+    Parameters
+    ----------
+    means : mapping
+        Posterior means of the added parameters by full name (``"delay.d"``); vector
+        parameters are checked entry by entry.
+    ranges : mapping
+        ``parameter -> (low, high, why)``.
+    """
+    out = []
+    for name, (lo, hi, why) in ranges.items():
+        if name not in means:
+            continue
+        raw = means[name]
+        values = list(raw) if isinstance(raw, Sequence) else [float(raw)]
+        bad = [v for v in values if not lo <= float(v) <= hi]
+        if bad:
+            out.append(f"{name} = {', '.join(f'{v:.3g}' for v in bad)} is outside "
+                       f"[{lo:g}, {hi:g}] ({why})")
+    return out
