@@ -400,9 +400,14 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
             return
         fired = [t.effect for t in fit.analysis.fired()]
         conv = "converged" if fit.sampling.converged else "NOT converged"
+        scan = fit.analysis.drivers
+        drivers = [d.driver for d in scan.selected] if scan is not None else []
+        lines = [f"{x.frequency_hz:.4g} Hz" for x in fit.analysis.lines]
         print(f"bayeshyst diagnose: fit {n_fits} done: {fit.label} ({conv}); RMSE "
               f"{fit.overall.rmse:.4g}, elpd {fit.elpd:.1f}; tests firing on its residual: "
-              f"{', '.join(fired) or 'none'}", file=sys.stderr, flush=True)
+              f"{', '.join(fired) or 'none'}; it depends on: {', '.join(drivers) or 'nothing'}"
+              + (f"; lines at {', '.join(lines)}" if lines else ""), file=sys.stderr,
+              flush=True)
 
     if not args.quiet:
         freqs = ", ".join(f"{f:g}" for f in data.frequencies) or "none given"

@@ -71,7 +71,8 @@ from bayeshyst.discrepancy import branch_coordinate
 from bayeshyst.inference.posterior import cycle_units
 from bayeshyst.tables import TableRecord, frame
 
-__all__ = ["DriverRelevance", "DriverScan", "driver_blocks", "scan_drivers", "scan_units"]
+__all__ = ["DriverRelevance", "DriverScan", "driver_blocks", "loop_position_basis", "scan_drivers",
+           "scan_units"]
 
 #: Aim for at least this many units (cycles are split into parts to get there).
 MIN_UNITS_TARGET = 24
@@ -79,6 +80,10 @@ MIN_UNITS_TARGET = 24
 MIN_UNITS = 8
 #: Sines per driver (plus the linear term) and the basis half-width.
 _N_SINES, _L = 6, 1.25
+#: Sines of the loop-position basis that stands in for a branch-shape error (measured: a
+#: 2-operator PI's misfit of a 4-operator one under one sine leaves rate and delay
+#: regressors significant beyond 6 sines, not beyond 12 or 20).
+SHAPE_SINES = 16
 
 #: What a driver's dependence means, for the report.
 READINGS: Mapping[str, str] = {
@@ -116,7 +121,7 @@ def _rank_scale(x: np.ndarray) -> np.ndarray:
     return 2.0 * ranks / max(x.size - 1, 1) - 1.0
 
 
-def _smooth_basis(x: np.ndarray) -> np.ndarray:
+def _smooth_basis(x: np.ndarray, n_sines: int = _N_SINES) -> np.ndarray:
     """``x`` itself (standardised) and sines of the rank-scaled ``x``, (N, 1 + m).
 
     The linear term in ``x`` keeps a linear law (a gain of so many %/K) exact; the sines
@@ -124,7 +129,7 @@ def _smooth_basis(x: np.ndarray) -> np.ndarray:
     """
     x = np.asarray(x, float)
     s = _rank_scale(x)
-    j = np.arange(1, _N_SINES + 1)
+    j = np.arange(1, n_sines + 1)
     sines = np.sin(math.pi * j[None, :] * (s[:, None] + _L) / (2.0 * _L))
     return np.column_stack([(x - x.mean()) / (x.std() or 1.0), sines])
 
@@ -217,6 +222,29 @@ def driver_blocks(data: Dataset, w: Sequence[np.ndarray], starts: Sequence[int]
         rms = np.sqrt(np.mean(blk.columns ** 2, axis=0))
         blk.columns[:] = blk.columns / np.where(rms > 0, rms, 1.0)
     return blocks
+
+
+def loop_position_basis(data: Dataset, w: Sequence[np.ndarray], starts: Sequence[int],
+                        n_sines: int = SHAPE_SINES) -> np.ndarray:
+    """Smooth functions of where on the loop a sample is, on the stacked scored samples.
+
+    ``g_c(u) + b g_b(u) + d g_d(u)`` (see module notes) with ``n_sines`` sines each,
+    (N, 3 (1 + n_sines)): what a branch-shape error of the model looks like. Richer than
+    the scan's block by default, because it stands in for *any* shape error when a
+    time-domain effect is asked what it explains beyond one.
+    """
+    del w  # the shape depends on the input alone
+    u = np.concatenate([np.asarray(r.u, float)[s0:] for r, s0 in zip(data, starts, strict=True)])
+    u_all = np.concatenate([np.asarray(r.u, float) for r in data])
+    half = 0.5 * float(np.ptp(u_all)) or 1.0
+    b = np.concatenate([branch_coordinate(np.asarray(r.u, float), half)[s0:]
+                        for r, s0 in zip(data, starts, strict=True)])
+    d = np.concatenate([_direction(np.asarray(r.u, float))[s0:]
+                        for r, s0 in zip(data, starts, strict=True)])
+    bu = _smooth_basis(u, n_sines)
+    out = np.column_stack([bu, b[:, None] * bu, d[:, None] * bu])
+    rms = np.sqrt(np.mean(out ** 2, axis=0))
+    return out / np.where(rms > 0, rms, 1.0)
 
 
 def scan_units(data: Dataset) -> list[tuple[int, int]]:

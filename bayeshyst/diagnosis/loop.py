@@ -67,7 +67,9 @@ from bayeshyst.diagnosis.residual import (
 from bayeshyst.diagnosis.verdict import (
     PLAUSIBLE,
     TIME_DOMAIN,
+    experiment_for,
 )
+from bayeshyst.discrepancy import DISC
 from bayeshyst.errors import DataError, ParameterError
 from bayeshyst.inference.calibration import uncertainty_budget
 from bayeshyst.inference.fit import FitResult, errors_by_frequency
@@ -107,8 +109,11 @@ def _carried(post: Posterior, previous: DiagnosisFit, added: dict[str, Any],
                 if src in old and np.shape(old[src])[1:] == np.shape(theta[name]):
                     theta[name] = np.asarray(old[src])[i]
                     break
-            if name in added and np.shape(added[name]) == np.shape(theta[name]):
-                theta[name] = added[name]
+            if name in added:
+                value = np.asarray(added[name], dtype=float)
+                if value.ndim == 0 or value.shape == np.shape(theta[name]):
+                    # a scalar fills a vector parameter (the discrepancy's coefficients)
+                    theta[name] = np.broadcast_to(value, np.shape(theta[name])).copy()
         try:
             out.append(space.pack(theta))
         except (ValueError, FloatingPointError):
@@ -285,14 +290,28 @@ def diagnose(
     base, spec, disc = current, base_label, None
     rounds, steps, found = [current.analysis], [], []
     warnings = list(current.warnings)
+    ties: list[str] = []
     for rnd in range(1, st.max_rounds + 1):
         candidates = list(current.analysis.fired())
         shape = shape_candidate(current, st.alpha)
         if shape is not None and disc is None:
-            # residual structure in where-on-the-loop is the model's own shape: it is tried
-            # before any time-domain effect (creep, a lag, a delay, drift) is credited
-            timed = [i for i, t in enumerate(candidates) if t.effect in TIME_DOMAIN]
-            candidates.insert(timed[0] if timed else len(candidates), shape)
+            # residual structure in where-on-the-loop is the model's own shape: a
+            # time-domain effect (creep, a lag, a delay, drift, a change) is credited only
+            # with what it explains beyond the loop position; the shape correction itself
+            # is the last resort, before coloured noise
+            level = current.analysis.alpha
+            for t in candidates:
+                if t.effect in TIME_DOMAIN and not t.p_beyond_shape < level:
+                    note = (f"cannot tell {t.effect} from the base model's branch shape on "
+                            f"these data (it explains nothing beyond the loop position, p = "
+                            f"{t.p_beyond_shape:.2g}); what would: "
+                            f"{experiment_for(t.effect, BRANCH_SHAPE)}")
+                    if note not in ties:
+                        ties.append(note)
+            candidates = [t for t in candidates if t.effect not in TIME_DOMAIN
+                          or t.p_beyond_shape < level]
+            noise = [i for i, t in enumerate(candidates) if t.effect == ColoredNoise.name]
+            candidates.insert(noise[0] if noise else len(candidates), shape)
         line = line_candidate(current, st.alpha)
         if line is not None:
             # a line is structure, which an AR(1) noise model would only blur: it goes
@@ -306,7 +325,8 @@ def diagnose(
             if test.effect == BRANCH_SHAPE:
                 new_model, new_lik, new_spec, new_disc = (current.model, current.likelihood,
                                                           spec, SHAPE_DISCREPANCY)
-                warm = None
+                # start where the current fit is, with the shape correction at zero
+                warm = (current, {f"{DISC}.xi": 0.0})
             elif test.effect == DISTURBANCE:
                 blk = Disturbance(frequency_hz=float(test.variant))
                 new_model, new_lik, new_disc = (Composite(current.model, (blk,)),
@@ -337,4 +357,4 @@ def diagnose(
         found.append(steps[-1].effect)
         rounds.append(current.analysis)
     return DiagnosisResult(base.label, current.label, tuple(found), tuple(steps), base,
-                           current, tuple(rounds), st, tuple(warnings))
+                           current, tuple(rounds), st, tuple(warnings), tuple(ties))

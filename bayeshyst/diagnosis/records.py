@@ -268,6 +268,10 @@ class DiagnosisResult(TableRecord):
     rounds : tuple of ResidualAnalysis
         The tests of every round (the last one is the final model's).
     settings : DiagnosisSettings
+    warnings : tuple of str
+    ties : tuple of str
+        Effects that fired but were not tried because they explain nothing beyond the
+        base model's branch shape, in words with the experiment that would separate them.
     """
 
     base_model: str
@@ -279,6 +283,7 @@ class DiagnosisResult(TableRecord):
     rounds: tuple[ResidualAnalysis, ...]
     settings: DiagnosisSettings
     warnings: tuple[str, ...] = ()
+    ties: tuple[str, ...] = ()
 
     def to_dataframe(self) -> Any:
         """One row per step (effect tried): tests, errors before/after, held-out elpd."""
@@ -307,6 +312,7 @@ class DiagnosisResult(TableRecord):
                                        strict=True)],
             "converged": bool(self.base.sampling.converged and self.final.sampling.converged),
             "verdict": self.verdict,
+            "ties": list(self.ties),
             "remaining": _remaining(self.final.analysis),
             "remaining_before": _remaining(self.base.analysis),
             "warnings": list(self.warnings),
@@ -337,7 +343,7 @@ class DiagnosisResult(TableRecord):
         if fired:
             left.append(f"tests still firing on the final residual: {', '.join(fired)}")
         ties = [f"cannot tell {s.effect} from {', '.join(s.tied_with)} ({s.experiment})"
-                for s in self.steps if s.accepted and s.tied_with]
+                for s in self.steps if s.accepted and s.tied_with] + list(self.ties)
         tail = "; ".join(left) if left else "nothing detectable is left in the residual"
         return head + tail + ("; " + "; ".join(ties) if ties else "")
 

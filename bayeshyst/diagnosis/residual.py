@@ -32,7 +32,7 @@ from scipy import stats
 
 from bayeshyst.data.record import Dataset
 from bayeshyst.diagnosis.catalogue import EFFECTS
-from bayeshyst.diagnosis.drivers import DriverScan, scan_drivers
+from bayeshyst.diagnosis.drivers import DriverScan, loop_position_basis, scan_drivers
 from bayeshyst.diagnosis.effects import (
     ColoredNoise,
     DelayEffect,
@@ -104,6 +104,11 @@ class EffectTest(TableRecord):
         the change time of ``change_point``); empty otherwise.
     n_variants : int
         How many variants were tested (the p-value and Bayes factor pay for them).
+    p_beyond_shape : float
+        p-value of the same test with the loop-position basis of the driver scan among
+        the nuisance regressors: whether the effect explains anything a branch-shape
+        error of the model could not (times the variants, as the p-value). Large for a
+        creep, lag or delay under one sine, where the two are one coordinate.
     evidence : dict
         Arrays for the evidence plot: ``x`` (explaining variable), ``partial_residual``
         (residual minus what the fit's own directions explain), ``component`` (the
@@ -128,6 +133,7 @@ class EffectTest(TableRecord):
     ar_order: int = 0
     variant: str = ""
     n_variants: int = 1
+    p_beyond_shape: float = math.nan
     coef: np.ndarray = field(default_factory=lambda: np.zeros(0), repr=False)
     cov: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)), repr=False)
     evidence: dict[str, Any] = field(default_factory=dict, repr=False)
@@ -147,6 +153,7 @@ class EffectTest(TableRecord):
             "per_frequency_rms": dict(self.per_frequency_rms), "estimates": dict(self.estimates),
             "significant": self.significant, "skipped": self.skipped,
             "ar_order": self.ar_order, "variant": self.variant, "n_variants": self.n_variants,
+            "p_beyond_shape": self.p_beyond_shape,
         }
 
     def __str__(self) -> str:
@@ -434,6 +441,8 @@ def analyse_residual(
     rw, zw = whiten(r_all, segs, ar.phi), whiten(z_all, segs, ar.phi)
 
     qz = orthonormal_basis(z_all)
+    loop = loop_position_basis(data, [s.w for s in sigs], [s.s0 for s in sigs])
+    beyond: dict[str, float] = {}
     raw: dict[str, tuple[FTest, np.ndarray, int, str, np.ndarray]] = {}
     for name, variants in structural.items():
         tests_v = [f_test(rw, zw, whiten(x, segs, ar.phi)) for _, x, _ in variants]
@@ -450,6 +459,10 @@ def analyse_residual(
         label, x, ax = variants[best]
         # the effect's contribution beyond what the fit's own directions can absorb
         raw[name] = (t, project_out(qz, x @ t.coef), k, label, ax)
+        # and beyond what a branch-shape error could: the loop position among the nuisance
+        shaped = f_test(rw, np.column_stack([zw, whiten(loop, segs, ar.phi)]),
+                        whiten(x, segs, ar.phi))
+        beyond[name] = min(1.0, k * shaped.p_value)
     lag = None
     if ColoredNoise.name in names and ColoredNoise.name not in skipped:
         nominal = [structural[n][[v[0] for v in structural[n]].index(raw[n][3])][1]
@@ -498,7 +511,8 @@ def analyse_residual(
             name, stat, t.statistic, t.df1, t.df2, t.p_value, float(adj[name]),
             t.log_bayes_factor, t.partial_r2, rms, 100.0 * rms / ptp, per_f, est,
             bool(adj[name] < alpha), ar_order=order, variant=variant, n_variants=n_var,
-            coef=t.coef, cov=t.cov, evidence=evidence))
+            p_beyond_shape=beyond.get(name, math.nan), coef=t.coef, cov=t.cov,
+            evidence=evidence))
     scan, lines = None, ()
     if n_permutations > 0:
         scan = scan_drivers(data, resid, [s.w for s in sigs], alpha=LEVEL_SHARES[1] * level,
