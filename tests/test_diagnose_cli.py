@@ -107,10 +107,12 @@ def test_diagnose_writes_every_output(diagnosed):
     last = {t["effect"]: t for t in summary["rounds"][-1]["tests"]}
     assert last["drift"]["skipped"] and last["drift"]["p_value"] is None
 
-    # every effect tested has its evidence; aux has nothing to test without extra columns
+    # every effect tested has its evidence; aux has nothing to test without extra columns,
+    # a change point nothing when the records are not on one clock (both start at 0)
+    untested = ("aux", "change_point")
     assert [t["skipped"] is not None for t in summary["rounds"][0]["tests"]] == [
-        e == "aux" for e in EFFECTS]
-    figures = ["residuals.png", *(f"evidence_{e}.png" for e in EFFECTS if e != "aux")]
+        e in untested for e in EFFECTS]
+    figures = ["residuals.png", *(f"evidence_{e}.png" for e in EFFECTS if e not in untested)]
     expected = ["diagnosis.txt", "steps.csv", "posterior_base.nc", "posterior_final.nc",
                 *figures, "summary.json"]
     assert summary["outputs"] == expected

@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
+
 from bayeshyst.diagnosis.drivers import DriverRelevance, DriverScan
 from bayeshyst.diagnosis.residual import EffectTest
 from bayeshyst.diagnosis.verdict import (
@@ -59,3 +61,19 @@ def test_the_experiment_named_separates_the_pair():
     assert "holds" in experiment_for("creep", "delay")
     assert "frequencies" in experiment_for("delay", "rate_dependence")
     assert "holds" in experiment_for("branch shape", "creep")
+
+
+def test_one_sine_without_holds_cannot_separate_lags_and_more_frequencies_or_holds_can():
+    from bayeshyst.data import excitation
+    from bayeshyst.data.record import Dataset, Record
+    from bayeshyst.diagnosis.verdict import separates_lags
+
+    def sine(f):
+        t, u = excitation.sine(f, 2000.0, cycles=4)
+        return Record(t, u, u.copy(), metadata={"frequency_hz": f}, name=f"s{f:g}")
+
+    assert not separates_lags(Dataset((sine(5.0),)))
+    assert separates_lags(Dataset((sine(5.0), sine(50.0))))
+    t = np.arange(2000) / 1000.0
+    u = np.where(t < 1.0, 0.0, 100.0)  # a step, then a hold of a second
+    assert separates_lags(Dataset((Record(t, u, u.copy(), name="step"),)))

@@ -20,6 +20,7 @@ from bayeshyst.diagnosis.verdict import (
     MIN_GATE_UNITS,
     experiment_for,
     implausible,
+    separates_lags,
     shape_tied,
     tied_effects,
 )
@@ -119,6 +120,10 @@ def judge(rnd: int, test: EffectTest, current: DiagnosisFit, cand: DiagnosisFit,
     tied: list[str] = []
     if ok and test.effect not in (BRANCH_SHAPE, DISTURBANCE):
         tied = tied_effects(test.effect, current.analysis.tests)
+        if test.effect in LAG_LIKE and not separates_lags(current.posterior.data):
+            # one sine, no hold: by design, every lag-like effect that fired is the same
+            tied += [t.effect for t in current.analysis.tests if t.significant
+                     and t.effect in LAG_LIKE and t.effect not in (test.effect, *tied)]
         if test.effect in LAG_LIKE and shape_tied(current.analysis.drivers):
             tied.append(BRANCH_SHAPE)
     per = tuple(zip(current.per_frequency, cand.per_frequency, strict=True))

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from itertools import pairwise
 from typing import Any
 
 import numpy as np
@@ -111,7 +112,14 @@ class ChangePointEffect(Effect):
         raise TypeError("change_point is tested per change time (variants)")
 
     def variants(self, sigs, data, model):
-        """``(time in s, regressors, t)`` for change times evenly over the scored span."""
+        """``(time in s, regressors, t)`` for change times evenly over the scored span.
+
+        None when the records are not on one clock (their times overlap, e.g. every
+        record starting at 0): one change time would then mean different moments.
+        """
+        spans = sorted((float(s.t[0]), float(s.t[-1])) for s in sigs)
+        if any(b[0] < a[1] for a, b in pairwise(spans)):
+            return []
         t_all = _stack(sigs, lambda s: s.t)
         lo, hi = float(t_all.min()), float(t_all.max())
         width = 2.0 * time_scales(data).dt

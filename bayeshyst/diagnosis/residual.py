@@ -419,7 +419,8 @@ def analyse_residual(
         elif name != ColoredNoise.name:
             variants = eff.variants(sigs, data, post.model)
             if not variants:
-                skipped[name] = "nothing to test on these data (no extra column)"
+                skipped[name] = ("nothing to test on these data (no extra column; for a "
+                                 "change point: records not on one clock)")
                 continue
             if not all(np.all(np.isfinite(x)) for _, x, _ in variants):
                 raise RuntimeError(f"{name}: non-finite score regressors")

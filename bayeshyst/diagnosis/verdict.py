@@ -7,6 +7,9 @@
   branch-shape error of the hysteresis model is another copy of it (the driver scan
   says so when the loop position and the time since a reversal tie). The report says
   "cannot tell A from B on these data" and names the experiment that would.
+  One sine without holds cannot tell creep, a lag and a delay apart at all, whatever the
+  Bayes factors say (:func:`separates_lags`): an accepted lag-like effect is then tied
+  with every other that fired.
 * **Plausibility.** An accepted effect whose physical reading is outside the range a
   piezo stage can have (:data:`PLAUSIBLE`, overridable) is a warning, not a finding.
 * **Gates that cannot decide.** The held-out elpd gate compares cycles; with fewer
@@ -22,6 +25,8 @@ from collections.abc import Iterable, Mapping, Sequence
 from types import MappingProxyType
 from typing import Any
 
+import numpy as np
+
 from bayeshyst.diagnosis.drivers import DriverScan
 
 __all__ = [
@@ -33,6 +38,7 @@ __all__ = [
     "TIME_DOMAIN",
     "experiment_for",
     "implausible",
+    "separates_lags",
     "shape_tied",
     "tied_effects",
 ]
@@ -83,6 +89,30 @@ def tied_effects(accepted: str, tests: Iterable[Any]) -> list[str]:
     ref = by[accepted].log_bayes_factor
     return [n for n, t in by.items() if n != accepted and n in LAG_LIKE
             and math.isfinite(t.log_bayes_factor) and abs(t.log_bayes_factor - ref) < TIE_NATS]
+
+
+#: A hold: the input still for at least this long (s) and this many samples.
+HOLD_S, HOLD_SAMPLES = 0.05, 50
+
+
+def separates_lags(data: Any) -> bool:
+    """Whether the design can tell creep, a lag and a delay apart.
+
+    Under one excitation frequency and no hold they are one phase lag, told apart only
+    by its fine shape: at least two excitation frequencies (a delay's phase grows in
+    proportion to frequency, a lag's does not) or a hold of the input (creep keeps
+    moving while it holds, a lag settles, a delay shifts) are needed.
+    """
+    records = list(data)
+    if len({r.frequency_hz for r in records if r.frequency_hz}) >= 2:
+        return True
+    for r in records:
+        still = np.abs(np.diff(np.asarray(r.u, float))) <= 1e-9 * (float(np.ptp(r.u)) or 1.0)
+        edges = np.flatnonzero(np.diff(np.r_[0, still.astype(int), 0]))
+        for a, b in zip(edges[::2], edges[1::2], strict=True):
+            if b - a >= HOLD_SAMPLES and float(r.t[b] - r.t[a]) >= HOLD_S:
+                return True
+    return False
 
 
 def shape_tied(scan: DriverScan | None) -> bool:
