@@ -58,7 +58,8 @@ def test_models_lists_the_gp_models_and_every_effect_block(capsys):
     assert [g["name"] for g in doc["gaussian_processes"]] == gp_names() == ["gp", "gp_memory"]
     assert [b["name"] for b in doc["effect_blocks"]] == block_names()
     for entry in doc["effect_blocks"]:
-        space = block_class(entry["name"])().param_space()
+        cls = block_class(entry["name"])
+        space = cls(**cls.example).param_space()
         assert [p["name"] for p in entry["parameters"]] == list(space.all_names)
     assert main(["models", "gp_memory", "creep"]) == 0  # any of them by name
     out = capsys.readouterr().out

@@ -231,7 +231,8 @@ class GeneralizedPrandtlIshlinskii(LinearInWeights, HysteresisModel):
         return y, state, failed
 
     def run(self, u: Any, t: Any, theta: Mapping[str, Any], *,
-            state0: np.ndarray | None = None) -> Trajectory:
+            state0: np.ndarray | None = None,
+            covariates: Mapping[str, Any] | None = None) -> Trajectory:
         """As :meth:`HysteresisModel.run`; a non-monotone envelope raises with the reason.
 
         Raises
@@ -251,7 +252,7 @@ class GeneralizedPrandtlIshlinskii(LinearInWeights, HysteresisModel):
                     f"on the range u in [{min(u_arr.min(), tb['u_c'][0] - tb['u_h'][0]):.4g}, "
                     f"{max(u_arr.max(), tb['u_c'][0] + tb['u_h'][0]):.4g}]; "
                     "this theta is outside the model's support")
-        return super().run(u, t, theta, state0=state0)
+        return super().run(u, t, theta, state0=state0, covariates=covariates)
 
 
 @register
