@@ -1,14 +1,29 @@
-"""Replace one marked section of ``benchmarks/RESULTS.md`` (shared by the benchmarks)."""
+"""What the benchmarks share: a median timer and the writer of one marked section of
+``benchmarks/RESULTS.md``."""
 
 from __future__ import annotations
 
+import statistics
+import time
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 from bayeshyst.files import atomic_path
 
 RESULTS = Path(__file__).resolve().parent / "RESULTS.md"
 
-__all__ = ["RESULTS", "write_section"]
+__all__ = ["RESULTS", "median_time", "write_section"]
+
+
+def median_time(fn: Callable[[], Any], repeats: int = 3) -> tuple[float, Any]:
+    """Median wall time (s) of ``repeats`` calls of ``fn`` and the last call's result."""
+    times, out = [], None
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        out = fn()
+        times.append(time.perf_counter() - t0)
+    return statistics.median(times), out
 
 
 def write_section(key: str, heading: str, text: str, path: Path = RESULTS) -> None:

@@ -19,7 +19,6 @@ from __future__ import annotations
 import argparse
 import os
 import platform
-import statistics
 import sys
 import time
 from pathlib import Path
@@ -29,14 +28,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-
-def _median_time(fn, repeats: int = 3) -> tuple[float, object]:
-    times, out = [], None
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        out = fn()
-        times.append(time.perf_counter() - t0)
-    return statistics.median(times), out
+from benchmarks._results import median_time  # noqa: E402  (after the path)
 
 
 def main() -> None:
@@ -63,8 +55,8 @@ def main() -> None:
     res = sample_posterior(post, SamplerSettings(seed=0, max_steps=400, first_chunk=200))
     draws = res.draws(100, seed=0)
     load0 = os.getloadavg()[0]
-    t_base, _ = _median_time(lambda: analyse_residual(post, res, draws, n_permutations=0))
-    t_full, full = _median_time(lambda: analyse_residual(post, res, draws))
+    t_base, _ = median_time(lambda: analyse_residual(post, res, draws, n_permutations=0))
+    t_full, full = median_time(lambda: analyse_residual(post, res, draws))
     load1 = os.getloadavg()[0]
     n = sum(r.n_scored for r in data)
     scan = full.drivers

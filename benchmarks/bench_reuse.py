@@ -18,7 +18,6 @@ from __future__ import annotations
 import argparse
 import os
 import platform
-import statistics
 import sys
 import tempfile
 import time
@@ -29,16 +28,9 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from benchmarks._results import median_time  # noqa: E402  (after the path)
+
 MODELS = ("pi_play(n_operators=8)", "bouc_wen")
-
-
-def _median_time(fn, repeats: int = 3) -> tuple[float, object]:
-    times, out = [], None
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        out = fn()
-        times.append(time.perf_counter() - t0)
-    return statistics.median(times), out
 
 
 def main() -> None:
@@ -69,13 +61,13 @@ def main() -> None:
                 idata = diagnostics.to_inference_data(fit.posterior, fit.sampling, seed=0)
                 diagnostics.save_netcdf(idata, path)
 
-            t_save, _ = _median_time(save)
-            t_load, saved = _median_time(lambda path=path: load_fit(path))
+            t_save, _ = median_time(save)
+            t_load, saved = median_time(lambda path=path: load_fit(path))
             y = np.concatenate([r.y for r in data])
             ref = reference_signal("sine", 10.0, data[0].fs, float(np.quantile(y, 0.1)),
                                    float(np.quantile(y, 0.9)))
-            t_cmd, _ = _median_time(lambda saved=saved, ref=ref: design_command(saved, ref))
-            t_exp, _ = _median_time(lambda saved=saved: export_inverse(saved).c_code())
+            t_cmd, _ = median_time(lambda saved=saved, ref=ref: design_command(saved, ref))
+            t_exp, _ = median_time(lambda saved=saved: export_inverse(saved).c_code())
             rows.append((spec, t_fit, t_save, t_load, t_cmd, t_exp, saved.max_log_prob_error,
                          bool(fit.converged)))
     load1 = os.getloadavg()[0]

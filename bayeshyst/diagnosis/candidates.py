@@ -68,8 +68,8 @@ def line_candidate(current: DiagnosisFit, alpha: float) -> EffectTest | None:
     """
     model = current.model
     have = [b.frequency_hz for b in getattr(model, "blocks", ()) if b.name == DISTURBANCE]
+    tol = 1.0 / max(float(np.ptp(current.analysis.time[0])), 1e-12)  # one frequency bin
     for line in current.analysis.lines:
-        tol = 1.0 / max(float(np.ptp(current.analysis.time[0])), 1e-12)
         if any(abs(line.frequency_hz - f) <= tol for f in have):
             continue
         nan = math.nan

@@ -145,6 +145,18 @@ def _direction(u: np.ndarray) -> np.ndarray:
     return np.where(held == 0, d[first[0]] if first.size else 1.0, held)
 
 
+def _unit_rms(cols: np.ndarray) -> np.ndarray:
+    """Columns scaled to unit RMS (zero columns left as they are): one ridge fits all."""
+    rms = np.sqrt(np.mean(cols ** 2, axis=0))
+    return cols / np.where(rms > 0, rms, 1.0)
+
+
+def _loop_columns(u: np.ndarray, b: np.ndarray, d: np.ndarray, n_sines: int) -> np.ndarray:
+    """``g_c(u) + b g_b(u) + d g_d(u)``: smooth functions of where on the loop, (N, 3 (1 + m))."""
+    bu = _smooth_basis(u, n_sines)
+    return np.column_stack([bu, b[:, None] * bu, d[:, None] * bu])
+
+
 def _time_since_event(t: np.ndarray, u: np.ndarray) -> np.ndarray:
     """Seconds since the last reversal of the input, or start or end of a hold or step."""
     du = np.diff(u, prepend=u[0])
@@ -153,14 +165,13 @@ def _time_since_event(t: np.ndarray, u: np.ndarray) -> np.ndarray:
     direction = np.where(moving, np.sign(du), 0.0)
     step = np.abs(du) > 10.0 * max(float(np.median(np.abs(du[moving]))) if moving.any()
                                    else 0.0, 1e-12)
-    last_dir, last_event = 0.0, 0
-    events = np.zeros(u.size, dtype=np.int64)
-    for k in range(u.size):
-        d = direction[k]
-        if (d != 0 and d != last_dir) or (d == 0 and last_dir != 0) or step[k]:
-            last_event = k
-        last_dir = d
-        events[k] = last_event
+    # an event where the direction changes (a reversal, a hold starting or ending) or
+    # the input steps; every sample looks back to the last one
+    previous = np.r_[0.0, direction[:-1]]
+    event = ((direction != 0) & (direction != previous)) | ((direction == 0) & (previous != 0))
+    event |= step
+    events = np.where(event, np.arange(u.size), 0)
+    np.maximum.accumulate(events, out=events)
     return t - t[events]
 
 
@@ -199,9 +210,8 @@ def driver_blocks(data: Dataset, w: Sequence[np.ndarray], starts: Sequence[int]
     w_all = stacked["w"]
     gain = (w_all - w_all.mean()) / (w_all.std() or 1.0)
     b = stacked["b"]
-    bu = _smooth_basis(stacked["u"])
-    loop = [bu, b[:, None] * bu, stacked["d"][:, None] * bu]
-    blocks = [DriverBlock("loop position", "loop", np.column_stack(loop)),
+    blocks = [DriverBlock("loop position", "loop",
+                          _loop_columns(stacked["u"], b, stacked["d"], _N_SINES)),
               DriverBlock("predicted output", "loop", _smooth_basis(w_all))]
     for name in ("input rate", "input acceleration", "time since reversal or hold"):
         if np.ptp(stacked[name]) > 0:
@@ -218,13 +228,12 @@ def driver_blocks(data: Dataset, w: Sequence[np.ndarray], starts: Sequence[int]
             kind = "external" if name not in ("time", "excitation frequency") else "slow"
             blocks.append(DriverBlock(name, kind, np.column_stack([bx, gain[:, None] * bx,
                                                                    *extra])))
-    for blk in blocks:  # unit RMS columns: one ridge penalty fits all
-        rms = np.sqrt(np.mean(blk.columns ** 2, axis=0))
-        blk.columns[:] = blk.columns / np.where(rms > 0, rms, 1.0)
+    for blk in blocks:
+        blk.columns[:] = _unit_rms(blk.columns)
     return blocks
 
 
-def loop_position_basis(data: Dataset, w: Sequence[np.ndarray], starts: Sequence[int],
+def loop_position_basis(data: Dataset, starts: Sequence[int],
                         n_sines: int = SHAPE_SINES) -> np.ndarray:
     """Smooth functions of where on the loop a sample is, on the stacked scored samples.
 
@@ -233,7 +242,6 @@ def loop_position_basis(data: Dataset, w: Sequence[np.ndarray], starts: Sequence
     the scan's block by default, because it stands in for *any* shape error when a
     time-domain effect is asked what it explains beyond one.
     """
-    del w  # the shape depends on the input alone
     u = np.concatenate([np.asarray(r.u, float)[s0:] for r, s0 in zip(data, starts, strict=True)])
     u_all = np.concatenate([np.asarray(r.u, float) for r in data])
     half = 0.5 * float(np.ptp(u_all)) or 1.0
@@ -241,10 +249,7 @@ def loop_position_basis(data: Dataset, w: Sequence[np.ndarray], starts: Sequence
                         for r, s0 in zip(data, starts, strict=True)])
     d = np.concatenate([_direction(np.asarray(r.u, float))[s0:]
                         for r, s0 in zip(data, starts, strict=True)])
-    bu = _smooth_basis(u, n_sines)
-    out = np.column_stack([bu, b[:, None] * bu, d[:, None] * bu])
-    rms = np.sqrt(np.mean(out ** 2, axis=0))
-    return out / np.where(rms > 0, rms, 1.0)
+    return _unit_rms(_loop_columns(u, b, d, n_sines))
 
 
 def scan_units(data: Dataset) -> list[tuple[int, int]]:

@@ -442,7 +442,7 @@ def analyse_residual(
     rw, zw = whiten(r_all, segs, ar.phi), whiten(z_all, segs, ar.phi)
 
     qz = orthonormal_basis(z_all)
-    loop = loop_position_basis(data, [s.w for s in sigs], [s.s0 for s in sigs])
+    loop = loop_position_basis(data, [s.s0 for s in sigs])
     beyond: dict[str, float] = {}
     raw: dict[str, tuple[FTest, np.ndarray, int, str, np.ndarray]] = {}
     for name, variants in structural.items():
