@@ -9,6 +9,8 @@ against the one that was planted.
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 from scipy import stats
@@ -131,6 +133,9 @@ def test_too_few_units_cannot_decide():
     scan = scan_drivers(short, r, w, alpha=0.001, n_permutations=99)
     assert not scan.decidable and "cannot decide" in scan.summary()
     assert not scan.found
+    # nothing was computed, so no number is printed or written (no NaN gains or p-values)
+    assert scan.drivers == () and "temperature_c" in scan.note
+    assert "nan" not in str(scan).lower() and "nan" not in json.dumps(scan.to_dict()).lower()
 
 
 def test_same_seed_same_scan():

@@ -338,7 +338,8 @@ class DriverScan(TableRecord):
     Attributes
     ----------
     drivers : tuple of DriverRelevance
-        Every candidate, kept ones first in the order kept, then by gain.
+        Every candidate, kept ones first in the order kept, then by gain (empty when the
+        scan could not decide: see :attr:`decidable`).
     explained_percent : float
         Held-out share of the residual's sum of squares the kept drivers remove together.
     n_units : int
@@ -463,11 +464,12 @@ def scan_drivers(
                                       f"{blk.name!r}")
     min_p = (1.0 / signs.shape[0]) if exact else 1.0 / (signs.shape[0] + 1)
     if n_units < MIN_UNITS or min_p > alpha:
+        # No per-driver rows: a gain or p-value that was never computed is not a number
+        # to report; the note names the drivers that went untested.
         note = (f"cannot decide on these data: {n_units} units of the residual are too few "
-                f"for a randomisation test at level {alpha:g}; record more cycles")
-        rel = tuple(DriverRelevance(b.name, b.kind, math.nan, math.nan, math.nan, False,
-                                    reading=readings[b.name]) for b in blocks)
-        return DriverScan(rel, 0.0, n_units, signs.shape[0], exact, float(alpha), False, note)
+                f"for a randomisation test at level {alpha:g}; record more cycles "
+                f"(untested: {', '.join(b.name for b in blocks)})")
+        return DriverScan((), 0.0, n_units, signs.shape[0], exact, float(alpha), False, note)
 
     x = np.column_stack([b.columns for b in blocks])
     edges = np.cumsum([0] + [b.columns.shape[1] for b in blocks])
