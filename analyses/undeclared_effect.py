@@ -2,14 +2,19 @@
 adding it buy?
 
 Reproduces the close-the-loop result on measured data: a base model (``bouc_wen`` by
-default) is fitted to a measured record, its residual is tested for each candidate
-physical effect (creep, rate dependence, asymmetry, drift, delay, coloured noise) with
-score tests, the effect that fires is added to the model, the model is refitted, and the
-effect is kept only when the cycle-wise held-out predictive density (PSIS-LOO elpd)
-improves by more than ``--threshold`` standard errors
-(:func:`bayeshyst.diagnosis.diagnose`). The answer per data set: which effect was
-added (or none), the RMSE and max error of the posterior-mean prediction before and
-after, and Δelpd ± se of every augmentation tried.
+default) is fitted to a measured record; its residual is tested for each catalogue effect
+(creep, rate dependence, asymmetry, drift, delay, coloured noise, an auxiliary column, a
+change point) with score tests, scanned for anything else it depends on (loop position,
+rate, time since a reversal, time, every extra column of the file -- a held-out,
+randomisation-calibrated scan) and for non-harmonic spectral lines; the effect that fires
+is added to the model, the model is refitted, and the effect is kept only when the
+cycle-wise held-out predictive density (PSIS-LOO elpd) improves by more than
+``--threshold`` standard errors and its reading is physically plausible
+(:func:`bayeshyst.diagnosis.diagnose`). The answer per data set: which effect was added
+(or none), the verdict in words (what is left, what is tied with what and which
+experiment would separate them), the RMSE and max error of the posterior-mean prediction
+before and after -- overall and per excitation frequency -- and Δelpd ± se of every
+augmentation tried.
 
 Data sets (``--datasets``; read from ``../shared/data`` or ``$BAYESHYST_SHARED_DATA`` --
 without that folder the script exits with status 2 and one line saying so):
@@ -136,7 +141,10 @@ def dataset_summary(key: str, data: Any, result: Any, folder: str) -> dict[str, 
               "model_after": s.model_after, "delta_elpd": s.delta_elpd,
               "delta_elpd_se": s.delta_elpd_se, "p_adjusted": s.test.p_adjusted,
               "rmse_before": s.before.rmse, "rmse_after": s.after.rmse,
-              "converged": bool(s.converged), "reason": s.reason}
+              "converged": bool(s.converged), "reason": s.reason,
+              "tied_with": list(s.tied_with), "experiment": s.experiment,
+              "per_frequency": [{"frequency_hz": b.frequency_hz, "rmse_before": b.rmse,
+                                 "rmse_after": a.rmse} for b, a in s.per_frequency]}
              for s in result.steps]
     accepted = [s for s in steps if s["accepted"]]
     converged = bool(result.base.sampling.converged and result.final.sampling.converged)
@@ -152,6 +160,11 @@ def dataset_summary(key: str, data: Any, result: Any, folder: str) -> dict[str, 
         "rmse_reduction_percent": (100 * (1 - after.rmse / before.rmse)
                                    if before.rmse > 0 else math.nan),
         "delta_elpd": sum(s["delta_elpd"] for s in accepted) if accepted else 0.0,
+        "per_frequency": [{"frequency_hz": b.frequency_hz, "rmse_before": b.rmse,
+                           "rmse_after": a.rmse}
+                          for b, a in zip(result.base.per_frequency,
+                                          result.final.per_frequency, strict=True)],
+        "verdict": result.verdict, "ties": list(result.ties),
         "steps": steps, "converged": converged,
         "status": "converged" if converged else "NOT converged",
         "warnings": list(result.warnings),
@@ -182,6 +195,11 @@ def report_text(entries: list[dict[str, Any]], quick: bool) -> str:
                      f"{_f(e['nrmse_percent_after'], '.3f')} % of stroke; "
                      f"{_f(e['rmse_reduction_percent'], '.1f')} % lower); max error "
                      f"{_f(e['max_error_before'])} -> {_f(e['max_error_after'])} {unit}")
+        if len(e["per_frequency"]) > 1:
+            lines.append("   per frequency: " + "; ".join(
+                f"{f['frequency_hz']:.4g} Hz {_f(f['rmse_before'])} -> {_f(f['rmse_after'])}"
+                for f in e["per_frequency"]))
+        lines.append(f"   verdict: {e['verdict']}")
         if not e["steps"]:
             lines.append("   no candidate effect fired on the base model's residual")
         for s in e["steps"]:
@@ -190,7 +208,9 @@ def report_text(entries: list[dict[str, Any]], quick: bool) -> str:
                          f"{_f(s['delta_elpd'], '.1f')} ± {_f(s['delta_elpd_se'], '.1f')} "
                          f"(p_adj {_f(s['p_adjusted'], '.2g')}); RMSE "
                          f"{_f(s['rmse_before'])} -> {_f(s['rmse_after'])} {unit}"
-                         f"{'' if s['converged'] else '; NOT converged'}")
+                         f"{'' if s['converged'] else '; NOT converged'}"
+                         + (f"; cannot tell from {', '.join(s['tied_with'])}"
+                            if s["tied_with"] else ""))
         lines += [f"   warning: {w}" for w in e["warnings"]]
     return "\n".join(lines)
 
