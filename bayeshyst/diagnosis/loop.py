@@ -227,7 +227,8 @@ def diagnose(
     max_rounds : int
         Most effects added.
     max_candidates : int
-        Fired effects refitted per round before giving up on the round.
+        Fired effects refitted per round before giving up on the round; one rejected only
+        because its physical reading is implausible (``plausible``) does not count.
     sampler : SamplerSettings, optional
         How every fit is sampled (:func:`~bayeshyst.inference.sampling.sample_posterior`);
         each fit's seed derives from ``sampler.seed`` and what the fit is
@@ -290,7 +291,7 @@ def diagnose(
     base, spec, disc = current, base_label, None
     rounds, steps, found = [current.analysis], [], []
     warnings = list(current.warnings)
-    ties: list[str] = []
+    shape_ties: dict[str, float] = {}  # effect -> p beyond the loop position, first seen
     for rnd in range(1, st.max_rounds + 1):
         candidates = list(current.analysis.fired())
         shape = shape_candidate(current, st.alpha)
@@ -300,16 +301,12 @@ def diagnose(
             # with what it explains beyond the loop position; the shape correction itself
             # is the last resort, before coloured noise
             level = current.analysis.alpha
-            for t in candidates:
-                if t.effect in TIME_DOMAIN and not t.p_beyond_shape < level:
-                    note = (f"cannot tell {t.effect} from the base model's branch shape on "
-                            f"these data (it explains nothing beyond the loop position, p = "
-                            f"{t.p_beyond_shape:.2g}); what would: "
-                            f"{experiment_for(t.effect, BRANCH_SHAPE)}")
-                    if note not in ties:
-                        ties.append(note)
-            candidates = [t for t in candidates if t.effect not in TIME_DOMAIN
-                          or t.p_beyond_shape < level]
+            # (a p-value beyond the shape that was not computed is no evidence of a tie)
+            tied = [t for t in candidates if t.effect in TIME_DOMAIN
+                    and math.isfinite(t.p_beyond_shape) and t.p_beyond_shape >= level]
+            for t in tied:
+                shape_ties.setdefault(t.effect, t.p_beyond_shape)
+            candidates = [t for t in candidates if all(t is not u for u in tied)]
             noise = [i for i, t in enumerate(candidates) if t.effect == ColoredNoise.name]
             candidates.insert(noise[0] if noise else len(candidates), shape)
         line = line_candidate(current, st.alpha)
@@ -320,8 +317,10 @@ def diagnose(
             candidates.insert(noise[0] if noise else len(candidates), line)
         if not candidates:
             break
-        accepted = None
-        for test in candidates[:st.max_candidates]:
+        accepted, refitted = None, 0
+        for test in candidates:
+            if refitted >= st.max_candidates:
+                break
             if test.effect == BRANCH_SHAPE:
                 new_model, new_lik, new_spec, new_disc = (current.model, current.likelihood,
                                                           spec, SHAPE_DISCREPANCY)
@@ -344,7 +343,11 @@ def diagnose(
             warnings += [w for w in cand.warnings if w not in warnings]
             step = judge(rnd, test, current, cand, st)
             if not step.accepted and step.reason.startswith("implausible"):
+                # the structure is real, this explanation of it is not: the next
+                # candidate gets its turn without using up the round's budget
                 warnings.append(f"{test.effect}: {step.reason}")
+            else:
+                refitted += 1
             _log.info("round %d: %s %s (%s)", rnd, test.effect,
                       "accepted" if step.accepted else "rejected", step.reason)
             steps.append(step)
@@ -357,4 +360,17 @@ def diagnose(
         found.append(steps[-1].effect)
         rounds.append(current.analysis)
     return DiagnosisResult(base.label, current.label, tuple(found), tuple(steps), base,
-                           current, tuple(rounds), st, tuple(warnings), tuple(ties))
+                           current, tuple(rounds), st, tuple(warnings),
+                           _shape_tie_notes(shape_ties))
+
+
+def _shape_tie_notes(shape_ties: dict[str, float]) -> tuple[str, ...]:
+    """One sentence per experiment that would separate effects from the branch shape."""
+    by_experiment: dict[str, list[str]] = {}
+    for effect, p in shape_ties.items():
+        by_experiment.setdefault(experiment_for(effect, BRANCH_SHAPE), []).append(
+            f"{effect} (p = {p:.2g})")
+    return tuple(f"cannot tell {', '.join(names)} from the base model's branch shape on "
+                 f"these data ({'they explain' if len(names) > 1 else 'it explains'} nothing "
+                 f"beyond the loop position); what would: {experiment}"
+                 for experiment, names in by_experiment.items())
