@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 
 from analyses import (
+    hidden_effects,
     model_selection_study,
     robust_feedforward,
     uncertainty_report,
@@ -320,3 +321,29 @@ def test_cut_record_decimates_and_keeps_cycles():
                                             "warm-up + 2 cycle(s) kept (225 samples)")
     assert cut_record(rec, Cut()).metadata["analysis_cut"] == "used whole"
     assert math.isclose(cut_record(rec, Cut(samples_per_cycle=5000)).fs, rec.fs)
+
+
+# ------------------------------------------------------------------ hidden-effect suite
+def test_hidden_effect_suite_scores_and_resumes(tmp_path, capsys):
+    out = tmp_path / "out"
+    argv = ["--cases", "clean_pi_one_frequency", "--seeds", "2", "--quiet", "--out", str(out)]
+    assert hidden_effects.main(argv) == 0
+    summary = json.loads((out / "summary.json").read_text())
+    runs = summary["runs"]
+    assert [(r["case"], r["seed"]) for r in runs] == [("clean_pi_one_frequency", 0),
+                                                      ("clean_pi_one_frequency", 1)]
+    # a clean control is right exactly when no effect was kept; the rates are the counts
+    for r in runs:
+        assert r["right"] is (not r["effects_found"])
+    group = summary["per_group"]["clean"]
+    assert group["right"] == sum(r["right"] for r in runs) and group["runs"] == 2
+    assert group["met"] is (group["rate"] >= 0.95)
+    _no_nan_or_tmp(out)
+    # a rerun with the same settings reuses every (case, seed) written: same rows
+    first = (out / "runs" / "clean_pi_one_frequency_0.json").read_text()
+    assert hidden_effects.main(argv) == 0
+    assert json.loads((out / "summary.json").read_text())["runs"] == runs
+    assert (out / "runs" / "clean_pi_one_frequency_0.json").read_text() == first
+    capsys.readouterr()
+    assert hidden_effects.main(["--cases", "no_such_case", "--out", str(tmp_path / "x")]) == 2
+    assert "no_such_case" in capsys.readouterr().err and not (tmp_path / "x").exists()
