@@ -67,6 +67,7 @@ from typing import Any
 import numpy as np
 
 from bayeshyst.errors import ParameterError
+from bayeshyst.models.blocks.smooth import BASIS_HALF_WIDTH, log_se_spectrum, sine_basis
 from bayeshyst.models.pi import stop_response
 from bayeshyst.params import HalfNormal, LogNormal, Normal, Param, ParamSpace
 
@@ -77,26 +78,13 @@ DISC = "disc"
 #: What ``--discrepancy`` accepts.
 DISCREPANCY_KINDS = ("none", "hsgp")
 #: Half-width of the basis domain over data scaled to [-1, 1].
-_L = 2.5
+_L = BASIS_HALF_WIDTH
 #: Amplitude prior scale, as a fraction of the output span.
 _AMPLITUDE_SHARE = 0.05
 #: Overlaps with the model's sensitivities below this share of the strongest count as
 #: none (rounding): every other direction is constrained. The constraint has norm 1
 #: whatever its rank, so no direction needs sparing for the sake of new inputs.
 PROJECTION_CUTOFF = 1e-8
-
-
-def _sine_basis(x: np.ndarray, m: int) -> tuple[np.ndarray, np.ndarray]:
-    """Eigenfunctions (N, m) of the Laplacian on [-L, L] and their sqrt-eigenvalues (m,)."""
-    j = np.arange(1, m + 1)
-    w = math.pi * j / (2.0 * _L)
-    return np.sin(w[None, :] * (np.asarray(x, float)[:, None] + _L)) / math.sqrt(_L), w
-
-
-def _log_spectral(w: np.ndarray, length: np.ndarray) -> np.ndarray:
-    """Log S(w) of the unit-variance 1-D SE kernel, (W, m) for lengths (W,)."""
-    ell = np.asarray(length, float)[:, None]
-    return 0.5 * math.log(2.0 * math.pi) + np.log(ell) - 0.5 * (ell * w[None, :]) ** 2
 
 
 def branch_coordinate(u: np.ndarray, half: float) -> np.ndarray:
@@ -289,10 +277,10 @@ class Discrepancy:
         if np.any(np.abs(un) > _L):
             raise ParameterError(f"discrepancy: input reaches {float(np.max(np.abs(un))):.3g} "
                                  f"half-ranges from the training centre; the basis covers {_L}")
-        pu, _ = _sine_basis(un, self.n_input)
+        pu, _ = sine_basis(un, self.n_input)
         # one frequency: no rate factor at all (a lone sine of the rate would scale the
         # kernel by 1/L)
-        pr = (_sine_basis(np.array([self.rate_coordinate(frequency_hz)]), self.n_rate)[0]
+        pr = (sine_basis(np.array([self.rate_coordinate(frequency_hz)]), self.n_rate)[0]
               if self.has_rate else np.ones((1, 1)))
         common = (pu[:, :, None] * pr[0][None, None, :]).reshape(un.size, -1)
         b = branch_coordinate(u, self.u_half)
@@ -339,13 +327,13 @@ class Discrepancy:
         amp_b = np.atleast_1d(np.asarray(theta["branch_amplitude"], float)).ravel()
         ell = np.atleast_1d(np.asarray(theta["length"], float)).ravel()
         w = amp.size
-        _, wu = _sine_basis(np.zeros(1), self.n_input)
+        _, wu = sine_basis(np.zeros(1), self.n_input)
         with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-            log_s = _log_spectral(wu, ell)[:, :, None]  # (W, m_u, 1)
+            log_s = log_se_spectrum(wu, ell)[:, :, None]  # (W, m_u, 1)
             if self.has_rate:
-                _, wr = _sine_basis(np.zeros(1), self.n_rate)
+                _, wr = sine_basis(np.zeros(1), self.n_rate)
                 ell_r = np.atleast_1d(np.asarray(theta["rate_length"], float)).ravel()
-                log_s = log_s + _log_spectral(wr, ell_r)[:, None, :]
+                log_s = log_s + log_se_spectrum(wr, ell_r)[:, None, :]
             root = np.exp(0.5 * log_s).reshape(w, -1)
             return np.concatenate([amp[:, None] * root, amp_b[:, None] * root], axis=1)
 

@@ -204,3 +204,29 @@ def test_a_gain_that_follows_a_temperature_column_is_traced_to_it(seed):
     summary = result.to_dict()
     assert summary["remaining"]["drivers"]["selected"] == []
     assert summary["steps"][0]["rmse_after"] < summary["steps"][0]["rmse_before"]
+
+
+def test_structure_no_block_explains_is_reported_as_unexplained_and_modelled():
+    # an offset that wanders 1.5 times up and down over the record (0.15 um, 2.5x the
+    # noise): no effect is offered (effects=()), so only the scan can see it; it keeps
+    # "time", the smooth term in time is fitted, and the error falls to the noise
+    model = get_model("pi_play(n_operators=3)")
+    rng = np.random.default_rng(0)
+    t, u = excitation.sine(2.0, 1000.0, cycles=12)
+    theta = {**model.param_space(Record(t=t, u=u, y=u.copy())).fixed, "p0": 0.12,
+             "w": np.array([0.05, 0.03, 0.02])}
+    y = model.simulate(u, t, theta)
+    noise = 0.002 * np.ptp(y)
+    y = y + 0.15 * np.sin(3 * np.pi * (t - t[0]) / np.ptp(t)) + noise * rng.standard_normal(
+        t.size)
+    data = Dataset((Record(t=t, u=u, y=y, warmup=500, metadata={"frequency_hz": 2.0},
+                           name="wander"),), name="wander")
+    result = diagnose(data, "pi_play(n_operators=3)", effects=(),
+                      sampler=SamplerSettings(n_walkers=24, max_steps=300, first_chunk=150,
+                                              seed=0),
+                      n_draws=100, max_refits=0, max_candidates=1, max_rounds=1)
+    (step,) = [s for s in result.steps if s.accepted]
+    assert (step.effect, step.test.variant) == ("unexplained", "time"), str(result)
+    assert step.before.rmse > 1.5 * noise and step.after.rmse < 1.15 * noise
+    assert "unexplained structure depending on time" in result.verdict
+    assert result.final_model.endswith("+unexplained(feature=time)")

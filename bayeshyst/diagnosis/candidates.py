@@ -1,7 +1,9 @@
 """The candidates beyond the catalogue and the gate every candidate passes or fails.
 
-The base model's own branch shape (when the driver scan keeps the loop position) and a
-periodic disturbance (a spectral line) join the fired effects as candidates;
+The base model's own branch shape (when the driver scan keeps the loop position), a
+periodic disturbance (a spectral line) and, last, a smooth term in a feature no block
+explains (time, a measured column: structure reported as *unexplained*) join the fired
+effects as candidates;
 :func:`judge` keeps an augmented fit or not (held-out elpd, or its documented fallback,
 plausibility, ties; :mod:`bayeshyst.diagnosis.verdict`).
 """
@@ -12,7 +14,12 @@ import math
 
 import numpy as np
 
-from bayeshyst.diagnosis.records import DiagnosisFit, DiagnosisSettings, DiagnosisStep
+from bayeshyst.diagnosis.records import (
+    UNEXPLAINED,
+    DiagnosisFit,
+    DiagnosisSettings,
+    DiagnosisStep,
+)
 from bayeshyst.diagnosis.residual import EffectTest
 from bayeshyst.diagnosis.verdict import (
     FALLBACK_LOG_BF,
@@ -25,10 +32,12 @@ from bayeshyst.diagnosis.verdict import (
     tied_effects,
 )
 from bayeshyst.inference.sampling import ParamSummary
+from bayeshyst.models.blocks.smooth import TIME
 from bayeshyst.selection import paired_difference
 
-__all__ = ["BRANCH_SHAPE", "DISTURBANCE", "SHAPE_DISCREPANCY", "added_parameters", "judge",
-           "line_candidate", "shape_candidate"]
+__all__ = ["BRANCH_SHAPE", "DISTURBANCE", "SCAN_JUDGED", "SHAPE_DISCREPANCY", "UNEXPLAINED",
+           "added_parameters", "judge", "line_candidate", "shape_candidate",
+           "unexplained_candidate"]
 
 
 #: Name of the base model's own misfit among the loop's candidates.
@@ -81,6 +90,36 @@ def line_candidate(current: DiagnosisFit, alpha: float) -> EffectTest | None:
     return None
 
 
+def unexplained_candidate(current: DiagnosisFit, alpha: float) -> EffectTest | None:
+    """A smooth term in a feature the residual depends on and no block explains.
+
+    The first driver the scan kept that is the time since the record started or a
+    measured column, and that the model has no smooth term in yet, as an
+    :class:`EffectTest` named :data:`UNEXPLAINED` (variant: the feature) carrying the
+    scan's numbers. Loop position (the shape candidate) and the rate-like drivers
+    (rate dependence, creep and their tests) have their own candidates; None when
+    nothing else is left.
+    """
+    scan = current.analysis.drivers
+    if scan is None or not scan.found:
+        return None
+    have = {b.feature for b in getattr(current.model, "blocks", ())
+            if b.name == UNEXPLAINED}
+    for d in scan.selected:
+        if not (d.driver == TIME or d.kind == "external") or d.driver in have:
+            continue
+        nan = math.nan
+        return EffectTest(UNEXPLAINED, "held-out gain (%)", d.conditional_percent, 0, 0,
+                          d.p_value, d.p_value, nan, d.conditional_percent / 100.0, nan,
+                          nan, {}, {"heldout_gain_percent": d.conditional_percent},
+                          bool(d.p_value < alpha), variant=d.driver)
+    return None
+
+
+#: Candidates judged by the residual scan's own test when the elpd gate cannot decide.
+SCAN_JUDGED = (BRANCH_SHAPE, DISTURBANCE, UNEXPLAINED)
+
+
 def judge(rnd: int, test: EffectTest, current: DiagnosisFit, cand: DiagnosisFit,
            st: DiagnosisSettings) -> DiagnosisStep:
     """Keep the augmented fit or not: held-out elpd, or the fallback when it cannot decide."""
@@ -96,7 +135,7 @@ def judge(rnd: int, test: EffectTest, current: DiagnosisFit, cand: DiagnosisFit,
     else:
         cannot = (f"held-out elpd cannot decide on these data ({n_units} cycles, fewer than "
                   f"{MIN_GATE_UNITS}; change {d:.3g}, se {se:.3g})")
-        if test.effect in (BRANCH_SHAPE, DISTURBANCE):
+        if test.effect in SCAN_JUDGED:
             decided_by = "residual scan"
             ok = bool(test.p_value < st.alpha and better)
             reason = (f"{cannot}; the residual scan's calibrated test ({test.statistic}, "
@@ -118,7 +157,7 @@ def judge(rnd: int, test: EffectTest, current: DiagnosisFit, cand: DiagnosisFit,
         if bad:
             ok, reason = False, "implausible for a piezo stage: " + "; ".join(bad)
     tied: list[str] = []
-    if ok and test.effect not in (BRANCH_SHAPE, DISTURBANCE):
+    if ok and test.effect not in SCAN_JUDGED:
         tied = tied_effects(test.effect, current.analysis.tests)
         if test.effect in LAG_LIKE and not separates_lags(current.posterior.data):
             # one sine, no hold: by design, every lag-like effect that fired is the same

@@ -48,9 +48,11 @@ from bayeshyst.diagnosis.candidates import (
     BRANCH_SHAPE,
     DISTURBANCE,
     SHAPE_DISCREPANCY,
+    UNEXPLAINED,
     judge,
     line_candidate,
     shape_candidate,
+    unexplained_candidate,
 )
 from bayeshyst.diagnosis.catalogue import EFFECTS, get_effect
 from bayeshyst.diagnosis.effects import ColoredNoise
@@ -80,7 +82,7 @@ from bayeshyst.inference.settings import SamplerSettings
 from bayeshyst.likelihoods import get_likelihood
 from bayeshyst.models import get as get_model
 from bayeshyst.models.base import HysteresisModel
-from bayeshyst.models.blocks import Disturbance
+from bayeshyst.models.blocks import Disturbance, Unexplained
 from bayeshyst.models.compose import Composite
 from bayeshyst.selection.tasks import CompareSettings, fit_sampler, loo_scores
 
@@ -315,6 +317,17 @@ def diagnose(
             # before coloured noise
             noise = [i for i, t in enumerate(candidates) if t.effect == ColoredNoise.name]
             candidates.insert(noise[0] if noise else len(candidates), line)
+        unexplained = unexplained_candidate(current, st.alpha)
+        if unexplained is not None:
+            # what no physical block explains is still structure: a smooth term in the
+            # feature it follows says how much, before coloured noise would blur it
+            noise = [i for i, t in enumerate(candidates) if t.effect == ColoredNoise.name]
+            at = noise[0] if noise else len(candidates)
+            kept = [d.driver for d in current.analysis.drivers.selected]
+            shape_at = [i for i, t in enumerate(candidates) if t.effect == BRANCH_SHAPE]
+            if shape_at and kept.index(unexplained.variant) < kept.index("loop position"):
+                at = shape_at[0]  # the scan kept its feature first: it is the stronger
+            candidates.insert(at, unexplained)
         if not candidates:
             break
         accepted, refitted = None, 0
@@ -326,6 +339,12 @@ def diagnose(
                                                           spec, SHAPE_DISCREPANCY)
                 # start where the current fit is, with the shape correction at zero
                 warm = (current, {f"{DISC}.xi": 0.0})
+            elif test.effect == UNEXPLAINED:
+                new_model, new_lik, new_disc = (
+                    Composite(current.model, (Unexplained(feature=test.variant),)),
+                    current.likelihood, disc)
+                new_spec = f"{spec}+unexplained(feature={test.variant})"
+                warm = (current, {})
             elif test.effect == DISTURBANCE:
                 blk = Disturbance(frequency_hz=float(test.variant))
                 new_model, new_lik, new_disc = (Composite(current.model, (blk,)),

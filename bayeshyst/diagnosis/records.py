@@ -22,7 +22,11 @@ from bayeshyst.inference.settings import SamplerSettings
 from bayeshyst.models.base import HysteresisModel
 from bayeshyst.tables import TableRecord, frame
 
-__all__ = ["DiagnosisFit", "DiagnosisResult", "DiagnosisSettings", "DiagnosisStep"]
+__all__ = ["UNEXPLAINED", "DiagnosisFit", "DiagnosisResult", "DiagnosisSettings", "DiagnosisStep"]
+
+#: Name of structure no block explains, given a smooth term in the feature it follows
+#: (:func:`bayeshyst.diagnosis.candidates.unexplained_candidate`).
+UNEXPLAINED = "unexplained"
 
 
 @dataclass(frozen=True)
@@ -335,7 +339,13 @@ class DiagnosisResult(TableRecord):
             head = ("no effect was kept" + (f" (tried: {', '.join(tried)})" if tried else "")
                     + "; ")
         else:
-            head = f"effects found: {', '.join(self.effects_found)}; "
+            named = [s.effect for s in self.steps if s.accepted and s.effect != UNEXPLAINED]
+            smooth = [f"unexplained structure depending on {s.test.variant} (the smooth term "
+                      f"took {s.test.value:.1f} % of the residual's held-out variance; RMSE "
+                      f"{s.before.rmse:.4g} -> {s.after.rmse:.4g})"
+                      for s in self.steps if s.accepted and s.effect == UNEXPLAINED]
+            head = "; ".join(([f"effects found: {', '.join(named)}"] if named else [])
+                             + smooth) + "; "
         fired = [t.effect for t in last.fired()]
         left = []
         if last.structure_left:

@@ -25,8 +25,9 @@ The package holds the contract and the registry (:mod:`~bayeshyst.models.blocks.
 linear dynamics (:mod:`~bayeshyst.models.blocks.linear`), creep
 (:mod:`~bayeshyst.models.blocks.creep`), the drift, delay and output-map blocks
 (:mod:`~bayeshyst.models.blocks.output`) and the blocks driven by a measured column or a
-moment in time (:mod:`~bayeshyst.models.blocks.external`); every public name is
-importable from here.
+moment in time (:mod:`~bayeshyst.models.blocks.external`) and the smooth term for
+structure no physical block explains (:mod:`~bayeshyst.models.blocks.smooth`); every
+public name is importable from here.
 """
 
 from __future__ import annotations
@@ -45,6 +46,7 @@ from bayeshyst.models.blocks.creep import Creep, FractionalCreep
 from bayeshyst.models.blocks.external import AuxInput, ChangePoint, Disturbance
 from bayeshyst.models.blocks.linear import ARX, SecondOrder
 from bayeshyst.models.blocks.output import AsymmetricOutput, Delay, Drift
+from bayeshyst.models.blocks.smooth import Unexplained
 
 __all__ = [
     "ARX",
@@ -61,6 +63,7 @@ __all__ = [
     "FractionalCreep",
     "SecondOrder",
     "TimeScales",
+    "Unexplained",
     "block_class",
     "block_names",
     "register_block",

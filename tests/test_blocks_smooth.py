@@ -1,0 +1,123 @@
+"""The smooth term for structure no physical block explains (``unexplained``).
+
+Oracles: the block's equation written out here with explicit sums; the squared-
+exponential kernel its reduced-rank prior approximates; one call against the same record
+applied in pieces; a slow change in time recovered by the MAP of a posterior.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from bayeshyst.data.record import Record
+from bayeshyst.errors import ModelError
+from bayeshyst.inference.optimize import find_map
+from bayeshyst.inference.posterior import Posterior
+from bayeshyst.models import get as get_model
+from bayeshyst.models.blocks import Unexplained
+from bayeshyst.models.blocks.smooth import log_se_spectrum, sine_basis
+
+L = 2.5
+
+
+def _slow_output(w, x, ref, half, a, b, span, m, length):
+    """``(1 + g) w + h`` with every sum written out (the block's docstring)."""
+    out = np.empty_like(w)
+    for n in range(w.size):
+        z = (x[n] - ref) / half
+        g = h = 0.0
+        for j in range(1, m + 1):
+            wj = math.pi * j / (2 * L)
+            s = math.sqrt(math.sqrt(2 * math.pi) * length * math.exp(-0.5 * (length * wj) ** 2))
+            phi = math.sin(wj * (z + L)) / math.sqrt(L)
+            g += 0.05 * s * phi * a[j - 1]
+            h += 0.05 * span * s * phi * b[j - 1]
+        out[n] = (1 + g) * w[n] + h
+    return out
+
+
+def _theta(block, rng, ref, half, span):
+    m = block.n_basis
+    return {"a": rng.standard_normal(m), "b": rng.standard_normal(m), "x_ref": ref,
+            "x_half": half, "y_span": span}
+
+
+@pytest.mark.parametrize("n_basis", [6, 9])
+def test_time_feature_matches_the_written_out_equation(n_basis):
+    rng = np.random.default_rng(n_basis)
+    blk = Unexplained(feature="time", n_basis=n_basis)
+    t = 10.0 + np.arange(400) / 100.0  # the record starts at 10 s: time counts from there
+    w = np.sin(t) * 3 + 1
+    th = _theta(blk, rng, 2.0, 2.0, 5.0)
+    got = blk.apply(w, t, th).y
+    want = _slow_output(w, t - t[0], 2.0, 2.0, th["a"], th["b"], 5.0, n_basis, blk.length)
+    np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-12)
+
+
+def test_a_column_feature_reads_the_column_and_is_the_identity_without_it():
+    rng = np.random.default_rng(1)
+    blk = Unexplained(feature="load_n")
+    t = np.arange(300) / 100.0
+    load = 10 + rng.standard_normal(300)
+    w = np.cos(t)
+    th = _theta(blk, rng, 10.0, 3.0, 2.0)
+    got = blk.apply(w, t, th, covariates={"load_n": load}).y
+    want = _slow_output(w, load, 10.0, 3.0, th["a"], th["b"], 2.0, 6, blk.length)
+    np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-12)
+    np.testing.assert_array_equal(blk.apply(w, t, th).y, w)
+    assert blk.covariates == ("load_n",) and Unexplained().covariates == ()
+
+
+def test_pieces_give_the_same_output_as_one_call():
+    rng = np.random.default_rng(2)
+    blk = Unexplained()
+    t = 3.0 + np.arange(500) / 200.0
+    w = rng.standard_normal(500)
+    th = _theta(blk, rng, 1.25, 1.25, 4.0)
+    whole = blk.apply(w, t, th)
+    first = blk.apply(w[:123], t[:123], th)
+    rest = blk.apply(w[123:], t[123:], th, state0=first.state)
+    np.testing.assert_allclose(np.concatenate([first.y, rest.y]), whole.y, rtol=0, atol=0)
+
+
+@pytest.mark.parametrize("n_basis", [6, 12, 20])
+def test_the_reduced_rank_prior_is_the_squared_exponential_kernel(n_basis):
+    # Riutort-Mayol et al. 2023: with length >= 1.75 L / m and L >= 3.2 length (so
+    # m >= 6 at L = 2.5, the block's minimum) the approximation holds to about 1 % of
+    # the variance over the data's [-1, 1]
+    blk = Unexplained(n_basis=n_basis)
+    z = np.linspace(-1, 1, 41)
+    phi, w = sine_basis(z, n_basis)
+    k = (phi * np.exp(log_se_spectrum(w, blk.length))[0]) @ phi.T
+    exact = np.exp(-0.5 * (z[:, None] - z[None, :]) ** 2 / blk.length ** 2)
+    assert np.abs(k - exact).max() < 0.02
+
+
+def test_bad_settings_are_refused_by_name():
+    with pytest.raises(ModelError, match="feature"):
+        Unexplained(feature="a=b")
+    with pytest.raises(ModelError, match="n_basis"):
+        Unexplained(n_basis=5)  # its length would be too long for the basis domain
+
+
+def test_a_slow_change_in_time_is_recovered():
+    # a 3-operator PI whose offset wanders as a half sine over the record (0.2 um, 0.7 %
+    # of the stroke) and whose gain falls by 2 %: the MAP's term follows both
+    base = get_model("pi_play(n_operators=3)")
+    t = np.arange(4000) / 1000.0
+    u = 75.0 + 75.0 * np.sin(2 * np.pi * 2.0 * t - np.pi / 2)
+    proto = Record(t, u, u.copy())
+    theta = {**base.param_space(proto).fixed, "p0": 0.1, "w": np.array([0.03, 0.02, 0.01])}
+    w = base.simulate(u, t, theta)
+    wander = 0.2 * np.sin(np.pi * t / t[-1])
+    gain = -0.02 * t / t[-1]
+    y = w * (1 + gain) + wander + 0.003 * np.random.default_rng(0).standard_normal(t.size)
+    post = Posterior(Record(t, u, y), "pi_play(n_operators=3)+unexplained")
+    theta = post.space.unpack(find_map(post, seed=0).z)
+    pred = post.model.simulate(u, t, {k: v for k, v in theta.items()
+                                      if k.startswith(("static.", "unexplained."))})
+    # what is left is the noise: the term took the wander and the gain change
+    assert np.std(y - pred) < 1.5 * 0.003
