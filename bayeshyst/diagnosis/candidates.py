@@ -14,6 +14,7 @@ import math
 
 import numpy as np
 
+from bayeshyst.diagnosis.drivers import DriverRelevance
 from bayeshyst.diagnosis.records import (
     UNEXPLAINED,
     DiagnosisFit,
@@ -58,12 +59,17 @@ def shape_candidate(current: DiagnosisFit, alpha: float) -> EffectTest | None:
         return None
     for d in scan.selected:
         if d.driver == "loop position":
-            nan = math.nan
-            return EffectTest(BRANCH_SHAPE, "held-out gain (%)", d.conditional_percent, 0, 0,
-                              d.p_value, d.p_value, nan, d.conditional_percent / 100.0, nan,
-                              nan, {}, {"heldout_gain_percent": d.conditional_percent},
-                              bool(d.p_value < alpha))
+            return _scan_test(BRANCH_SHAPE, d, alpha)
     return None
+
+
+def _scan_test(name: str, d: DriverRelevance, alpha: float, variant: str = "") -> EffectTest:
+    """A kept driver as a candidate: the scan's held-out gain and randomisation p-value."""
+    nan = math.nan
+    return EffectTest(name, "held-out gain (%)", d.conditional_percent, 0, 0, d.p_value,
+                      d.p_value, nan, d.conditional_percent / 100.0, nan, nan, {},
+                      {"heldout_gain_percent": d.conditional_percent},
+                      bool(d.p_value < alpha), variant=variant)
 
 
 #: Name of a periodic disturbance (a spectral line) among the loop's candidates.
@@ -108,11 +114,7 @@ def unexplained_candidate(current: DiagnosisFit, alpha: float) -> EffectTest | N
     for d in scan.selected:
         if not (d.driver == TIME or d.kind == "external") or d.driver in have:
             continue
-        nan = math.nan
-        return EffectTest(UNEXPLAINED, "held-out gain (%)", d.conditional_percent, 0, 0,
-                          d.p_value, d.p_value, nan, d.conditional_percent / 100.0, nan,
-                          nan, {}, {"heldout_gain_percent": d.conditional_percent},
-                          bool(d.p_value < alpha), variant=d.driver)
+        return _scan_test(UNEXPLAINED, d, alpha, variant=d.driver)
     return None
 
 
