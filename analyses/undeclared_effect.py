@@ -25,9 +25,9 @@ without that folder the script exits with status 2 and one line saying so):
   branch as (unscored) warm-up;
 * ``micromanipulator`` -- piezo micromanipulator, 1 Hz, 200 Hz, used whole
   (:func:`~bayeshyst.data.measured.load_piezo_micromanipulator`, ``which="model"``);
-* ``mr_damper`` -- MR damper at one coil current (``--mr-current``, default 0.5 A), all
-  six frequencies, decimated to about 200 samples per cycle
-  (:func:`~bayeshyst.data.measured.load_mr_damper`).
+* ``mr_damper`` -- MR damper, one diagnosis per coil current (``--mr-currents``, default
+  all five: 0, 0.25, 0.5, 0.75, 1 A), all six frequencies each, decimated to about 200
+  samples per cycle (:func:`~bayeshyst.data.measured.load_mr_damper`).
 
 The full run does all three; quick mode only the 150 V set, cut to a short record
 (about 100 samples per cycle, 0 V lead-in trimmed to 0.2 s, warm-up plus 3 cycles).
@@ -56,6 +56,7 @@ say so.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import math
 import sys
 from collections.abc import Sequence
@@ -125,12 +126,31 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--max-refits", type=non_negative_int, default=None, metavar="N",
                    help="exact LOO refits per fit for cycles with Pareto k > 0.7 (each costs a "
                         "fit; default 5; --quick 0)")
-    p.add_argument("--mr-current", type=float, default=0.5, choices=MR_CURRENTS,
-                   metavar="A", help="coil current of the MR-damper tests [A]: 0, 0.25, 0.5 "
-                   "(default), 0.75 or 1")
+    p.add_argument("--samples-per-cycle", type=positive_int, default=None, metavar="N",
+                   help="decimate every record to about N samples per excitation cycle "
+                        "(default: 1000 for the 150 V set, 200 for the MR damper, the "
+                        "micromanipulator whole; --quick 100)")
+    p.add_argument("--mr-currents", type=_currents, default=MR_CURRENTS, metavar="A,B,...",
+                   help="coil currents of the MR-damper tests [A], one diagnosis each "
+                        "(default all: 0,0.25,0.5,0.75,1)")
     p.add_argument("--no-checkpoint", action="store_true",
                    help="do not checkpoint the fits (OUT/<dataset>/checkpoints/)")
     return p
+
+
+def _currents(text: str) -> tuple[float, ...]:
+    """``"0,0.5"`` -> ``(0.0, 0.5)``: coil currents of the MR-damper tests."""
+    try:
+        values = tuple(float(v) for v in name_list(text))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected coil currents like 0,0.5,1 [A], got "
+                                         f"{text!r}") from None
+    bad = [v for v in values if v not in MR_CURRENTS]
+    if bad or not values:
+        raise argparse.ArgumentTypeError(f"coil currents must be among "
+                                         f"{', '.join(f'{c:g}' for c in MR_CURRENTS)} A, "
+                                         f"got {text!r}")
+    return values
 
 
 # ------------------------------------------------------------------------- results
@@ -243,8 +263,15 @@ def _analyse(args: argparse.Namespace) -> int:
         shared_data_root()
     except DataError as exc:  # exit status 2 with this one line: nothing to analyse
         raise DataError(f"the measured data sets are not available: {exc}") from None
-    datasets = [(k, load_measured(k, cfg["cuts"][k], mr_current=args.mr_current))
-                for k in keys]
+    cuts = {k: (cfg["cuts"][k] if args.samples_per_cycle is None
+                else dataclasses.replace(cfg["cuts"][k],
+                                         samples_per_cycle=args.samples_per_cycle))
+            for k in keys}
+    datasets = []
+    for k in keys:  # the MR damper: one diagnosis per coil current
+        for current in (args.mr_currents if k == "mr_damper" else (None,)):
+            label = k if current is None else f"{k}_{current:g}A"
+            datasets.append((label, load_measured(k, cuts[k], mr_current=current or 0.0)))
     out = Path(args.out)
     entries = []
     for key, data in datasets:
@@ -287,7 +314,7 @@ def _analyse(args: argparse.Namespace) -> int:
         "settings": {k: v for k, v in cfg.items() if k not in ("cuts", "datasets")}
         | {"sampler": cfg["sampler"].to_dict(), "alpha": args.alpha,
            "threshold": args.threshold, "seed": cfg["sampler"].seed,
-           "mr_current_a": args.mr_current},
+           "mr_currents_a": list(args.mr_currents)},
         "files": {"text": "undeclared_effect.txt",
                   "per_dataset": [e["folder"] for e in entries]},
         "runtime_s": round(log.elapsed, 2),

@@ -37,6 +37,7 @@ from __future__ import annotations
 import logging
 import math
 from collections.abc import Callable, Mapping, Sequence
+from dataclasses import replace
 from pathlib import Path
 from types import MappingProxyType
 from typing import Any
@@ -63,6 +64,7 @@ from bayeshyst.diagnosis.records import (
     DiagnosisStep,
 )
 from bayeshyst.diagnosis.residual import (
+    EffectTest,
     analyse_residual,
     best_point,
 )
@@ -83,7 +85,9 @@ from bayeshyst.likelihoods import get_likelihood
 from bayeshyst.models import get as get_model
 from bayeshyst.models.base import HysteresisModel
 from bayeshyst.models.blocks import Disturbance, Unexplained
+from bayeshyst.models.blocks.smooth import TIME
 from bayeshyst.models.compose import Composite
+from bayeshyst.selection import paired_difference
 from bayeshyst.selection.tasks import CompareSettings, fit_sampler, loo_scores
 
 __all__ = ["DiagnosisFit", "DiagnosisResult", "DiagnosisSettings", "DiagnosisStep", "diagnose"]
@@ -175,6 +179,56 @@ def _fit(data: Dataset, model: HysteresisModel, likelihood: str, label: str,
                     pointwise_elpd=scores.pointwise, warnings=tuple(notes), idata=scores.idata,
                     budget=tuple(uncertainty_budget(post, draws)))
     return DiagnosisFit(label, fit, analysis)
+
+
+def _before_noise(candidates: Sequence[EffectTest]) -> int:
+    """Where a structural candidate goes: before coloured noise, which only blurs it."""
+    noise = [i for i, t in enumerate(candidates) if t.effect == ColoredNoise.name]
+    return noise[0] if noise else len(candidates)
+
+
+def _augmented(test: EffectTest, current: DiagnosisFit, spec: str, disc: str | None,
+               data: Dataset) -> tuple[HysteresisModel, str, str, str | None,
+                                       tuple[DiagnosisFit, dict[str, Any]]]:
+    """The model ``test`` proposes: (model, likelihood, spec, discrepancy, warm start)."""
+    if test.effect == BRANCH_SHAPE:
+        # start where the current fit is, with the shape correction at zero
+        return (current.model, current.likelihood, spec, SHAPE_DISCREPANCY,
+                (current, {f"{DISC}.xi": 0.0}))
+    if test.effect == UNEXPLAINED:
+        return (Composite(current.model, (Unexplained(feature=test.variant),)),
+                current.likelihood, f"{spec}+unexplained(feature={test.variant})", disc,
+                (current, {}))
+    if test.effect == DISTURBANCE:
+        blk = Disturbance(frequency_hz=float(test.variant))
+        return (Composite(current.model, (blk,)), current.likelihood,
+                f"{spec}+disturbance(frequency_hz={blk.frequency_hz!r})", disc, (current, {}))
+    eff = get_effect(test.effect)
+    new_model, new_lik, suffix = eff.augment(current.model, current.likelihood, test.coef,
+                                             data, variant=test.variant)
+    return (new_model, new_lik, spec if suffix.startswith(" ") else spec + suffix, disc,
+            (current, eff.initial(test.coef, test.estimates)))
+
+
+def _challenge(step: DiagnosisStep, cand: DiagnosisFit, alt_step: DiagnosisStep,
+               alt: DiagnosisFit, threshold: float) -> tuple[DiagnosisStep, DiagnosisStep]:
+    """A kept time-domain effect against a smooth term in time fitted in its place.
+
+    The smooth term wins only when it passed the gate itself and its held-out elpd beats
+    the effect's by more than ``threshold`` standard errors; otherwise the physical
+    effect, the simpler reading, is kept. Returns both steps with their verdicts.
+    """
+    d, se = paired_difference(alt.pointwise_elpd, cand.pointwise_elpd)
+    versus = f"held-out elpd {d:+.1f} (se {se:.1f}) against {step.effect}"
+    if alt_step.accepted and math.isfinite(se) and d > threshold * se and d > 0:
+        return (replace(step, accepted=False,
+                        reason=f"{step.reason}; but a smooth term in time explains the "
+                        f"residual better ({versus}): {step.effect} is not credited"),
+                replace(alt_step, reason=f"{alt_step.reason}; beats {step.effect}: {versus}"))
+    why = "not better" if alt_step.accepted else "not kept on its own"
+    return step, replace(alt_step, accepted=False,
+                         reason=f"{alt_step.reason}; {why} than {step.effect} ({versus}, "
+                         f"needs > {threshold:g} x se): the physical effect is kept")
 
 
 def _check_settings(st: DiagnosisSettings) -> None:
@@ -309,20 +363,17 @@ def diagnose(
             for t in tied:
                 shape_ties.setdefault(t.effect, t.p_beyond_shape)
             candidates = [t for t in candidates if all(t is not u for u in tied)]
-            noise = [i for i, t in enumerate(candidates) if t.effect == ColoredNoise.name]
-            candidates.insert(noise[0] if noise else len(candidates), shape)
+            candidates.insert(_before_noise(candidates), shape)
         line = line_candidate(current, st.alpha)
         if line is not None:
             # a line is structure, which an AR(1) noise model would only blur: it goes
             # before coloured noise
-            noise = [i for i, t in enumerate(candidates) if t.effect == ColoredNoise.name]
-            candidates.insert(noise[0] if noise else len(candidates), line)
+            candidates.insert(_before_noise(candidates), line)
         unexplained = unexplained_candidate(current, st.alpha)
         if unexplained is not None:
             # what no physical block explains is still structure: a smooth term in the
             # feature it follows says how much, before coloured noise would blur it
-            noise = [i for i, t in enumerate(candidates) if t.effect == ColoredNoise.name]
-            at = noise[0] if noise else len(candidates)
+            at = _before_noise(candidates)
             kept = [d.driver for d in current.analysis.drivers.selected]
             shape_at = [i for i, t in enumerate(candidates) if t.effect == BRANCH_SHAPE]
             if shape_at and kept.index(unexplained.variant) < kept.index("loop position"):
@@ -330,44 +381,44 @@ def diagnose(
             candidates.insert(at, unexplained)
         if not candidates:
             break
-        accepted, refitted = None, 0
+
+        def attempt(test: EffectTest, rnd: int = rnd, current: DiagnosisFit = current,
+                    spec: str = spec, disc: str | None = disc
+                    ) -> tuple[DiagnosisFit, DiagnosisStep, str, str | None]:
+            new_model, new_lik, new_spec, new_disc, warm = _augmented(test, current, spec,
+                                                                      disc, data)
+            cand = fit(new_model, new_lik, lab(new_spec, new_lik, new_disc), warm, new_disc)
+            warnings.extend(w for w in cand.warnings if w not in warnings)
+            return cand, judge(rnd, test, current, cand, st), new_spec, new_disc
+
+        accepted, refitted, challenged = None, 0, False
         for test in candidates:
             if refitted >= st.max_candidates:
                 break
-            if test.effect == BRANCH_SHAPE:
-                new_model, new_lik, new_spec, new_disc = (current.model, current.likelihood,
-                                                          spec, SHAPE_DISCREPANCY)
-                # start where the current fit is, with the shape correction at zero
-                warm = (current, {f"{DISC}.xi": 0.0})
-            elif test.effect == UNEXPLAINED:
-                new_model, new_lik, new_disc = (
-                    Composite(current.model, (Unexplained(feature=test.variant),)),
-                    current.likelihood, disc)
-                new_spec = f"{spec}+unexplained(feature={test.variant})"
-                warm = (current, {})
-            elif test.effect == DISTURBANCE:
-                blk = Disturbance(frequency_hz=float(test.variant))
-                new_model, new_lik, new_disc = (Composite(current.model, (blk,)),
-                                                current.likelihood, disc)
-                new_spec = f"{spec}+disturbance(frequency_hz={blk.frequency_hz!r})"
-                warm = (current, {})
-            else:
-                eff = get_effect(test.effect)
-                new_model, new_lik, suffix = eff.augment(current.model, current.likelihood,
-                                                         test.coef, data, variant=test.variant)
-                new_spec = spec if suffix.startswith(" ") else spec + suffix
-                new_disc = disc
-                warm = (current, eff.initial(test.coef, test.estimates))
-            cand = fit(new_model, new_lik, lab(new_spec, new_lik, new_disc), warm, new_disc)
-            warnings += [w for w in cand.warnings if w not in warnings]
-            step = judge(rnd, test, current, cand, st)
+            if test is unexplained and challenged:
+                continue  # already fitted as a challenger this round
+            cand, step, new_spec, new_disc = attempt(test)
             if not step.accepted and step.reason.startswith("implausible"):
                 # the structure is real, this explanation of it is not: the next
                 # candidate gets its turn without using up the round's budget
                 warnings.append(f"{test.effect}: {step.reason}")
             else:
                 refitted += 1
-            _log.info("round %d: %s %s (%s)", rnd, test.effect,
+            if (step.accepted and test.effect in TIME_DOMAIN and unexplained is not None
+                    and unexplained.variant == TIME):
+                # the scan says the residual follows time: a time-domain effect is
+                # credited only if it explains that at least as well as a generic smooth
+                # term in time (which cannot be read physically)
+                challenged = True
+                alt, alt_step, alt_spec, alt_disc = attempt(unexplained)
+                step, alt_step = _challenge(step, cand, alt_step, alt, st.threshold)
+                if alt_step.accepted:
+                    steps.append(step)
+                    _log.info("round %d: %s beaten by %s", rnd, test.effect, UNEXPLAINED)
+                    cand, step, new_spec, new_disc = alt, alt_step, alt_spec, alt_disc
+                else:
+                    steps.append(alt_step)
+            _log.info("round %d: %s %s (%s)", rnd, step.effect,
                       "accepted" if step.accepted else "rejected", step.reason)
             steps.append(step)
             if step.accepted:
