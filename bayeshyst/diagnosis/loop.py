@@ -70,6 +70,7 @@ from bayeshyst.diagnosis.residual import (
 )
 from bayeshyst.diagnosis.verdict import (
     PLAUSIBLE,
+    SLOW_IN_TIME,
     TIME_DOMAIN,
     experiment_for,
 )
@@ -212,7 +213,7 @@ def _augmented(test: EffectTest, current: DiagnosisFit, spec: str, disc: str | N
 
 def _challenge(step: DiagnosisStep, cand: DiagnosisFit, alt_step: DiagnosisStep,
                alt: DiagnosisFit, threshold: float) -> tuple[DiagnosisStep, DiagnosisStep]:
-    """A kept time-domain effect against a smooth term in time fitted in its place.
+    """A kept effect that follows slow structure against a smooth term in time in its place.
 
     The smooth term wins only when it passed the gate itself and its held-out elpd beats
     the effect's by more than ``threshold`` standard errors; otherwise the physical
@@ -404,11 +405,11 @@ def diagnose(
                 warnings.append(f"{test.effect}: {step.reason}")
             else:
                 refitted += 1
-            if (step.accepted and test.effect in TIME_DOMAIN and unexplained is not None
+            if (step.accepted and test.effect in SLOW_IN_TIME and unexplained is not None
                     and unexplained.variant == TIME):
-                # the scan says the residual follows time: a time-domain effect is
-                # credited only if it explains that at least as well as a generic smooth
-                # term in time (which cannot be read physically)
+                # the scan says the residual follows time: an effect that can follow
+                # slow structure is credited only if it explains it at least as well as
+                # a generic smooth term in time (which cannot be read physically)
                 challenged = True
                 alt, alt_step, alt_spec, alt_disc = attempt(unexplained)
                 step, alt_step = _challenge(step, cand, alt_step, alt, st.threshold)

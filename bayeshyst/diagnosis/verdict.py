@@ -34,6 +34,7 @@ __all__ = [
     "LAG_LIKE",
     "MIN_GATE_UNITS",
     "PLAUSIBLE",
+    "SLOW_IN_TIME",
     "TIE_NATS",
     "TIME_DOMAIN",
     "experiment_for",
@@ -55,6 +56,11 @@ FALLBACK_LOG_BF = 5.0
 LAG_LIKE = ("creep", "delay", "rate_dependence")
 #: Effects credited with structure in time rather than in where on the loop.
 TIME_DOMAIN = (*LAG_LIKE, "drift", "change_point")
+#: Effects whose output can follow slow structure over the record (a creep's log-time
+#: response, a ramp, a step): when the residual follows time, each must explain it at
+#: least as well as a generic smooth term in time to be credited (a delay or a lag
+#: cannot mimic such structure and are not challenged).
+SLOW_IN_TIME = ("creep", "drift", "change_point")
 
 #: Plausible posterior means of an added block's parameters on a piezo stage:
 #: ``parameter -> (low, high, why)``. A delay beyond 2 ms is not a piezo amplifier
