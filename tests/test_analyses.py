@@ -20,7 +20,7 @@ from analyses import (
     uncertainty_report,
     undeclared_effect,
 )
-from analyses._common import DEFAULT_DATA, Cut, Progress, cut_record
+from analyses._common import DEFAULT_DATA, Cut, Progress, cut_record, load_measured
 from bayeshyst.data import Record, load
 from bayeshyst.data.measured import ENV_VAR
 
@@ -347,3 +347,27 @@ def test_hidden_effect_suite_scores_and_resumes(tmp_path, capsys):
     capsys.readouterr()
     assert hidden_effects.main(["--cases", "no_such_case", "--out", str(tmp_path / "x")]) == 2
     assert "no_such_case" in capsys.readouterr().err and not (tmp_path / "x").exists()
+
+
+# --------------------------------------------- measured data: decisions stable over seeds
+@pytest.mark.shared_data
+@pytest.mark.slow
+def test_first_round_on_the_measured_150v_piezo_is_the_same_for_every_seed(shared_data_dir):
+    # what the loop decides on measured data must come from the data, not from the
+    # sampler's seed: three seeds, converged fits, the same tests firing, the same drivers
+    # kept and the same effect (or none) kept in the first round
+    from bayeshyst.diagnosis import diagnose
+    from bayeshyst.inference.settings import SamplerSettings
+
+    data = load_measured("piezo_150v", Cut(samples_per_cycle=100, trim_rest_s=0.2))
+    decisions = []
+    for seed in (0, 1, 2):
+        result = diagnose(data, "bouc_wen", sampler=SamplerSettings(max_steps=10_000,
+                                                                    seed=seed),
+                          max_rounds=1, max_candidates=1, max_refits=0)
+        assert result.base.sampling.converged and result.final.sampling.converged
+        first = result.rounds[0]
+        decisions.append((sorted(t.effect for t in first.fired()),
+                          sorted(d.driver for d in first.drivers.selected),
+                          result.effects_found))
+    assert decisions[0] == decisions[1] == decisions[2], decisions

@@ -109,13 +109,14 @@ def test_emcee_agrees_with_the_conjugate_posterior_of_pi_weights():
     assert d @ np.linalg.solve(exact.cov, d) < stats.chi2.ppf(0.999, truth.size)
 
 
-def _small_run(checkpoint=None, seed=5, moves="structured", model=None):
+def _small_run(checkpoint=None, seed=5, moves="structured", model=None, flush_seconds=2.0):
     model_, rec, _ = pi_data(n_ops=2, n=600, warmup=100)
     post = Posterior(rec, model or model_)
     start = find_map(post, seed=0, global_search=False, n_screen=64, n_starts=1)
     return sample_posterior(post, SamplerSettings(seed=seed, max_steps=400, first_chunk=100,
                                                   checkpoint=checkpoint, min_ess=1e9,
-                                                  moves=moves), start=start)
+                                                  moves=moves, flush_seconds=flush_seconds),
+                             start=start)
 
 
 def test_same_seed_same_chains_other_seed_other_chains():
@@ -158,6 +159,32 @@ def test_resume_after_sigkill_gives_the_uninterrupted_draws(tmp_path, moves):
     np.testing.assert_array_equal(resumed.chains, whole.chains)
     np.testing.assert_array_equal(resumed.log_prob, whole.log_prob)
     assert resumed.move_acceptance == whole.move_acceptance
+
+
+def test_a_checkpoint_locked_by_a_reader_delays_the_flush_and_loses_nothing(tmp_path,
+                                                                           monkeypatch):
+    # a user opening the checkpoint while the run goes on holds its HDF5 lock: a write
+    # that meets the lock (BlockingIOError) waits it out -- the run neither dies nor
+    # loses or reorders a step
+    orig, calls = emcee.backends.HDFBackend.open, {"a": 0, "refused": 0}
+
+    def locked(self, mode="r"):
+        if mode == "a":
+            calls["a"] += 1
+            if calls["a"] % 40 in (3, 4):  # two of every 40 appends meet the lock
+                calls["refused"] += 1
+                raise BlockingIOError(11, "Resource temporarily unavailable")
+        return orig(self, mode)
+
+    monkeypatch.setattr(emcee.backends.HDFBackend, "open", locked)
+    ck = tmp_path / "run.h5"
+    whole = _small_run()
+    res = _small_run(checkpoint=ck, flush_seconds=1e-9)  # flush at every step
+    monkeypatch.undo()
+    assert calls["refused"] >= 10
+    np.testing.assert_array_equal(res.chains, whole.chains)
+    resumed = _small_run(checkpoint=ck)  # everything was written: nothing is resampled
+    np.testing.assert_array_equal(resumed.chains, whole.chains)
 
 
 def test_checkpoint_of_another_run_is_refused(tmp_path):

@@ -26,6 +26,7 @@ reason, not opened.
 from __future__ import annotations
 
 import json
+import logging
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -36,6 +37,10 @@ import numpy as np
 from emcee.backends import HDFBackend
 
 from bayeshyst.errors import ParameterError
+
+_log = logging.getLogger(__name__)
+#: Longest wait (s) for another process's lock on a checkpoint file before giving up.
+LOCK_WAIT_S = 60.0
 
 __all__ = ["CHECKPOINT_FORMAT", "CheckpointBackend", "check_fingerprint", "read_meta",
            "write_meta"]
@@ -281,6 +286,28 @@ class CheckpointBackend(HDFBackend):
         self._random_state = state.random_state
         if time.monotonic() - self._last_flush >= self.flush_seconds:
             self.flush()
+
+    def open(self, mode: str = "r") -> Any:
+        """Open the file as emcee does, waiting out another process's lock on it.
+
+        A user who opens the checkpoint while the run goes on (h5py, a viewer) holds its
+        HDF5 lock; the run waits up to :data:`LOCK_WAIT_S` seconds for it instead of
+        dying on the first write, then raises naming the file.
+        """
+        delay, waited = 0.05, 0.0
+        while True:
+            try:
+                return super().open(mode)
+            except BlockingIOError:
+                if waited >= LOCK_WAIT_S:
+                    raise BlockingIOError(
+                        f"checkpoint {self.filename} stayed locked by another process for "
+                        f"{waited:.0f} s; close it and resume the run") from None
+                _log.warning("checkpoint %s is locked by another process; waiting",
+                             self.filename)
+                time.sleep(delay)
+                waited += delay
+                delay = min(2.0 * delay, 2.0)
 
     def flush(self) -> None:
         """Write buffered steps; the checkpoint attribute is written last."""
