@@ -20,6 +20,7 @@ from bayeshyst import models
 from bayeshyst.cli import main
 from bayeshyst.data import Dataset, Record, load, write_csv
 from bayeshyst.diagnosis import EFFECTS, EffectTest
+from bayeshyst.diagnosis.candidates import BRANCH_SHAPE, DISTURBANCE, UNEXPLAINED
 from bayeshyst.diagnostics import load_netcdf
 from bayeshyst.errors import ParameterError
 from bayeshyst.inference.posterior import cycle_units
@@ -95,7 +96,7 @@ def test_diagnose_writes_every_output(diagnosed):
     assert summary["steps"], "the hidden drift must give at least one step"
     for step in summary["steps"]:
         assert STEP_KEYS <= set(step)
-        assert step["effect"] in EFFECTS
+        assert step["effect"] in (*EFFECTS, BRANCH_SHAPE, DISTURBANCE, UNEXPLAINED)
         assert isinstance(step["accepted"], bool)
     accepted = [s for s in summary["steps"] if s["accepted"]]
     assert [s["effect"] for s in accepted] == summary["effects_found"]
@@ -170,14 +171,17 @@ def test_json_on_stdout_is_the_summary(diagnosed):
 
 def test_progress_line_per_fit(diagnosed):
     lines = [ln for ln in diagnosed.stderr.splitlines() if " done: " in ln]
-    assert len(lines) == 2
+    summary = _strict_json((diagnosed.out / "summary.json").read_text())
+    # one fit per step (the smooth term in time that challenges the drift is a step)
+    assert len(lines) == 1 + len(summary["steps"])
     assert f"fit 1 done: {MODEL} (" in lines[0]
     assert f"fit 2 done: {MODEL}+drift (" in lines[1]
     # each line carries its fit's verdict: the summary's is the base's and the final's
-    summary = _strict_json((diagnosed.out / "summary.json").read_text())
-    verdicts = [ln.split(" (", 1)[1].split(")", 1)[0] for ln in lines]
-    assert set(verdicts) <= {"converged", "NOT converged"}
-    assert (verdicts == ["converged", "converged"]) is summary["converged"]
+    verdicts = {ln.split(" done: ", 1)[1].split(" (", 1)[0]:
+                ln.split(" (", 1)[1].split(")", 1)[0] for ln in lines}
+    assert set(verdicts.values()) <= {"converged", "NOT converged"}
+    assert (verdicts[MODEL] == verdicts[f"{MODEL}+drift"] == "converged") \
+        is summary["converged"]
     assert "Traceback" not in diagnosed.stderr
 
 

@@ -413,26 +413,31 @@ def diagnose(
                 challenged = True
                 alt, alt_step, alt_spec, alt_disc = attempt(unexplained)
                 step, alt_step = _challenge(step, cand, alt_step, alt, st.threshold)
+                steps.append(step)  # in the order they were fitted
                 if alt_step.accepted:
-                    steps.append(step)
                     _log.info("round %d: %s beaten by %s", rnd, test.effect, UNEXPLAINED)
                     cand, step, new_spec, new_disc = alt, alt_step, alt_spec, alt_disc
+                    steps.append(step)
                 else:
                     steps.append(alt_step)
+            else:
+                steps.append(step)
             _log.info("round %d: %s %s (%s)", rnd, step.effect,
                       "accepted" if step.accepted else "rejected", step.reason)
-            steps.append(step)
             if step.accepted:
-                accepted = (cand, new_spec, new_disc)
+                accepted = (cand, new_spec, new_disc, step.effect)
                 break
         if accepted is None:
             break
-        current, spec, disc = accepted
-        found.append(steps[-1].effect)
+        current, spec, disc, effect = accepted
+        found.append(effect)
         rounds.append(current.analysis)
     return DiagnosisResult(base.label, current.label, tuple(found), tuple(steps), base,
                            current, tuple(rounds), st, tuple(warnings),
-                           _shape_tie_notes(shape_ties))
+                           # an effect kept in a later round (on top of the shape
+                           # correction) is a finding, no longer a tie with the shape
+                           _shape_tie_notes({e: p for e, p in shape_ties.items()
+                                             if e not in found}))
 
 
 def _shape_tie_notes(shape_ties: dict[str, float]) -> tuple[str, ...]:
