@@ -146,7 +146,7 @@ def _currents(text: str) -> tuple[float, ...]:
         raise argparse.ArgumentTypeError(f"expected coil currents like 0,0.5,1 [A], got "
                                          f"{text!r}") from None
     bad = [v for v in values if v not in MR_CURRENTS]
-    if bad or not values:
+    if bad:  # (name_list already refused an empty list)
         raise argparse.ArgumentTypeError(f"coil currents must be among "
                                          f"{', '.join(f'{c:g}' for c in MR_CURRENTS)} A, "
                                          f"got {text!r}")

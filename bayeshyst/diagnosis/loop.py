@@ -413,13 +413,10 @@ def diagnose(
                 challenged = True
                 alt, alt_step, alt_spec, alt_disc = attempt(unexplained)
                 step, alt_step = _challenge(step, cand, alt_step, alt, st.threshold)
-                steps.append(step)  # in the order they were fitted
+                steps += [step, alt_step]  # in the order they were fitted
                 if alt_step.accepted:
                     _log.info("round %d: %s beaten by %s", rnd, test.effect, UNEXPLAINED)
                     cand, step, new_spec, new_disc = alt, alt_step, alt_spec, alt_disc
-                    steps.append(step)
-                else:
-                    steps.append(alt_step)
             else:
                 steps.append(step)
             _log.info("round %d: %s %s (%s)", rnd, step.effect,
