@@ -57,6 +57,25 @@ def test_time_feature_matches_the_written_out_equation(n_basis):
     np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-12)
 
 
+@pytest.mark.parametrize("shared", [True, False])
+def test_a_batch_of_walkers_matches_the_written_out_equation_row_by_row(shared):
+    # walkers that share the feature's scaling take the one-basis path, walkers with
+    # their own scaling the per-walker path: both against the explicit sums
+    rng = np.random.default_rng(7)
+    blk = Unexplained(feature="time")
+    t = 1.0 + np.arange(300) / 50.0
+    w = rng.standard_normal((4, 300)).cumsum(axis=1)
+    refs = np.full(4, 3.0) if shared else np.array([3.0, 2.0, 4.0, 3.5])
+    halfs = np.full(4, 3.0) if shared else np.array([3.0, 2.5, 4.0, 1.5])
+    th = {"a": rng.standard_normal((4, 6)), "b": rng.standard_normal((4, 6)),
+          "x_ref": refs, "x_half": halfs, "y_span": np.full(4, 2.0)}
+    got = blk.apply_batch(w, t, th).y
+    for i in range(4):
+        want = _slow_output(w[i], t - t[0], refs[i], halfs[i], th["a"][i], th["b"][i], 2.0,
+                            6, blk.length)
+        np.testing.assert_allclose(got[i], want, rtol=1e-12, atol=1e-12)
+
+
 def test_a_column_feature_reads_the_column_and_is_the_identity_without_it():
     rng = np.random.default_rng(1)
     blk = Unexplained(feature="load_n")
