@@ -16,6 +16,8 @@ from bayeshyst.data.record import Record
 from bayeshyst.errors import ModelError
 from bayeshyst.inference.optimize import find_map
 from bayeshyst.inference.posterior import Posterior
+from bayeshyst.inference.sampling import sample_posterior
+from bayeshyst.inference.settings import SamplerSettings
 from bayeshyst.models import get as get_model
 from bayeshyst.models.blocks import Unexplained
 from bayeshyst.models.blocks.smooth import log_se_spectrum, sine_basis
@@ -140,3 +142,49 @@ def test_a_slow_change_in_time_is_recovered():
                                       if k.startswith(("static.", "unexplained."))})
     # what is left is the noise: the term took the wander and the gain change
     assert np.std(y - pred) < 1.5 * 0.003
+
+
+def test_the_sampler_draws_the_coefficients_from_their_conjugate_posterior():
+    # Bouc-Wen held at its true values and the noise known: the coefficients and the
+    # offset are a Bayesian linear regression on the block's written-out columns, whose
+    # Gaussian posterior is computed here densely; the sampler draws them as the
+    # composite's linear group (exact Gibbs), so its moments must match
+    rng = np.random.default_rng(3)
+    t = np.arange(2000) / 1000.0
+    u = 75.0 + 75.0 * np.sin(2 * np.pi * 2.0 * t - np.pi / 2)
+    truth = {"k": 0.2, "alpha": 0.5, "beta": 0.01, "gamma": 0.005, "n": 1.0}
+    w = get_model("bouc_wen").simulate(u, t, truth)
+    sigma = 0.05
+    y = w * (1 - 0.02 * t / t[-1]) + 0.3 * np.sin(np.pi * t / t[-1]) + 0.4 \
+        + sigma * rng.standard_normal(t.size)
+    post = Posterior(Record(t, u, y), "bouc_wen+unexplained").fix("noise.sigma", sigma)
+    for name, value in truth.items():
+        post = post.fix(f"static.{name}", value)
+    assert post.model.linear_params == ("unexplained.a", "unexplained.b")
+    fixed = post.space.fixed
+    ref, half, span = (fixed[f"unexplained.{k}"] for k in ("x_ref", "x_half", "y_span"))
+    m, length = 6, Unexplained().length
+    cols = []
+    for j in range(m):  # the columns of a_j, then b_j, then the offset: the slow equation
+        e = np.zeros(m)
+        e[j] = 1.0
+        cols.append(_slow_output(w, t - t[0], ref, half, e, np.zeros(m), span, m, length)
+                    - w)
+    for j in range(m):
+        e = np.zeros(m)
+        e[j] = 1.0
+        cols.append(_slow_output(w, t - t[0], ref, half, np.zeros(m), e, span, m, length)
+                    - w)
+    x = np.column_stack([*cols, np.ones(t.size)])
+    off = post.space["obs.offset"].prior
+    m0 = np.r_[np.zeros(2 * m), off.mu]
+    s0 = np.r_[np.ones(2 * m), off.sigma]
+    prec = np.diag(s0 ** -2.0) + x.T @ x / sigma ** 2
+    cov = np.linalg.inv(prec)
+    mean = cov @ (m0 / s0 ** 2 + x.T @ (y - w) / sigma ** 2)
+    res = sample_posterior(post, SamplerSettings(seed=5, max_steps=3000))
+    draws = res.draws(2000, seed=1)
+    sd = np.sqrt(np.diag(cov))
+    # exact Gibbs draws of a Gaussian are nearly independent: 2 000 draws, 5 se
+    np.testing.assert_array_less(np.abs(draws.mean(axis=0) - mean), 5 * sd / math.sqrt(500))
+    np.testing.assert_allclose(draws.std(axis=0, ddof=1), sd, rtol=0.15)

@@ -101,7 +101,9 @@ def test_linear_design_reproduces_every_linear_model_and_composite():
     specs = ["pi_play(n_operators=4)", "pi_stop", "pi_asymmetric", "pi_generalized",
              "pi_rate", "maxwell_slip", "preisach", "mbw", "duhem", "bouc_wen",
              "bouc_wen_asym", "pi_play(n_operators=3)+second_order", "pi_play+arx",
-             "bouc_wen+creep+drift+delay", "pi_play+creep_fractional"]
+             "bouc_wen+creep+drift+delay", "pi_play+creep_fractional",
+             # a block's own coefficients as the group, last or before an affine block
+             "bouc_wen+creep+unexplained", "pi_play(n_operators=3)+unexplained+creep"]
     for spec in specs:
         model = get(spec)
         space = model.param_space(rec)
@@ -118,9 +120,23 @@ def test_linear_design_reproduces_every_linear_model_and_composite():
     assert get("bouc_wen+asym_output").linear_params == ()  # an output map is not affine
 
 
+def test_the_larger_of_the_base_and_a_block_group_is_the_linear_block():
+    # the base's group needs every block affine, a block's group every later block; the
+    # two are bilinear, so one is chosen: the larger, the base on a tie
+    m = get("bouc_wen+creep+unexplained")  # k (1) against 2 x 6 coefficients
+    assert m.linear_group == (1, ("unexplained.a", "unexplained.b"))
+    m = get("pi_play(n_operators=15)+unexplained")  # p0 + 15 weights against 12
+    assert m.linear_group == (-1, ("static.p0", "static.w"))
+    m = get("pi_play(n_operators=11)+unexplained")  # 12 against 12: the base
+    assert m.linear_group[0] == -1
+    m = get("bouc_wen+unexplained+asym_output")  # nothing affine after either
+    assert m.linear_group == (None, ()) and m.linear_params == ()
+
+
 @pytest.mark.parametrize("likelihood", ["gaussian", "ar1"])
 @pytest.mark.parametrize("spec", ["pi_play(n_operators=3)", "bouc_wen",
-                                  "pi_play(n_operators=2)+second_order"])
+                                  "pi_play(n_operators=2)+second_order",
+                                  "bouc_wen+unexplained"])
 def test_structure_likelihood_matches_the_simulated_one(spec, likelihood):
     _, rec, _ = pi_data(n_ops=3, n=800)
     post = Posterior(rec, spec, likelihood)
@@ -137,7 +153,8 @@ def test_structure_likelihood_matches_the_simulated_one(spec, likelihood):
         assert np.all(got[~ok] == -np.inf)
 
 
-@pytest.mark.parametrize("spec", ["pi_play(n_operators=2)+second_order", "bouc_wen"])
+@pytest.mark.parametrize("spec", ["pi_play(n_operators=2)+second_order", "bouc_wen",
+                                  "bouc_wen+creep+unexplained"])
 def test_structure_statistics_do_not_depend_on_the_batch(spec):
     # cached Grams and recomputed ones must agree to the bit (resume identity); Bouc-Wen's
     # design [u, 1] is shared by the walkers (another code path)

@@ -316,7 +316,8 @@ class LinearStructure:
         from bayeshyst.models.compose import STATIC, Composite
 
         model = self.post.model
-        if not isinstance(model, Composite) or not self.model_names or self.design_idx.size == 0:
+        if not isinstance(model, Composite) or not self.model_names or self.design_idx.size == 0 \
+                or model.linear_group[0] != -1:  # a block's coefficients: no base design
             return None
         owners = {_owner(self.post.space, i) for i in self.design_idx}
         if any(o.startswith(STATIC + ".") for o in owners):

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import ast
 import dataclasses
+import functools
 import math
 import re
 from collections.abc import Mapping, Sequence
@@ -76,7 +77,9 @@ class Composite(LinearInParams, HysteresisModel):
     every block is affine in its input (``EffectBlock.affine``: linear dynamics, creep,
     delay, drift), the composite is linear in the base's linear parameters
     (``static.<name>``), with ``Phi`` the base's columns passed through the blocks
-    (:meth:`linear_design`). An output map (``asym_output``) breaks that.
+    (:meth:`linear_design`). An output map (``asym_output``) breaks that. A block that is
+    linear in its own parameters (``unexplained``) offers its coefficients instead;
+    :attr:`linear_group` takes the larger of the two groups.
     """
 
     base: HysteresisModel
@@ -116,12 +119,44 @@ class Composite(LinearInParams, HysteresisModel):
 
     @property
     def linear_params(self) -> tuple[str, ...]:  # type: ignore[override]
-        """The base's linear parameters (``static.`` names) when every block is affine."""
+        """The parameters the sampler draws exactly (see :meth:`linear_group`)."""
+        return self.linear_group[1]
+
+    @functools.cached_property
+    def linear_group(self) -> tuple[int | None, tuple[str, ...]]:
+        """Where the composite's linear block lies, and its (namespaced) parameters.
+
+        Two kinds of group qualify: the base's linear parameters (``static.`` names)
+        when every block is affine in its input, and a block's own linear parameters
+        (:attr:`EffectBlock.linear_params`: the ``unexplained`` term's coefficients,
+        linear given the block's input) when every block after it is affine. They do
+        not combine -- the base's output is the block's input, so the two are bilinear
+        -- and the larger group is taken (ties: the base), because the ensemble moves
+        sample what is left: Bouc–Wen's one gain ``k`` is better left to them than the
+        twelve coefficients of a smooth term.
+
+        Returns
+        -------
+        (int or None, tuple of str)
+            ``-1`` for the base, a block index, or None and ``()`` when nothing is
+            linear.
+        """
+        groups = []
         base_lin = tuple(getattr(self.base, "linear_params", ()))
-        if not base_lin or not hasattr(self.base, "linear_design") \
-                or not all(b.affine for b in self.blocks):
-            return ()
-        return tuple(f"{STATIC}.{n}" for n in base_lin)
+        if base_lin and hasattr(self.base, "linear_design") \
+                and all(b.affine for b in self.blocks):
+            shapes = self.base._shapes
+            size = sum(int(np.prod(shapes[n], dtype=int)) for n in base_lin)
+            groups.append((size, -1, tuple(f"{STATIC}.{n}" for n in base_lin)))
+        for i, (ns, block) in enumerate(zip(self.namespaces, self.blocks, strict=True)):
+            if block.linear_params and all(b.affine for b in self.blocks[i + 1:]):
+                size = sum(int(np.prod(block._shapes[n], dtype=int))
+                           for n in block.linear_params)
+                groups.append((size, i, tuple(f"{ns}.{n}" for n in block.linear_params)))
+        if not groups:
+            return None, ()
+        best = max(groups, key=lambda g: g[0])  # the first of the largest: base on a tie
+        return best[1], best[2]
 
     @property
     def linear_affine(self) -> bool:  # type: ignore[override]
@@ -131,20 +166,64 @@ class Composite(LinearInParams, HysteresisModel):
     def linear_design(self, u: Any, t: Any, thetas: Mapping[str, Any],
                       names: tuple[str, ...] | None = None, *,
                       covariates: Mapping[str, Any] | None = None) -> LinearDesign:
-        """``Phi`` and ``c`` of ``W`` parameter vectors: the base's, through the blocks.
+        """``Phi`` and ``c`` of ``W`` parameter vectors for the linear group's parameters.
 
-        See :meth:`LinearInParams.linear_design` (same parameters, ``static.`` names)
-        and :meth:`apply_blocks_to_design`; ``covariates`` as in :meth:`run`.
+        See :meth:`LinearInParams.linear_design`. For the base's group: the base's design
+        passed through the blocks (:meth:`apply_blocks_to_design`). For a block's group:
+        the part before the block is simulated once per walker, the block applied with
+        each unit coefficient vector and with none (``W (P + 1)`` signals), and the
+        columns passed through the blocks after it. ``covariates`` as in :meth:`run`.
         """
-        names = self.linear_params if names is None else tuple(names)
-        bad = [n for n in names if n not in self.linear_params]
-        if bad:
-            raise ParameterError(f"{self.name}: {bad} are not linear parameters; linear: "
-                                 f"{list(self.linear_params)}")
-        base_theta, _ = self._split(thetas)
-        base = self.base.linear_design(u, t, base_theta,
-                                       tuple(n[len(STATIC) + 1:] for n in names))
-        return self.apply_blocks_to_design(base, t, thetas, names, covariates=covariates)
+        where, group = self.linear_group
+        names = group if names is None else tuple(names)
+        bad = [n for n in names if n not in group]
+        if bad or not names:
+            raise ParameterError(f"{self.name}: {list(names)} are not linear parameters; "
+                                 f"linear: {list(group)}")
+        if where == -1:
+            base_theta, _ = self._split(thetas)
+            base = self.base.linear_design(u, t, base_theta,
+                                           tuple(n[len(STATIC) + 1:] for n in names))
+            return self.apply_blocks_to_design(base, t, thetas, names, covariates=covariates)
+        return self._block_design(where, u, t, thetas, names, covariates)
+
+    def _block_design(self, where: int, u: Any, t: Any, thetas: Mapping[str, Any],
+                      names: tuple[str, ...], covariates: Mapping[str, Any] | None
+                      ) -> LinearDesign:
+        block, ns = self.blocks[where], self.namespaces[where]
+        head, head_theta = leading_part(self, where, thetas)
+        traj = head.run_batch(u, t, head_theta, covariates=covariates)
+        width, n = traj.y.shape
+        t = np.ascontiguousarray(t, dtype=np.float64)
+        cov = check_covariates(covariates, self.covariates, n, self.name)
+        own = [nm[len(ns) + 1:] for nm in names]
+        sizes = [int(np.prod(block._shapes[nm], dtype=int)) for nm in own]
+        p = sum(sizes)
+        n_sig = p + 1  # each unit vector, then beta = 0 (the block's const)
+        rep = {}
+        _, block_thetas = self._split(thetas)
+        for k, v in block_thetas[where].items():
+            if k not in own:
+                arr = np.broadcast_to(np.asarray(v, dtype=np.float64),
+                                      (width, *np.shape(v)[1:]))
+                rep[k] = np.ascontiguousarray(np.repeat(arr, n_sig, axis=0))
+        basis = np.eye(n_sig, p)  # row p is all zeros
+        start = 0
+        for nm, size in zip(own, sizes, strict=True):
+            cols = np.tile(basis[:, start:start + size], (width, 1))
+            rep[nm] = cols.reshape(width * n_sig, *block._shapes[nm])
+            start += size
+        # a failed head gives NaN rows; the block flags them failed, the design keeps them
+        w = np.repeat(np.nan_to_num(traj.y), n_sig, axis=0)
+        s0 = block._initial_state(rep, np.ascontiguousarray(w[:, 0]), math.nan)
+        out, _, f = block._apply_with(np.ascontiguousarray(w), t, rep, s0, cov)
+        out = np.asarray(out).reshape(width, n_sig, n)
+        failed = traj.failed | np.asarray(f, dtype=bool).reshape(width, n_sig).any(axis=1)
+        const = out[:, p]
+        phi = (out[:, :p] - const[:, None, :]).transpose(0, 2, 1)
+        design = LinearDesign(tuple(names), np.ascontiguousarray(phi),
+                              np.ascontiguousarray(const), failed)
+        return self._through(design, t, thetas, where + 1, cov)
 
     def apply_blocks_to_design(self, base: LinearDesign, t: Any, thetas: Mapping[str, Any],
                                names: tuple[str, ...], *,
@@ -172,18 +251,26 @@ class Composite(LinearInParams, HysteresisModel):
             raise ModelError(f"{self.name}: a block is not affine in its input")
         t = np.ascontiguousarray(t, dtype=np.float64)
         covariates = check_covariates(covariates, self.covariates, t.size, self.name)
+        design = LinearDesign(tuple(names), base.phi, base.const, base.failed)
+        return self._through(design, t, thetas, 0, covariates)
+
+    def _through(self, design: LinearDesign, t: np.ndarray, thetas: Mapping[str, Any],
+                 first: int, covariates: dict[str, np.ndarray] | None) -> LinearDesign:
+        """``design`` passed through the (affine) blocks from index ``first`` on."""
+        if first >= len(self.blocks):
+            return design
         _, block_thetas = self._split(thetas)
         widths = [int(np.shape(v)[0]) for v in thetas.values()]
-        width = max([*widths, base.phi.shape[0], base.const.shape[0]])
-        p = base.phi.shape[2]
-        n = base.phi.shape[1]
+        width = max([*widths, design.phi.shape[0], design.const.shape[0]])
+        p = design.phi.shape[2]
+        n = design.phi.shape[1]
         n_sig = p + 2  # const, the columns, zero (B[0] for blocks with an offset term)
         sig = np.zeros((width, n_sig, n))
-        sig[:, 0] = base.const
-        sig[:, 1:p + 1] = base.phi.transpose(0, 2, 1)
+        sig[:, 0] = design.const
+        sig[:, 1:p + 1] = design.phi.transpose(0, 2, 1)
         w = np.ascontiguousarray(sig.reshape(width * n_sig, n))
-        failed = np.broadcast_to(base.failed, (width,)).copy()
-        for block, th in zip(self.blocks, block_thetas, strict=True):
+        failed = np.broadcast_to(design.failed, (width,)).copy()
+        for block, th in zip(self.blocks[first:], block_thetas[first:], strict=True):
             rep = {k: np.ascontiguousarray(np.repeat(
                 np.broadcast_to(np.asarray(v, dtype=np.float64), (width, *np.shape(v)[1:])),
                 n_sig, axis=0)) for k, v in th.items()}
@@ -193,7 +280,7 @@ class Composite(LinearInParams, HysteresisModel):
             failed |= np.asarray(f, dtype=bool).reshape(width, n_sig).any(axis=1)
         out = w.reshape(width, n_sig, n)
         phi = out[:, 1:p + 1] - out[:, n_sig - 1:n_sig]
-        return LinearDesign(tuple(names), np.ascontiguousarray(phi.transpose(0, 2, 1)),
+        return LinearDesign(design.names, np.ascontiguousarray(phi.transpose(0, 2, 1)),
                             np.ascontiguousarray(out[:, 0]), failed)
 
     @property

@@ -97,6 +97,11 @@ class EffectBlock(ABC):
         sampler draw those parameters exactly.
     example : mapping
         Settings to build an instance for listings when some setting has no default.
+    linear_params : tuple of str
+        Parameters the block's output is linear in, given its input and its other
+        parameters, from its steady initial state (the ``unexplained`` term's
+        coefficients). A composite whose later blocks are affine lets the sampler draw
+        them exactly (:attr:`~bayeshyst.models.compose.Composite.linear_group`).
     needs_preview : bool
         Whether the block is linear time-invariant dynamics whose output responds to its
         present input weakly or not at all (a delay, sampled second-order dynamics): its
@@ -108,6 +113,7 @@ class EffectBlock(ABC):
     rate_dependent: ClassVar[bool] = True
     equation: ClassVar[str] = ""
     affine: ClassVar[bool] = False
+    linear_params: ClassVar[tuple[str, ...]] = ()
     needs_preview: ClassVar[bool] = False
     #: settings that a block without defaults for all of them is shown with
     #: (``bayeshyst models``): ``aux`` needs a column to read

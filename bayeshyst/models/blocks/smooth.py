@@ -146,6 +146,9 @@ class Unexplained(EffectBlock):
 
     name: ClassVar[str] = "unexplained"
     affine: ClassVar[bool] = True
+    #: given its input, the output is linear in the coefficients: the sampler draws them
+    #: exactly instead of leaving twelve coordinates to the ensemble
+    linear_params: ClassVar[tuple[str, ...]] = ("a", "b")
     rate_dependent: ClassVar[bool] = True
     equation: ClassVar[str] = "y = (1 + g(z)) w + h(z), g, h ~ GP over z = scaled feature"
     example: ClassVar[Mapping[str, Any]] = MappingProxyType({"feature": "time"})
