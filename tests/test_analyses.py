@@ -352,18 +352,24 @@ def test_hidden_effect_suite_scores_and_resumes(tmp_path, capsys):
 # --------------------------------------------- measured data: decisions stable over seeds
 @pytest.mark.shared_data
 @pytest.mark.slow
-def test_what_fires_on_the_measured_150v_piezo_is_the_same_for_every_seed(shared_data_dir):
+@pytest.mark.parametrize("key, cut, current", [
+    ("piezo_150v", Cut(samples_per_cycle=100, trim_rest_s=0.2), None),
+    ("micromanipulator", Cut(samples_per_cycle=50), None),
+    ("mr_damper", Cut(samples_per_cycle=50), 1.0)])
+def test_what_fires_on_measured_data_is_the_same_for_every_seed(shared_data_dir, key, cut,
+                                                                current):
     # what the loop is asked to explain on measured data must come from the data, not
     # from the sampler's seed: three seeds, converged base fits, the same score tests
     # firing, the same drivers kept by the scan, the same candidates in the same order.
     # (The candidates' own fits are not compared: the branch-shape correction with creep
-    # on this record does not converge in 10 000 steps -- see the README.)
+    # on the 150 V record does not converge in 10 000 steps -- see the README.)
     from bayeshyst.diagnosis import analyse_residual
     from bayeshyst.inference.posterior import Posterior
     from bayeshyst.inference.sampling import sample_posterior
     from bayeshyst.inference.settings import SamplerSettings
 
-    data = load_measured("piezo_150v", Cut(samples_per_cycle=100, trim_rest_s=0.2))
+    data = (load_measured(key, cut) if current is None
+            else load_measured(key, cut, mr_current=current))
     decisions = []
     for seed in (0, 1, 2):
         post = Posterior(data, "bouc_wen")

@@ -103,6 +103,8 @@ def test_pi_model_wins_on_pi_data(compared):
         assert entry["best"] == "pi_play(n_operators=3)"
 
 
+# slow (3 min; resume identity stays in the default run through tests/test_sampling.py)
+@pytest.mark.slow
 def test_rerun_resumes_from_checkpoints_with_identical_numbers(compared):
     _, out, data_path = compared
     before = json.loads((out / "summary.json").read_text())

@@ -101,6 +101,8 @@ def test_physical_estimates_of_hidden_effects():
     assert noise.estimates["lag1_autocorrelation"] == pytest.approx(0.8, abs=0.05)
 
 
+# slow (6 min; two effects at once are also in analyses/hidden_effects.py's suite)
+@pytest.mark.slow
 def test_two_hidden_effects_are_both_found_and_the_error_drops():
     data = virtual_data({**HIDDEN["rate_dependence"], **HIDDEN["drift"]})
     result = diagnose(data, PREISACH, sampler=SamplerSettings(
@@ -186,7 +188,7 @@ def _temperature_data(seed: int) -> Dataset:
     return Dataset((rec,), name="temp")
 
 
-@pytest.mark.parametrize("seed", [0, 1])
+@pytest.mark.parametrize("seed", [0, pytest.param(1, marks=pytest.mark.slow)])
 def test_a_gain_that_follows_a_temperature_column_is_traced_to_it(seed):
     result = diagnose(_temperature_data(seed), "pi_play(n_operators=3)",
                       sampler=SamplerSettings(n_walkers=16, max_steps=300, first_chunk=150,

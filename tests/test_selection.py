@@ -156,6 +156,8 @@ def _decimated(rec, per_cycle=80, cycles=3.5):
                   units=dict(rec.units))
 
 
+# slow (an end-to-end comparison on measured data, 2.5 min)
+@pytest.mark.slow
 def test_mr_damper_comparison_runs_end_to_end(shared_data_dir, tmp_path):
     from bayeshyst.data.measured import load_mr_damper
     from bayeshyst.outputs.assemble import comparison_figures
@@ -258,6 +260,9 @@ def virtual_comparison():
                           n_jobs=2)
 
 
+# slow (its comparison fixture alone took 10 min); the generating family's win stays in
+# the default run through test_generating_family_first_at_low_frequency
+@pytest.mark.slow
 def test_virtual_actuator_generating_family_first_at_low_frequency(virtual_comparison):
     low = virtual_comparison.per_frequency[0]
     assert low.best in (PREISACH, PREISACH_DYN), str(low)
@@ -268,6 +273,8 @@ def test_virtual_actuator_generating_family_first_at_low_frequency(virtual_compa
         assert d > 2 * se, (other, d, se, str(low))
 
 
+# slow (shares the 10-min comparison above)
+@pytest.mark.slow
 def test_virtual_actuator_dynamics_win_at_high_frequency(virtual_comparison):
     high = virtual_comparison.per_frequency[-1]
     assert high.best in (PREISACH_DYN, "gp"), str(high)

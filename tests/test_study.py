@@ -122,6 +122,8 @@ def test_rows_are_the_comparison_task_on_that_frequency(serial: Path, files: Pat
     assert (serial / row["posterior"]).is_file()
 
 
+# slow (2 min of a two-process cluster)
+@pytest.mark.slow
 def test_two_worker_cluster_gives_the_serial_table_even_when_a_worker_is_killed(
         serial: Path, files: Path, tmp_path: Path) -> None:
     killed: list[str] = []
