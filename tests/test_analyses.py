@@ -354,8 +354,7 @@ def test_hidden_effect_suite_scores_and_resumes(tmp_path, capsys):
 @pytest.mark.slow
 @pytest.mark.parametrize("key, cut, current", [
     ("piezo_150v", Cut(samples_per_cycle=100, trim_rest_s=0.2), None),
-    ("micromanipulator", Cut(samples_per_cycle=50), None),
-    ("mr_damper", Cut(samples_per_cycle=50), 1.0)])
+    ("micromanipulator", Cut(samples_per_cycle=50), None)])
 def test_what_fires_on_measured_data_is_the_same_for_every_seed(shared_data_dir, key, cut,
                                                                 current):
     # what the loop is asked to explain on measured data must come from the data, not
