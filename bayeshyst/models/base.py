@@ -38,6 +38,7 @@ __all__ = [
     "data_scales",
     "kernel_buffers",
     "sample_period",
+    "unit_signals",
 ]
 
 
@@ -507,6 +508,25 @@ class HysteresisModel(ABC):
         return repr(self)
 
 
+def unit_signals(names: tuple[str, ...], shapes: Mapping[str, tuple[int, ...]], width: int,
+                 n_sig: int) -> dict[str, np.ndarray]:
+    """Values of the linear parameters ``names`` for ``n_sig`` signals per walker.
+
+    Signal ``j < P`` of every walker sets the ``j``-th scalar of the stacked (flattened)
+    parameters to 1 and the rest to 0; a signal beyond the ``P``-th (``n_sig = P + 1``)
+    is ``beta = 0``. Walker-major: ``name -> (width * n_sig, *shape)``, as the other
+    parameters repeated ``n_sig`` times per walker.
+    """
+    sizes = [int(np.prod(shapes[n], dtype=int)) for n in names]
+    basis = np.eye(n_sig, sum(sizes))  # the last row is zero when n_sig = P + 1
+    out, start = {}, 0
+    for n, size in zip(names, sizes, strict=True):
+        cols = np.tile(basis[:, start:start + size], (width, 1))
+        out[n] = cols.reshape(width * n_sig, *shapes[n])
+        start += size
+    return out
+
+
 @dataclass(frozen=True)
 class LinearDesign:
     """The output of ``W`` parameter vectors written as ``y = phi @ beta + const``.
@@ -622,13 +642,7 @@ class LinearInParams:
                 raise ParameterError(f"{self.name}: thetas is missing {n!r}")
             arr = np.asarray(thetas[n], dtype=float)
             batch[n] = np.repeat(arr, n_sig, axis=0)  # walker-major: (W * n_sig, ...)
-        basis = np.zeros((n_sig, p))
-        basis[:p, :p] = np.eye(p)  # the last signal (if any) is beta = 0
-        start = 0
-        for n, size in zip(names, sizes, strict=True):
-            cols = np.tile(basis[:, start:start + size], (width, 1))
-            batch[n] = cols.reshape(width * n_sig, *shapes[n])
-            start += size
+        batch.update(unit_signals(names, shapes, width, n_sig))
         traj = self.run_batch(u, t, batch)
         y = traj.y.reshape(width, n_sig, -1)
         failed = traj.failed.reshape(width, n_sig).any(axis=1)

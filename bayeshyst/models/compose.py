@@ -32,6 +32,7 @@ from bayeshyst.models.base import (
     LinearDesign,
     LinearInParams,
     check_covariates,
+    unit_signals,
 )
 from bayeshyst.models.blocks import Creep, EffectBlock, block_class, block_names
 from bayeshyst.params import ParamSpace
@@ -197,22 +198,12 @@ class Composite(LinearInParams, HysteresisModel):
         t = np.ascontiguousarray(t, dtype=np.float64)
         cov = check_covariates(covariates, self.covariates, n, self.name)
         own = [nm[len(ns) + 1:] for nm in names]
-        sizes = [int(np.prod(block._shapes[nm], dtype=int)) for nm in own]
-        p = sum(sizes)
+        p = sum(int(np.prod(block._shapes[nm], dtype=int)) for nm in own)
         n_sig = p + 1  # each unit vector, then beta = 0 (the block's const)
-        rep = {}
         _, block_thetas = self._split(thetas)
-        for k, v in block_thetas[where].items():
-            if k not in own:
-                arr = np.broadcast_to(np.asarray(v, dtype=np.float64),
-                                      (width, *np.shape(v)[1:]))
-                rep[k] = np.ascontiguousarray(np.repeat(arr, n_sig, axis=0))
-        basis = np.eye(n_sig, p)  # row p is all zeros
-        start = 0
-        for nm, size in zip(own, sizes, strict=True):
-            cols = np.tile(basis[:, start:start + size], (width, 1))
-            rep[nm] = cols.reshape(width * n_sig, *block._shapes[nm])
-            start += size
+        rep = {k: _walker_major(v, width, n_sig)
+               for k, v in block_thetas[where].items() if k not in own}
+        rep.update(unit_signals(tuple(own), block._shapes, width, n_sig))
         # a failed head gives NaN rows; the block flags them failed, the design keeps them
         w = np.repeat(np.nan_to_num(traj.y), n_sig, axis=0)
         s0 = block._initial_state(rep, np.ascontiguousarray(w[:, 0]), math.nan)
@@ -271,9 +262,7 @@ class Composite(LinearInParams, HysteresisModel):
         w = np.ascontiguousarray(sig.reshape(width * n_sig, n))
         failed = np.broadcast_to(design.failed, (width,)).copy()
         for block, th in zip(self.blocks[first:], block_thetas[first:], strict=True):
-            rep = {k: np.ascontiguousarray(np.repeat(
-                np.broadcast_to(np.asarray(v, dtype=np.float64), (width, *np.shape(v)[1:])),
-                n_sig, axis=0)) for k, v in th.items()}
+            rep = {k: _walker_major(v, width, n_sig) for k, v in th.items()}
             s0 = block._initial_state(rep, np.ascontiguousarray(w[:, 0]), math.nan)
             w, _, f = block._apply_with(w, t, rep, s0, covariates)
             w = np.ascontiguousarray(w)
@@ -350,6 +339,12 @@ class Composite(LinearInParams, HysteresisModel):
 
     def __repr__(self) -> str:
         return f"Composite({self.base!r}, {self.blocks!r})"
+
+
+def _walker_major(value: Any, width: int, n_sig: int) -> np.ndarray:
+    """A parameter's ``(W, ...)`` (or broadcastable) values, each repeated ``n_sig`` times."""
+    arr = np.broadcast_to(np.asarray(value, dtype=np.float64), (width, *np.shape(value)[1:]))
+    return np.ascontiguousarray(np.repeat(arr, n_sig, axis=0))
 
 
 def Hammerstein(static: HysteresisModel,  # capitalised: reads as a model name
