@@ -467,7 +467,13 @@ class LogCreep:
         """Lag time constants [s], shape (L,)."""
         decades = math.log10(self.tau_max_s / self.tau_min_s)
         n = max(1, round(decades * self.lags_per_decade) + 1)
-        return np.logspace(math.log10(self.tau_min_s), math.log10(self.tau_max_s), n)
+        lo, hi = math.log10(self.tau_min_s), math.log10(self.tau_max_s)
+        step = (hi - lo) / (n - 1) if n > 1 else 0.0
+        # Python's float power (the C library's pow, correctly rounded here) and not
+        # np.logspace: numpy's vectorised power differs in the last bit between releases
+        # (10**2.5 came out as ...379 on numpy 2.4), and the bundled files must regenerate
+        # bit for bit on any supported numpy
+        return np.array([10.0 ** (lo + k * step) for k in range(n)])
 
     @property
     def weights(self) -> np.ndarray:
