@@ -16,9 +16,10 @@ data, four commands for a reference at that frequency (sine or triangle over the
 * ``robust`` -- the command minimising the 90 % quantile of |error| over posterior draws.
 
 The bundled ``data/virtual_multifreq.csv`` names its generator (the virtual actuator) in
-its JSON sidecar, so the commands are run on **the true plant** (noise off): the errors
-are real, not the model's opinion of itself. With data without such a sidecar the
-commands run on posterior draws held out from the design, and every output says so.
+its JSON sidecar, so the commands are run on **the true plant**, measured with its
+sensor noise: the errors are real, not the model's opinion of itself. With data without
+such a sidecar the commands run on posterior draws held out from the design, and every
+output says so.
 Errors are RMS (NRMSE) and max of ``y - y_d`` in % of the reference's peak-to-peak;
 ``realised_inside_band`` says whether the plant's NRMSE under the posterior command lies
 in the 90 % interval predicted from held-out posterior draws.

@@ -53,6 +53,7 @@ from bayeshyst.inverse.averaged import AveragedResult, WeightedPosterior, design
 from bayeshyst.inverse.compensate import CompensationResult, compensate
 from bayeshyst.inverse.feedforward import Draws
 from bayeshyst.inverse.references import command_limits, design_references, virtual_plant
+from bayeshyst.inverse.residual import RESIDUAL_DRAWS, ResidualBlocks
 from bayeshyst.likelihoods import get_likelihood
 from bayeshyst.selection import (
     ComparisonResult,
@@ -434,7 +435,8 @@ def model_averaged_design(data: Dataset, comparison: ComparisonResult,
         raise ParameterError(f"posteriors must be one of {AVERAGED_POSTERIORS}, got "
                              f"{posteriors!r}")
     plant = virtual_plant(data)
-    plant_text = ("virtual actuator (" + ", ".join(plant.effects) + "), noise off"
+    plant_text = ("virtual actuator (" + ", ".join(plant.effects) + "), measured with its "
+                  "sensor noise"
                   if plant is not None else "held-out draws of the mixture (no ground truth)")
     u_limits = command_limits(data)
     refs = {ref.frequency_hz: ref for ref, _ in design_references(data, "sine")}
@@ -475,8 +477,10 @@ def model_averaged_design(data: Dataset, comparison: ComparisonResult,
                 if w < WEIGHT_FLOOR:
                     continue
                 saved = load_fit(task.netcdf)
-                members.append(WeightedPosterior(model, saved.model,
-                                                 Draws.of(saved.posterior, saved.z), float(w)))
+                members.append(WeightedPosterior(
+                    model, saved.model, Draws.of(saved.posterior, saved.z), float(w),
+                    ResidualBlocks.of(saved.posterior, saved.z[:: max(1, saved.z.shape[0]
+                                                                   // RESIDUAL_DRAWS)])))
         if not members:
             notes.append(f"{fc.label}: no model-averaged design (no member left)")
             continue

@@ -228,15 +228,18 @@ def test_feedforward_beats_uncompensated_on_the_true_plant(feedforward):
             assert float(r[f"{c}_nrmse_percent"]) < none, (r["frequency_hz"], c)
     # oracle: the commands re-run here on the virtual actuator named in the data's sidecar
     data = load(DEFAULT_DATA)
-    plant = VirtualActuator.from_truth(data[0].metadata["truth"]).without("noise")
+    # measured with its sensor noise: the k-th reference's from default_rng([seed, k, 1])
+    plant = VirtualActuator.from_truth(data[0].metadata["truth"])
     summary = json.loads((out / "summary.json").read_text())
     folder = out / summary["models"][0]["folder"]
+    seed = json.loads((folder / "summary.json").read_text())["settings"]["seed"]
     curves = np.load(folder / "curves.npz")
-    for prefix, r in zip(curves["prefixes"], rows, strict=True):
+    for k, (prefix, r) in enumerate(zip(curves["prefixes"], rows, strict=True)):
         t, y_d = curves[f"{prefix}_t"], curves[f"{prefix}_y_d"]
         mask = curves[f"{prefix}_scored"].astype(bool)
         for c in ("uncompensated", "posterior", "robust"):
-            y = plant.simulate(t, curves[f"{prefix}_u_{c}"])
+            y = plant.simulate(t, curves[f"{prefix}_u_{c}"],
+                               rng=np.random.default_rng([seed, k, 1]))
             np.testing.assert_allclose(y, curves[f"{prefix}_y_{c}"], rtol=0, atol=1e-9)
             nrmse = 100 * np.sqrt(np.mean((y - y_d)[mask] ** 2)) / np.ptp(y_d)
             assert float(r[f"{c}_nrmse_percent"]) == pytest.approx(nrmse, rel=1e-9)

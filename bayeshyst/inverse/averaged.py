@@ -29,6 +29,7 @@ from bayeshyst.errors import ParameterError
 from bayeshyst.inverse.feedforward import BAND, Draws, predict_outputs, tracking_percent
 from bayeshyst.inverse.numerical import Member, invert_pooled
 from bayeshyst.inverse.references import Reference
+from bayeshyst.inverse.residual import ResidualBlocks
 from bayeshyst.models.base import HysteresisModel
 from bayeshyst.tables import TableRecord, frame
 
@@ -49,12 +50,16 @@ class WeightedPosterior:
         Its posterior draws at this frequency (no discrepancy: ``draws.delta`` None).
     weight : float
         Its weight in the average (> 0; the members' weights are renormalised).
+    residual : ResidualBlocks, optional
+        What its fit leaves unexplained, added to its prediction draws (and plants) so
+        that the band predicts a measured error; None: noise-free outputs only.
     """
 
     label: str
     model: HysteresisModel
     draws: Draws
     weight: float
+    residual: ResidualBlocks | None = None
 
 
 def allocate_draws(weights: Sequence[float], total: int) -> list[int]:
@@ -234,7 +239,8 @@ def design_averaged(members: Sequence[WeightedPosterior], reference: Reference, 
     reference : Reference
         The trajectory to follow (output unit), with its scored samples.
     plant : VirtualActuator or None
-        Run the commands on it (noise off); None: on ``n_plants`` held-out mixture draws.
+        Run the commands on it (with its sensor noise, if it has any: a measurement);
+        None: on ``n_plants`` held-out mixture draws, each with its member's residual.
     u_limits : (float, float)
         Admissible command range (input unit).
     n_design_draws, n_predict_draws, n_plants : int
@@ -306,18 +312,31 @@ def design_averaged(members: Sequence[WeightedPosterior], reference: Reference, 
                                                    alone.offset)], y_d, t, objective="mean",
                                            **common)
 
-    def mixture(u: np.ndarray, parts: list[Draws]) -> np.ndarray:
-        out = np.concatenate([predict_outputs(m.model, u, t, d, reference.frequency_hz)
-                              for m, d in zip(members, parts, strict=True) if d.size])
+    f = reference.frequency_hz
+
+    def residuals(parts: list[Draws], stream: int) -> list[np.ndarray | float]:
+        # one residual series per draw, fixed per role and shared by the commands
+        r = np.random.default_rng([seed, stream])
+        return [0.0 if m.residual is None or not d.size else
+                m.residual.sample(d.size, t.size, f, r)
+                for m, d in zip(members, parts, strict=True)]
+
+    def mixture(u: np.ndarray, parts: list[Draws], noise: list[np.ndarray | float]
+                ) -> np.ndarray:
+        out = np.concatenate([predict_outputs(m.model, u, t, d, f) + e
+                              for m, d, e in zip(members, parts, noise, strict=True)
+                              if d.size])
         return out[np.all(np.isfinite(out), axis=1)]
 
-    predicted = tracking_percent(mixture(averaged.u, split["predict"]), y_d, stroke, mask)[0]
+    noise = {"predict": residuals(split["predict"], 1), "plants": residuals(split["plants"], 2)}
+    predicted = tracking_percent(mixture(averaged.u, split["predict"], noise["predict"]), y_d,
+                                 stroke, mask)[0]
     lo, hi = (float(v) for v in np.quantile(predicted, [(1 - BAND) / 2, (1 + BAND) / 2]))
     realised = {}
     curves: dict[str, np.ndarray] = {"t": t, "y_d": y_d, "scored": mask}
     for label, inv in commands.items():
-        y = (plant.simulate(t, inv.u)[None, :] if plant is not None
-             else mixture(inv.u, split["plants"]))
+        y = (plant.simulate(t, inv.u, rng=np.random.default_rng([seed, 3]))[None, :]
+             if plant is not None else mixture(inv.u, split["plants"], noise["plants"]))
         realised[label] = tracking_percent(y, y_d, stroke, mask)
         curves[f"u_{label}"], curves[f"y_{label}"] = inv.u, y[0]
     nrmse, mx = realised["averaged"]

@@ -25,6 +25,7 @@ from bayeshyst.errors import ParameterError
 from bayeshyst.inference.saved import SavedFit
 from bayeshyst.inverse.feedforward import BAND, Draws, design_feedforward
 from bayeshyst.inverse.references import U_MARGIN, Reference, command_limits
+from bayeshyst.inverse.residual import RESIDUAL_DRAWS, ResidualBlocks
 from bayeshyst.models.compose import model_spec
 from bayeshyst.tables import TableRecord
 
@@ -49,10 +50,12 @@ class CommandDesign(TableRecord):
     t, y_d, u : ndarray, shape (N,)
         Times (s), reference (output unit), command (input unit).
     y_mean, y_lo, y_hi : ndarray, shape (N,)
-        Predicted output under ``u``: the mean and the 90 % band over the prediction
-        draws (noise-free, discrepancy included when the fit has one).
+        Predicted output under ``u``: the mean over the prediction draws (noise-free,
+        discrepancy included when the fit has one) and the 90 % band of a measurement
+        (each draw plus the fit's residual resampled in whole cycles).
     predicted_band_percent : (float, float)
-        90 % range of the predicted tracking NRMSE (% of the reference's stroke).
+        90 % range of the predicted tracking NRMSE of a measurement (% of the
+        reference's stroke): parameters, discrepancy and the fit's residual.
     model_error_percent : float
         The inverter's own check: max ``|model output - y_d|`` (design draws' mean, or
         the MAP's) in % of stroke.
@@ -166,10 +169,15 @@ def design_command(fit: SavedFit, reference: Reference, *, objective: str = "mea
     design = Draws.of(post, fit.map_z[None, :] if objective == "nominal" else z[:n_design])
     t, y_d, mask, stroke = reference.t, reference.y_d, reference.scored, reference.stroke
     limits = command_limits(post.data, u_margin)
+    # the band predicts a measured error: the fit's unexplained residual, resampled in
+    # whole cycles, is added to every prediction draw (see inverse.residual)
+    residual = ResidualBlocks.of(post, z[n_design:][: RESIDUAL_DRAWS])
+    resid = residual.sample(predict.size, t.size, reference.frequency_hz,
+                            np.random.default_rng([seed, 1]))
     ff = design_feedforward(post.model, y_d, t, design, predict, label=objective,
                             objective="quantile" if objective == "robust" else "mean",
                             quantile=quantile, u_limits=limits, periodic=reference.periodic,
-                            scored=mask, frequency_hz=reference.frequency_hz)
+                            scored=mask, frequency_hz=reference.frequency_hz, residual=resid)
     lo, hi = ff.band()
     ok = np.all(np.isfinite(ff.predicted), axis=1)
     band = np.quantile(ff.error_distribution(y_d, stroke, mask), [(1 - BAND) / 2, (1 + BAND) / 2])

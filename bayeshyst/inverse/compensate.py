@@ -15,7 +15,12 @@ the posterior-aware inverse and its robust variant (:mod:`bayeshyst.inverse.feed
 
 Errors are RMS and max of ``y - y_d`` in % of the reference's stroke, over the cycles
 after the warm-up cycle(s) (the first cycle starts from the relaxed state and carries
-the transient of the dynamics).
+the transient of the dynamics). ``y`` is a *measurement*: the virtual actuator runs
+with its sensor noise, and the predicted bands add to every prediction draw the fit's
+own unexplained residual, resampled in whole cycles
+(:class:`~bayeshyst.inverse.residual.ResidualBlocks`) -- parameters, discrepancy and
+residual, the tracking band's budget (``parameter_band_percent``,
+``model_band_percent``, ``predicted_band_percent``).
 """
 
 from __future__ import annotations
@@ -48,6 +53,7 @@ from bayeshyst.inverse.references import (
     design_references,
     virtual_plant,
 )
+from bayeshyst.inverse.residual import RESIDUAL_DRAWS, ResidualBlocks
 from bayeshyst.models import get as get_model
 from bayeshyst.models.base import HysteresisModel
 from bayeshyst.tables import TableRecord, frame
@@ -95,11 +101,16 @@ class CompensationRow(TableRecord):
     model_error_percent : float
         Largest deviation of the model's own (posterior-mean) output from the reference
         under the posterior command: how exactly the inverse was computed.
-    parameter_band_percent : (float, float) or None
-        With a discrepancy: the 90 % NRMSE interval of the posterior command from the
-        parameters alone (the discrepancy left out), to set against
-        ``predicted_band_percent`` (parameters and discrepancy): the tracking band's
-        budget. None without a discrepancy (then the two are the same).
+    parameter_band_percent : (float, float)
+        The 90 % NRMSE interval of the posterior command from the parameters alone
+        (noise-free outputs, the discrepancy left out).
+    model_band_percent : (float, float)
+        The same from parameters and discrepancy (noise-free outputs); with
+        ``parameter_band_percent`` and ``predicted_band_percent`` (parameters,
+        discrepancy and the resampled residual) the tracking band's budget.
+    residual_rms_percent : float
+        RMS of the training residual resampled onto the command (% of stroke): what the
+        fit leaves unexplained (sensor noise and unmodelled structure).
     curves : dict
         ``t``, ``y_d``, ``scored``, the commands ``u_<label>``, the plant outputs
         ``y_<label>`` (the first plant), the tracking NRMSE on every plant
@@ -125,7 +136,9 @@ class CompensationRow(TableRecord):
     mean_over_plants: dict[str, float] | None
     n_saturated: int
     model_error_percent: float
-    parameter_band_percent: tuple[float, float] | None = None
+    parameter_band_percent: tuple[float, float] = (0.0, 0.0)
+    model_band_percent: tuple[float, float] = (0.0, 0.0)
+    residual_rms_percent: float = 0.0
     curves: dict[str, np.ndarray] = field(default_factory=dict, repr=False)
 
     def to_dataframe(self) -> Any:
@@ -137,8 +150,8 @@ class CompensationRow(TableRecord):
         out = {k: getattr(self, k) for k in self.__dataclass_fields__ if k != "curves"}
         out["predicted_band_percent"] = list(self.predicted_band_percent)
         out["nominal_predicted_band_percent"] = list(self.nominal_predicted_band_percent)
-        if self.parameter_band_percent is not None:
-            out["parameter_band_percent"] = list(self.parameter_band_percent)
+        out["model_band_percent"] = list(self.model_band_percent)
+        out["parameter_band_percent"] = list(self.parameter_band_percent)
         return out
 
     @property
@@ -202,6 +215,12 @@ class CompensationResult(TableRecord):
 
 # ------------------------------------------------------------------------------ driver
 
+def _interval(values: np.ndarray) -> tuple[float, float]:
+    """Central :data:`BAND` interval of ``values``."""
+    lo, hi = np.quantile(values, [(1 - BAND) / 2, (1 + BAND) / 2])
+    return float(lo), float(hi)
+
+
 def _split_draws(fit: FitResult, sizes: tuple[int, ...], seed: int) -> list[Draws]:
     """Disjoint sets of posterior draws (design, prediction, plants) as model draws."""
     post = fit.posterior
@@ -233,20 +252,24 @@ def _trend_statements(rows: list[CompensationRow], model: str,
     freq = [r for r in rows if r.frequency_hz is not None]
     if len(freq) >= 2:
         first, last = freq[0], freq[-1]
-        lo, hi = last.nominal_predicted_band_percent
-        # growth beyond what the posterior itself predicts: at the top frequency the MAP's
-        # inverse misses its band, and its error exceeds the lowest frequency's by more
-        # than the band's width
-        if (last.nominal_nrmse_percent > hi
-                and last.nominal_nrmse_percent - first.nominal_nrmse_percent > hi - lo):
+        lo, hi = last.model_band_percent
+        # growth beyond what the posterior itself predicts: at the top frequency the
+        # posterior command's error leaves the band of the model alone (parameters and
+        # discrepancy, noise-free), and exceeds the lowest frequency's by more than that
+        # band's width. (The band with the residual may hold it: the fit's residual
+        # already shows the misfit at that frequency, which is the point.)
+        if (last.posterior_nrmse_percent > hi
+                and last.posterior_nrmse_percent - first.posterior_nrmse_percent > hi - lo):
             advice = ("its rate dependence does not match the plant's" if rate_dependent else
                       "a composition with linear dynamics "
                       f"('{model}+second_order') or a rate-dependent model should help")
             out.append(f"The tracking error of {model} grows with frequency "
-                       f"({first.nominal_nrmse_percent:.3g} % at {first.frequency_hz:g} Hz to "
-                       f"{last.nominal_nrmse_percent:.3g} % at {last.frequency_hz:g} Hz, beyond "
-                       f"its predicted band [{lo:.3g}, {hi:.3g}] %): the model misses "
-                       f"rate-dependent dynamics; {advice}.")
+                       f"({first.posterior_nrmse_percent:.3g} % at {first.frequency_hz:g} Hz "
+                       f"to {last.posterior_nrmse_percent:.3g} % at {last.frequency_hz:g} Hz, "
+                       f"beyond the model's own predicted band [{lo:.3g}, {hi:.3g}] %; the "
+                       f"fit's residual: {first.residual_rms_percent:.3g} % to "
+                       f"{last.residual_rms_percent:.3g} %): the model misses rate-dependent "
+                       f"dynamics; {advice}.")
     for r in rows:
         if not r.realised_inside_band:
             lo, hi = r.predicted_band_percent
@@ -312,8 +335,10 @@ def compensate(
         As :func:`~bayeshyst.inference.fit.fit_model` (ignored with ``fit``).
     sampler : SamplerSettings, optional
         How the fit is sampled (default :class:`SamplerSettings`, the defaults of every
-        command; ignored with ``fit`` but for its seed). ``sampler.seed`` seeds the fit
-        and the choice of draws: same seed, same result.
+        command; ignored with ``fit`` but for its seed). ``sampler.seed`` seeds the fit,
+        the choice of draws and the residual series; a virtual plant's sensor noise at
+        the ``k``-th reference is drawn from ``numpy.random.default_rng([seed, k, 1])``
+        (the same for every command): same seed, same result.
     discrepancy : {"none", "hsgp"}, optional
         Fit with a model discrepancy (ignored with ``fit``, which carries its own): the
         commands are then designed against model + discrepancy and the bands predicted
@@ -357,24 +382,31 @@ def compensate(
     sizes = (n_design_draws, n_predict_draws) + (() if virtual else (n_plants,))
     design, predict, *rest = _split_draws(fit, sizes, seed)
     nominal = Draws.of(post, fit.sampling.start.z)
+    # what the fit leaves unexplained: the training residual about the posterior mean,
+    # resampled onto every command so that the bands predict a measured error
+    residual = ResidualBlocks.of(post, fit.sampling.draws(RESIDUAL_DRAWS, seed=seed))
     if virtual:
         plant_text = (f"virtual actuator ({', '.join(plant.effects)}), the simulator that "
-                      "generated the data, noise off")
-        def run_plant(t: np.ndarray, u: np.ndarray, f: float | None) -> np.ndarray:
-            return plant.simulate(t, u)[None, :]
+                      "generated the data, measured with its sensor noise")
+        def run_plant(t: np.ndarray, u: np.ndarray, f: float | None,
+                      rng: np.random.Generator) -> np.ndarray:
+            return plant.simulate(t, u, rng=rng)[None, :]
     else:
         plants = rest[0]
         plant_text = (f"{plants.size} posterior draws of {model.name} held out from design "
-                      "and prediction (no ground truth: this measures how the model's "
-                      "uncertainty propagates, not how well it fits the actuator)")
-        def run_plant(t: np.ndarray, u: np.ndarray, f: float | None) -> np.ndarray:
-            return predict_outputs(model, u, t, plants, f)
+                      "and prediction, each with a resampled residual (no ground truth: "
+                      "this measures how the model's uncertainty propagates, not how well "
+                      "it fits the actuator)")
+        def run_plant(t: np.ndarray, u: np.ndarray, f: float | None,
+                      rng: np.random.Generator) -> np.ndarray:
+            return (predict_outputs(model, u, t, plants, f)
+                    + residual.sample(plants.size, t.size, f, rng))
     u_limits = command_limits(data, u_margin)
     refs = design_references(data, reference, cycles=cycles, warmup_cycles=warmup_cycles)
     rows = []
-    for ref, group in refs:
+    for k, (ref, group) in enumerate(refs):
         rows.append(_evaluate(model, ref, group, nominal, design, predict, run_plant,
-                              u_limits, robust_quantile, virtual))
+                              u_limits, robust_quantile, virtual, residual, (seed, k)))
         _log.info("%s: realised tracking NRMSE %.3g %% (posterior command), band "
                   "[%.3g, %.3g] %%", rows[-1].label, rows[-1].posterior_nrmse_percent,
                   *rows[-1].predicted_band_percent)
@@ -392,17 +424,22 @@ def compensate(
 
 def _evaluate(model: HysteresisModel, ref: Reference, group: Dataset, nominal: Draws,
               design: Draws, predict: Draws, run_plant: Any, u_limits: tuple[float, float],
-              q: float, virtual: bool) -> CompensationRow:
+              q: float, virtual: bool, residual: ResidualBlocks,
+              key: tuple[int, int]) -> CompensationRow:
     t, y_d, mask, stroke = ref.t, ref.y_d, ref.scored, ref.stroke
     a, b = _scaled_input(group)
     u_scaled = (y_d - a) / b
     f = ref.frequency_hz
+    # one residual series per prediction draw, shared by the four commands (and one
+    # plant noise stream, below), so their errors differ by the commands alone
+    resid = residual.sample(predict.size, t.size, f, np.random.default_rng([*key, 0]))
     commands: dict[str, Feedforward] = {
         "uncompensated": Feedforward("uncompensated", u_scaled,
-                                     predict_outputs(model, u_scaled, t, predict, f)),
+                                     predict_outputs(model, u_scaled, t, predict, f),
+                                     residual=resid),
     }
     common: Mapping[str, Any] = {"u_limits": u_limits, "periodic": ref.periodic,
-                                 "scored": mask, "frequency_hz": f}
+                                 "scored": mask, "frequency_hz": f, "residual": resid}
     commands["nominal"] = design_feedforward(model, y_d, t, nominal, predict, label="nominal",
                                              **common)
     commands["posterior"] = design_feedforward(model, y_d, t, design, predict,
@@ -413,7 +450,7 @@ def _evaluate(model: HysteresisModel, ref: Reference, group: Dataset, nominal: D
     realised: dict[str, tuple[float, float]] = {}
     over_plants: dict[str, float] = {}
     for label, ff in commands.items():
-        y_plant = run_plant(t, ff.u, f)
+        y_plant = run_plant(t, ff.u, f, np.random.default_rng([*key, 1]))
         nrmse, mx = tracking_percent(y_plant, y_d, stroke, mask)
         realised[label] = (float(nrmse[0]), float(mx[0]))
         over_plants[label] = float(np.mean(nrmse))
@@ -429,13 +466,11 @@ def _evaluate(model: HysteresisModel, ref: Reference, group: Dataset, nominal: D
                          [(1 - BAND) / 2, (1 + BAND) / 2])
     nlo, nhi = np.quantile(commands["nominal"].error_distribution(y_d, stroke, mask),
                            [(1 - BAND) / 2, (1 + BAND) / 2])
-    param_band = None
-    if predict.delta is not None:
-        alone = predict_outputs(model, post_ff.u, t, Draws(predict.theta, predict.offset))
-        ok = np.all(np.isfinite(alone), axis=1)
-        plo, phi = np.quantile(tracking_percent(alone[ok], y_d, stroke, mask)[0],
-                               [(1 - BAND) / 2, (1 + BAND) / 2])
-        param_band = (float(plo), float(phi))
+    alone = (post_ff.predicted if predict.delta is None else
+             predict_outputs(model, post_ff.u, t, Draws(predict.theta, predict.offset)))
+    ok = np.all(np.isfinite(alone), axis=1)
+    param_band = _interval(tracking_percent(alone[ok], y_d, stroke, mask)[0])
+    model_band = _interval(post_ff.error_distribution(y_d, stroke, mask, residual=False))
     y_post = curves["y_posterior"]
     inside = (y_post >= band_lo) & (y_post <= band_hi)
     posterior_plants = curves["nrmse_posterior"]
@@ -461,5 +496,7 @@ def _evaluate(model: HysteresisModel, ref: Reference, group: Dataset, nominal: D
         # the inverter's own forward check: max |posterior-mean output - y_d| when scored
         model_error_percent=float(100.0 * post_ff.inversion.max_error / stroke),
         parameter_band_percent=param_band,
+        model_band_percent=model_band,
+        residual_rms_percent=float(100.0 * np.sqrt(np.mean(resid[:, mask] ** 2)) / stroke),
         curves=curves,
     )

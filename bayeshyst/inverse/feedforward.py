@@ -132,24 +132,48 @@ class Feedforward:
         Outputs of the prediction draws under ``u`` (noise-free, output unit).
     inversion : Inversion or None
         How the command was found (None for the scaled input).
+    residual : ndarray, shape (P, N), optional
+        What each prediction draw's *measurement* adds to its noise-free output: the
+        fit's unexplained residual resampled onto the command
+        (:class:`~bayeshyst.inverse.residual.ResidualBlocks`). None: the bands are those
+        of the noise-free output (parameters and discrepancy only).
     """
 
     label: str
     u: np.ndarray
     predicted: np.ndarray
     inversion: Inversion | None = None
+    residual: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        if self.residual is not None and np.shape(self.residual) != np.shape(self.predicted):
+            raise ParameterError(f"Feedforward({self.label}): residual of shape "
+                                 f"{np.shape(self.residual)} for predictions of shape "
+                                 f"{np.shape(self.predicted)}")
+
+    @property
+    def measured(self) -> np.ndarray:
+        """Predicted measurements ``(P, N)``: the outputs plus the residual (if any)."""
+        return self.predicted if self.residual is None else self.predicted + self.residual
 
     def band(self, prob: float = BAND) -> tuple[np.ndarray, np.ndarray]:
-        """Pointwise central ``prob`` band ``(lo, hi)`` of the predicted output, each (N,)."""
-        ok = np.all(np.isfinite(self.predicted), axis=1)
-        lo, hi = np.quantile(self.predicted[ok], [(1 - prob) / 2, (1 + prob) / 2], axis=0)
+        """Pointwise central ``prob`` band ``(lo, hi)`` of the predicted measurement, (N,)."""
+        y = self.measured
+        ok = np.all(np.isfinite(y), axis=1)
+        lo, hi = np.quantile(y[ok], [(1 - prob) / 2, (1 + prob) / 2], axis=0)
         return lo, hi
 
     def error_distribution(self, y_d: np.ndarray, stroke: float,
-                           mask: np.ndarray | None = None) -> np.ndarray:
-        """Predicted tracking NRMSE (% of stroke) of every prediction draw, shape (P,)."""
-        ok = np.all(np.isfinite(self.predicted), axis=1)
-        return tracking_percent(self.predicted[ok], y_d, stroke, mask)[0]
+                           mask: np.ndarray | None = None, *,
+                           residual: bool = True) -> np.ndarray:
+        """Predicted tracking NRMSE (% of stroke) of every prediction draw, shape (P,).
+
+        With ``residual`` (default) the error a measurement would show (outputs plus the
+        resampled residual); without, the noise-free outputs' error alone.
+        """
+        y = self.measured if residual else self.predicted
+        ok = np.all(np.isfinite(y), axis=1)
+        return tracking_percent(y[ok], y_d, stroke, mask)[0]
 
     def __str__(self) -> str:
         inv = "" if self.inversion is None else f", {self.inversion}"
@@ -161,7 +185,8 @@ def design_feedforward(model: HysteresisModel, y_d: Any, t: Any, design: Draws,
                        quantile: float = 0.9,
                        u_limits: tuple[float, float] = (-np.inf, np.inf),
                        periodic: bool = False, scored: Any = None,
-                       frequency_hz: float | None = None) -> Feedforward:
+                       frequency_hz: float | None = None,
+                       residual: np.ndarray | None = None) -> Feedforward:
     """Design a command on ``design`` draws and predict it on ``predict`` draws.
 
     Parameters
@@ -179,6 +204,10 @@ def design_feedforward(model: HysteresisModel, y_d: Any, t: Any, design: Draws,
         As :func:`~bayeshyst.inverse.numerical.invert`.
     frequency_hz : float, optional
         The reference's frequency (where the draws' discrepancy is evaluated).
+    residual : ndarray, shape (P, N), optional
+        The residual each prediction draw's measurement adds
+        (:meth:`~bayeshyst.inverse.residual.ResidualBlocks.sample`); see
+        :class:`Feedforward`.
 
     Returns
     -------
@@ -224,5 +253,5 @@ def design_feedforward(model: HysteresisModel, y_d: Any, t: Any, design: Draws,
                 break
         inv = best
     return Feedforward(label, inv.u, predict_outputs(model, inv.u, t, predict, frequency_hz),
-                       inv)
+                       inv, residual)
 

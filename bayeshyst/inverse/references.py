@@ -221,12 +221,15 @@ def design_references(data: Dataset, reference: str | Reference, *, cycles: int 
 
 
 def virtual_plant(data: Dataset) -> VirtualActuator | None:
-    """The virtual actuator that generated ``data`` (its ``truth`` metadata), noise off.
+    """The virtual actuator that generated ``data`` (its ``truth`` metadata).
 
-    None for measured data (no record carries a ``truth``).
+    With its sensor noise, as it generated the data: a command run on it gives the
+    error a measurement would show (pass ``rng`` to its ``simulate``;
+    ``.without("noise")`` for the true position). None for measured data (no record
+    carries a ``truth``).
     """
     for rec in data:
         truth = rec.metadata.get("truth")
         if truth is not None:
-            return VirtualActuator.from_truth(truth).without("noise")
+            return VirtualActuator.from_truth(truth)
     return None

@@ -37,7 +37,9 @@ COMMANDS = ("uncompensated", "nominal", "posterior", "robust")
 CSV_COLUMNS = ("frequency_hz", "reference",
                *(f"{c}_{m}_percent" for c in COMMANDS for m in ("nrmse", "max")),
                "band_lo_percent", "band_hi_percent", "nominal_band_lo_percent",
-               "nominal_band_hi_percent", "realised_inside_band", "output_coverage",
+               "nominal_band_hi_percent", "parameter_band_lo_percent",
+               "parameter_band_hi_percent", "model_band_lo_percent", "model_band_hi_percent",
+               "residual_rms_percent", "realised_inside_band", "output_coverage",
                "plants_inside_band",
                *(f"mean_over_plants_{c}_nrmse_percent" for c in COMMANDS),
                "n_saturated", "model_error_percent")
@@ -106,6 +108,9 @@ def _csv_text(result: CompensationResult) -> str:
         d["band_lo_percent"], d["band_hi_percent"] = row.predicted_band_percent
         d["nominal_band_lo_percent"], d["nominal_band_hi_percent"] = (
             row.nominal_predicted_band_percent)
+        d["parameter_band_lo_percent"], d["parameter_band_hi_percent"] = (
+            row.parameter_band_percent)
+        d["model_band_lo_percent"], d["model_band_hi_percent"] = row.model_band_percent
         for c in COMMANDS:
             d[f"mean_over_plants_{c}_nrmse_percent"] = (
                 None if row.mean_over_plants is None else row.mean_over_plants.get(c))

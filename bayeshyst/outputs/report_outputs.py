@@ -367,6 +367,8 @@ def _uncertainty(result: ReportResult, comp: dict[str, Any] | None) -> dict[str,
         tracking.append({"frequency_hz": r.get("frequency_hz"),
                          "band_percent": r.get("predicted_band_percent"),
                          "parameter_band_percent": r.get("parameter_band_percent"),
+                         "model_band_percent": r.get("model_band_percent"),
+                         "residual_rms_percent": r.get("residual_rms_percent"),
                          "realised_percent": r.get("posterior_nrmse_percent"),
                          "inside": r.get("realised_inside_band")})
     return {"model": result.diagnosis.final.label, "y_unit": y_unit,
@@ -444,22 +446,31 @@ def _uncertainty_html(section: dict[str, Any] | None, out: Path) -> H.Markup:
     if section["tracking_band"]:
         rows = []
         for r in section["tracking_band"]:
-            band, par = r["band_percent"] or [None, None], r["parameter_band_percent"]
-            rows.append([r["frequency_hz"], band[0], band[1],
-                         None if par is None else par[0], None if par is None else par[1],
-                         r["realised_percent"], H.badge(r["inside"], "yes", "no")])
+            rows.append([r["frequency_hz"], _range(r.get("parameter_band_percent")),
+                         _range(r.get("model_band_percent")), _range(r["band_percent"]),
+                         r.get("residual_rms_percent"), r["realised_percent"],
+                         H.badge(r["inside"], "yes", "no")])
         parts.append(H.paragraph(
-            "The feedforward tracking band (90 % range of the posterior command's NRMSE over "
-            "held-out draws, % of the reference's stroke) from everything the fit knows"
-            + (", and from the parameters alone (the discrepancy left out):"
-               if section["discrepancy"] else
-               " -- without a discrepancy that is the parameters alone, so it says nothing "
-               "about what the model family misses:")))
-        parts.append(H.table(["frequency [Hz]", "band low %", "band high %",
-                              "parameters only low %", "parameters only high %",
-                              "realised %", "inside"], rows,
-                             numeric=[True] * 6 + [False]))
+            "The feedforward tracking band's budget (90 % range of the posterior command's "
+            "NRMSE over held-out draws, % of the reference's stroke): from the parameters "
+            "alone, with the discrepancy" + ("" if section["discrepancy"] else
+                                              " (none in this fit: the same)")
+            + ", and with the fit's residual resampled onto the command -- sensor noise and "
+            "whatever the model leaves unexplained -- which is the band a measurement is "
+            "compared with. What it cannot hold: error that only shows on paths the "
+            "identification data never drove (minor loops of a narrower command)."))
+        parts.append(H.table(["frequency [Hz]", "parameters %", "+ discrepancy %",
+                              "+ residual: the band %", "residual RMS %", "realised %",
+                              "inside"], rows,
+                             numeric=[True, False, False, False, True, True, False]))
     return H.join(parts)
+
+
+def _range(pair: Any) -> str:
+    """``"[lo, hi]"`` of a band, an en dash without one."""
+    if not pair or any(v is None for v in pair):
+        return "\u2013"
+    return f"[{pair[0]:.3g}, {pair[1]:.3g}]"
 
 
 # --------------------------------------------------------------------- compensation

@@ -288,7 +288,8 @@ def compensation_figure(result: Any, *, fig: Figure | None = None,
     ax_f.set_title("realised on the plant; bars: predicted 90 % band", fontsize=9)
     ax_f.grid(alpha=0.3)
     ax_f.legend(fontsize=7, loc="best")
-    plant = {"virtual actuator": "virtual actuator (the simulator behind the data, noise off)",
+    plant = {"virtual actuator": "virtual actuator (the simulator behind the data, measured "
+                                 "with its sensor noise)",
              "posterior draw": "held-out posterior draws (no ground truth)"}.get(
                  result.plant_kind, result.plant_kind)
     title = f"feedforward compensation with {result.model}; plant: {plant}"
