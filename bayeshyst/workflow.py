@@ -47,13 +47,13 @@ from bayeshyst.diagnosis.loop import DiagnosisFit
 from bayeshyst.errors import DataError, ParameterError
 from bayeshyst.inference.calibration import Calibration
 from bayeshyst.inference.fit import FitResult, calibrate_fit
+from bayeshyst.inference.residual import RESIDUAL_DRAWS, ResidualBlocks
 from bayeshyst.inference.saved import load_fit
 from bayeshyst.inference.settings import SamplerSettings
 from bayeshyst.inverse.averaged import AveragedResult, WeightedPosterior, design_averaged
 from bayeshyst.inverse.compensate import CompensationResult, compensate
 from bayeshyst.inverse.feedforward import Draws
 from bayeshyst.inverse.references import command_limits, design_references, virtual_plant
-from bayeshyst.inverse.residual import RESIDUAL_DRAWS, ResidualBlocks
 from bayeshyst.likelihoods import get_likelihood
 from bayeshyst.selection import (
     ComparisonResult,

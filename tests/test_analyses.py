@@ -17,6 +17,7 @@ from analyses import (
     hidden_effects,
     model_selection_study,
     robust_feedforward,
+    transfer_check,
     uncertainty_report,
     undeclared_effect,
 )
@@ -202,6 +203,39 @@ def test_model_selection_on_measured_piezo(shared_data_dir, tmp_path):
     # the cut is documented: 50 samples per 1 Hz cycle (every 100th of 5 kHz), 3 cycles
     assert record["fs_hz"] == pytest.approx(50.0, rel=1e-3)
     assert "every 100th sample" in record["cut"] and "3 cycle(s)" in record["cut"]
+
+
+# ------------------------------------------------------------------- transfer check
+@pytest.mark.shared_data
+def test_transfer_check_predicts_the_test_file_from_its_own_voltage(shared_data_dir, tmp_path):
+    from bayeshyst.data import measured
+
+    raw = measured.load_piezo_micromanipulator(shared_data_dir, which="test")[0]
+    rec, y_d = transfer_check.test_record(shared_data_dir)
+    # the authors' alignment: the reading one sample later answers the voltage
+    np.testing.assert_array_equal(rec.y, raw.y[1:])
+    np.testing.assert_array_equal(rec.u, raw.u[:-1])
+    ref = measured.load_micromanipulator_reference(shared_data_dir)[:-1]
+    np.testing.assert_allclose(y_d - ref, np.mean(rec.y))
+    out = tmp_path / "out"
+    assert transfer_check.main(["--quick", "--quiet", "--discrepancy", "none",
+                                "--out", str(out)]) == 0
+    rows = _rows(out / "transfer.csv")
+    summary = json.loads((out / "summary.json").read_text())
+    assert [r["offset"] for r in summary["runs"]] == list(transfer_check.OFFSETS)
+    windows = [w for run in summary["runs"] for w in run["check"]["windows"]]
+    assert [r["window"] for r in rows] == [w["label"] for w in windows]
+    # re-zeroed on the lead-in (segment 0), which then is no window of its own
+    assert [r["window"][-2:] for r in rows] == ["#0", "#1", "#2", "#3", "#4",
+                                                 "#1", "#2", "#3", "#4"]
+    for r, w in zip(rows, windows, strict=True):
+        assert float(r["coverage_90"]) == pytest.approx(w["coverage"]["0.9"])
+        assert (r["calibrated"] == "True") == w["calibrated"]
+        lo, hi = float(r["tracking_band_lo"]), float(r["tracking_band_hi"])
+        assert (r["tracking_inside"] == "True") == (lo <= float(r["tracking_percent"]) <= hi)
+    assert summary["alignment"]["test_sensor_later_by_samples"] == 1
+    assert ("NOT converged" in (out / "transfer.txt").read_text()) is not summary["converged"]
+    _no_nan_or_tmp(out)
 
 
 # ------------------------------------------------------------------ robust feedforward

@@ -1,4 +1,4 @@
-"""The fit's residual resampled onto a command (inverse.residual), against known residuals."""
+"""The fit's residual resampled onto a command (inference.residual), against known residuals."""
 
 from __future__ import annotations
 
@@ -7,8 +7,8 @@ import pytest
 
 from bayeshyst.data import Record
 from bayeshyst.errors import ParameterError
+from bayeshyst.inference.residual import ResidualBlocks, _block_length
 from bayeshyst.inverse.feedforward import Feedforward
-from bayeshyst.inverse.residual import ResidualBlocks, _block_length
 
 
 def ar1(n, phi, rng):

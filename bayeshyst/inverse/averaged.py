@@ -26,10 +26,10 @@ import numpy as np
 
 from bayeshyst.data.virtual import VirtualActuator
 from bayeshyst.errors import ParameterError
+from bayeshyst.inference.residual import ResidualBlocks
 from bayeshyst.inverse.feedforward import BAND, Draws, predict_outputs, tracking_percent
 from bayeshyst.inverse.numerical import Member, invert_pooled
 from bayeshyst.inverse.references import Reference
-from bayeshyst.inverse.residual import ResidualBlocks
 from bayeshyst.models.base import HysteresisModel
 from bayeshyst.tables import TableRecord, frame
 

@@ -22,10 +22,10 @@ from typing import Any
 import numpy as np
 
 from bayeshyst.errors import ParameterError
+from bayeshyst.inference.residual import RESIDUAL_DRAWS, ResidualBlocks
 from bayeshyst.inference.saved import SavedFit
 from bayeshyst.inverse.feedforward import BAND, Draws, design_feedforward
 from bayeshyst.inverse.references import U_MARGIN, Reference, command_limits
-from bayeshyst.inverse.residual import RESIDUAL_DRAWS, ResidualBlocks
 from bayeshyst.models.compose import model_spec
 from bayeshyst.tables import TableRecord
 
@@ -170,7 +170,7 @@ def design_command(fit: SavedFit, reference: Reference, *, objective: str = "mea
     t, y_d, mask, stroke = reference.t, reference.y_d, reference.scored, reference.stroke
     limits = command_limits(post.data, u_margin)
     # the band predicts a measured error: the fit's unexplained residual, resampled in
-    # whole cycles, is added to every prediction draw (see inverse.residual)
+    # whole cycles, is added to every prediction draw (see inference.residual)
     residual = ResidualBlocks.of(post, z[n_design:][: RESIDUAL_DRAWS])
     resid = residual.sample(predict.size, t.size, reference.frequency_hz,
                             np.random.default_rng([seed, 1]))

@@ -18,7 +18,7 @@ after the warm-up cycle(s) (the first cycle starts from the relaxed state and ca
 the transient of the dynamics). ``y`` is a *measurement*: the virtual actuator runs
 with its sensor noise, and the predicted bands add to every prediction draw the fit's
 own unexplained residual, resampled in whole cycles
-(:class:`~bayeshyst.inverse.residual.ResidualBlocks`) -- parameters, discrepancy and
+(:class:`~bayeshyst.inference.residual.ResidualBlocks`) -- parameters, discrepancy and
 residual, the tracking band's budget (``parameter_band_percent``,
 ``model_band_percent``, ``predicted_band_percent``).
 """
@@ -37,6 +37,7 @@ from bayeshyst.data.record import Dataset, Record
 from bayeshyst.data.virtual import VirtualActuator
 from bayeshyst.errors import DataError, ParameterError
 from bayeshyst.inference.fit import FitResult, fit_model
+from bayeshyst.inference.residual import RESIDUAL_DRAWS, ResidualBlocks
 from bayeshyst.inference.settings import SamplerSettings
 from bayeshyst.inverse.feedforward import (
     BAND,
@@ -53,7 +54,6 @@ from bayeshyst.inverse.references import (
     design_references,
     virtual_plant,
 )
-from bayeshyst.inverse.residual import RESIDUAL_DRAWS, ResidualBlocks
 from bayeshyst.models import get as get_model
 from bayeshyst.models.base import HysteresisModel
 from bayeshyst.tables import TableRecord, frame

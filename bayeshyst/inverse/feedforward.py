@@ -135,7 +135,7 @@ class Feedforward:
     residual : ndarray, shape (P, N), optional
         What each prediction draw's *measurement* adds to its noise-free output: the
         fit's unexplained residual resampled onto the command
-        (:class:`~bayeshyst.inverse.residual.ResidualBlocks`). None: the bands are those
+        (:class:`~bayeshyst.inference.residual.ResidualBlocks`). None: the bands are those
         of the noise-free output (parameters and discrepancy only).
     """
 
@@ -206,7 +206,7 @@ def design_feedforward(model: HysteresisModel, y_d: Any, t: Any, design: Draws,
         The reference's frequency (where the draws' discrepancy is evaluated).
     residual : ndarray, shape (P, N), optional
         The residual each prediction draw's measurement adds
-        (:meth:`~bayeshyst.inverse.residual.ResidualBlocks.sample`); see
+        (:meth:`~bayeshyst.inference.residual.ResidualBlocks.sample`); see
         :class:`Feedforward`.
 
     Returns
