@@ -118,3 +118,38 @@ def test_to_dict_lists_each_frequency():
     assert [r["frequency_hz"] for r in d["rows"]] == [1.0, 5.0]
     assert [r["rms"] for r in d["rows"]] == [1.0, 2.0]
     assert [r["block_samples"] for r in d["rows"]] == [2, 3]
+
+
+def test_the_level_spread_between_conditions_is_recovered():
+    """Oracle: white residuals whose log mean square is N(0, tau^2) across 40 frequencies.
+
+    With 2 000 samples each the within-condition sd of log mean square is ~0.03, so the
+    DerSimonian-Laird estimate must find tau = 0.5 within its sampling error over 40
+    conditions (sd ~ tau / sqrt(2 * 39) = 0.06; the bar is 3 of those), and ~0 when
+    every condition has the same level.
+    """
+    rng = np.random.default_rng(4)
+    freqs = tuple(float(f) for f in range(1, 41))
+    for tau, (lo, hi) in ((0.5, (0.32, 0.68)), (0.0, (0.0, 0.05))):
+        sds = np.exp(0.5 * rng.normal(0.0, tau, len(freqs)))
+        series = tuple(rng.normal(0.0, s, 2000) for s in sds)
+        rb = ResidualBlocks(series, freqs, (2,) * len(freqs))
+        assert lo <= rb.level_spread() <= hi
+        assert rb.to_dict()["level_spread"] == rb.level_spread()
+    one = ResidualBlocks((rng.normal(size=300),) * 2, (3.0, 3.0), (2, 2))
+    assert one.level_spread() is None
+
+
+def test_a_new_condition_widens_the_rms_band_by_the_level_spread():
+    rng = np.random.default_rng(5)
+    series = (rng.normal(0, 1.0, 4000), rng.normal(0, 2.0, 4000))
+    rb = ResidualBlocks(series, (1.0, 10.0), (2, 2))
+    tau = rb.level_spread()
+    # log mean squares 0 and log 4: their sample sd is log(4) / sqrt(2) = 0.98
+    assert 0.9 < tau < 1.05
+    wide = np.sqrt(np.mean(rb.sample(400, 400, 1.0, np.random.default_rng(0)) ** 2, axis=1))
+    same = np.sqrt(np.mean(rb.sample(400, 400, 1.0, np.random.default_rng(0),
+                                     transfer=False) ** 2, axis=1))
+    # log RMS = log level / 2: its sd grows to about tau / 2
+    assert np.std(np.log(wide)) == pytest.approx(tau / 2, rel=0.2)
+    assert np.std(np.log(same)) < 0.1

@@ -22,7 +22,14 @@ bootstrap** (Künsch 1989) in two levels:
    band of an i.i.d. residual's RMS covered 50 % with two training cycles, 87 % with
    twenty; the two-level one 86-91 %, tested);
 2. the command's residual: blocks drawn from that pseudo residual, started at a random
-   sample of the first, cut to the command's length.
+   sample of the first, cut to the command's length;
+3. with several excitation conditions (frequencies) in the data, the command is treated
+   as one more: each series' level is scaled by a random factor whose spread is that of
+   the residual's level between the training conditions, beyond their sampling error
+   (a random-effects model of the log mean square; DerSimonian & Laird 1986). A model
+   whose misfit changes with the excitation will change it again under a command; with
+   one condition this spread cannot be estimated and is left out (``to_dict`` says so:
+   ``level_spread`` None).
 
 A block is one input cycle when the residual repeats from cycle to cycle (its
 autocorrelation one cycle apart is significantly positive: a misfit periodic in the
@@ -132,12 +139,14 @@ class ResidualBlocks(TableRecord):
         return float(np.sqrt(np.mean(pooled ** 2)))
 
     def sample(self, n_series: int, n_samples: int, frequency_hz: float | None,
-               rng: np.random.Generator) -> np.ndarray:
+               rng: np.random.Generator, *, transfer: bool = True) -> np.ndarray:
         """Residual series for ``n_series`` prediction draws, shape (n_series, n_samples).
 
         The two-level moving-block bootstrap of the module docstring, over the records
         at the frequency nearest to ``frequency_hz`` with the longest of their block
-        lengths.
+        lengths. With ``transfer`` (default) and more than one excitation condition,
+        each series is scaled by ``exp(eta / 2)``, ``eta ~ N(0, tau^2)`` with ``tau``
+        the :meth:`level_spread`: the command is a new condition.
         """
         if n_series < 1 or n_samples < 1:
             raise ParameterError(f"n_series and n_samples must be >= 1, got {n_series}, "
@@ -162,7 +171,43 @@ class ResidualBlocks(TableRecord):
             run = pooled[(chosen[:, None] + within).ravel()]
             first = int(rng.integers(ell))
             out[k] = run[first:first + n_samples]
+        tau = self.level_spread()
+        if transfer and tau:
+            # a new input is a new condition: its residual level varies about the
+            # training one's as the levels vary between the training conditions
+            out *= np.exp(0.5 * rng.normal(0.0, tau, (n_series, 1)))
         return out
+
+    def level_spread(self) -> float | None:
+        """Between-condition sd of the residual's log mean square; None from one condition.
+
+        A condition is an excitation frequency (records at the same one pooled). The
+        DerSimonian-Laird moment estimator (1986) on ``log mean(r^2)`` per condition,
+        each with its within-condition sampling variance by the delta method,
+        ``var(r^2) / (n_eff mean(r^2)^2)`` (``n_eff`` from the autocorrelation of
+        ``r^2``): the spread of the levels beyond what their sampling explains, 0 when
+        none is left.
+        """
+        keys = sorted({f for f in self.frequencies if f is not None})
+        if None in self.frequencies:
+            keys.append(None)
+        if len(keys) < 2:
+            return None
+        level, var = [], []
+        for f in keys:
+            sq = np.concatenate([self.series[i] for i, g in enumerate(self.frequencies)
+                                 if g == f]) ** 2
+            ms = float(np.mean(sq))
+            if not ms > 0:
+                return None
+            level.append(math.log(ms))
+            var.append(max(float(np.var(sq)) / effective_size(sq) / ms ** 2, 1e-12))
+        y, w = np.asarray(level), 1.0 / np.asarray(var)
+        mean = float(np.sum(w * y) / np.sum(w))
+        q = float(np.sum(w * (y - mean) ** 2))
+        denom = float(np.sum(w) - np.sum(w ** 2) / np.sum(w))
+        tau2 = max(0.0, (q - (len(keys) - 1)) / denom) if denom > 0 else 0.0
+        return math.sqrt(tau2)
 
     def to_dict(self) -> dict[str, Any]:
         """Per frequency: records, block length and RMS (no arrays)."""
@@ -176,7 +221,7 @@ class ResidualBlocks(TableRecord):
                          "block_samples": max(self.block_lengths[i] for i in group),
                          "rms": self.rms(f)})
         return {"resampled": "moving blocks of the training residual, two levels",
-                "rows": rows}
+                "rows": rows, "level_spread": self.level_spread()}
 
     def to_dataframe(self) -> Any:
         """One row per frequency: records, block length [samples], RMS (output unit)."""
