@@ -247,8 +247,14 @@ def _scaled_input(records: Dataset) -> tuple[float, float]:
 
 
 def _trend_statements(rows: list[CompensationRow], model: str,
-                      rate_dependent: bool) -> list[str]:
+                      rate_dependent: bool, discrepancy: bool = False) -> list[str]:
     out = []
+    if discrepancy:
+        out.append("With a discrepancy the bands assume that what it learned on the "
+                   "identification loops holds along the command; a command that drives "
+                   "paths those loops never showed (minor loops of a narrower reference) can "
+                   "err by more. A validation record with such paths tests it "
+                   "(bayeshyst.inverse.validation.check_transfer).")
     freq = [r for r in rows if r.frequency_hz is not None]
     if len(freq) >= 2:
         first, last = freq[0], freq[-1]
@@ -410,7 +416,8 @@ def compensate(
         _log.info("%s: realised tracking NRMSE %.3g %% (posterior command), band "
                   "[%.3g, %.3g] %%", rows[-1].label, rows[-1].posterior_nrmse_percent,
                   *rows[-1].predicted_band_percent)
-    statements = _trend_statements(rows, model.name, model.rate_dependent)
+    statements = _trend_statements(rows, model.name, model.rate_dependent,
+                                   post.discrepancy is not None)
     settings = {"reference": reference.kind if isinstance(reference, Reference) else reference,
                 "cycles": cycles, "warmup_cycles": warmup_cycles,
                 "n_design_draws": n_design_draws, "n_predict_draws": n_predict_draws,
