@@ -59,3 +59,22 @@ def test_posterior_in_the_old_order_is_refused_in_words():
     with pytest.raises(ParameterError, match="data come first"):
         bayeshyst.Posterior("bouc_wen", rec)
     assert bayeshyst.Posterior(rec, "bouc_wen").model.name == "bouc_wen"
+
+
+def test_the_readme_model_table_lists_every_model_with_its_review_reference():
+    # oracle: the registry -- every registered model is a row whose "review ref" is the
+    # model's own equation attribute, so the table cannot drift from the code
+    import re
+    from pathlib import Path
+
+    import bayeshyst.models as M
+
+    text = (Path(__file__).resolve().parents[1] / "README.md").read_text()
+    found = re.findall(r"^\| `([a-z_]+)` \| [^|]+ \| ([^|]+) \| (yes|no) \|$", text,
+                       re.MULTILINE)
+    assert sorted(name for name, _, _ in found) == sorted(M.names())
+    for name, ref, rate in found:
+        model = M.get(name)
+        assert ref.strip() == model.equation, name
+        assert ref.strip().startswith("review Eq.")
+        assert (rate == "yes") == model.rate_dependent, name
