@@ -103,3 +103,31 @@ def test_a_reference_gives_the_tracking_error_and_its_band(fits):
     with pytest.raises(ParameterError, match="expected 3000 samples"):
         check_transfer(fit.posterior, fit.sampling.draws(20, seed=0), rec,
                        reference={"minor": truth[:10]})
+
+
+def test_a_residual_learned_on_like_paths_carries_the_transfer_error(fits):
+    """Oracle: a plant with a shape error the fit never saw, the same in both halves.
+
+    Constant-amplitude minor loops; the plant adds ``0.15 ((u - 75) / 30)^2`` (three noise
+    sd, periodic in the loop) to the fitted model. The fit's own residual knows nothing
+    of it and the 90 % band misses; learned on the first half, the residual carries it
+    into the second half's band, which then covers at its nominal rate.
+    """
+    model, theta, fit, _ = fits[2]
+    t = np.arange(3000) * 1e-3
+    u = 75 + 30 * np.sin(2 * np.pi * 5 * t)
+    y = (model.simulate(u, t, theta) + 0.4 + 0.15 * ((u - 75) / 30) ** 2
+         + np.random.default_rng(21).normal(0.0, 0.05, t.size))
+    first = t < 1.5
+    rec = Record(t=t, u=u, y=y, name="shape", warmup=200, metadata={"frequency_hz": 5.0},
+                 segment=(~first).astype(int))
+    z = fit.sampling.draws(300, seed=0)
+    plain = check_transfer(fit.posterior, z, rec, seed=0)
+    assert plain.windows[1].coverage[0.9] < plain.windows[1].expected[0.9][0]
+    learned = check_transfer(fit.posterior, z, rec, residual_from={"shape": first}, seed=0)
+    (w,) = learned.windows
+    assert w.label == "shape#1"
+    assert w.expected[0.9][0] - 0.03 <= w.coverage[0.9] <= w.expected[0.9][1] + 0.03
+    assert w.expected[0.5][0] - 0.03 <= w.coverage[0.5] <= w.expected[0.5][1] + 0.03
+    with pytest.raises(ParameterError, match="boolean mask"):
+        check_transfer(fit.posterior, z, rec, residual_from={"shape": first.astype(int)})

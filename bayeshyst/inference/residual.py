@@ -124,6 +124,36 @@ class ResidualBlocks(TableRecord):
                                  "residual from")
         return cls(tuple(series), tuple(freqs), tuple(lengths))
 
+    @classmethod
+    def from_series(cls, series: list[np.ndarray], frequencies: list[float | None],
+                    cycle_samples: list[int]) -> ResidualBlocks:
+        """Residual series measured elsewhere, e.g. on a validation record.
+
+        Block lengths are chosen as in :meth:`of`, from each series' dependence and its
+        cycle length.
+
+        Parameters
+        ----------
+        series : list of ndarray
+            Residuals (output unit); each at least ``MIN_SAMPLES`` long and finite.
+        frequencies : list of (float or None)
+            Excitation frequency [Hz] of each.
+        cycle_samples : list of int
+            Samples in one input cycle of each (its longest possible block).
+        """
+        if not (len(series) == len(frequencies) == len(cycle_samples)) or not series:
+            raise ParameterError("from_series: need as many frequencies and cycle lengths as "
+                                 f"series, and at least one; got {len(series)}, "
+                                 f"{len(frequencies)}, {len(cycle_samples)}")
+        out = [np.asarray(r, float) for r in series]
+        short = [r.size for r in out if r.size < MIN_SAMPLES]
+        if short:
+            raise ParameterError(f"from_series: series of {short} samples; each needs "
+                                 f"{MIN_SAMPLES}")
+        return cls(tuple(out), tuple(frequencies),
+                   tuple(_block_length(r, max(1, int(c))) for r, c in
+                         zip(out, cycle_samples, strict=True)))
+
     def _group(self, frequency_hz: float | None) -> list[int]:
         """Indices of the records nearest to ``frequency_hz`` (in log frequency)."""
         known = sorted({f for f in self.frequencies if f is not None})

@@ -40,6 +40,9 @@ from bayeshyst.tables import TableRecord, frame
 
 __all__ = ["TransferCheck", "TransferWindow", "check_transfer"]
 
+#: Shortest run of samples a learned residual series is taken from.
+MIN_SERIES = 50
+
 
 @dataclass(frozen=True)
 class TransferWindow(TableRecord):
@@ -167,6 +170,7 @@ class TransferCheck(TableRecord):
 def check_transfer(post: Any, z: np.ndarray, data: Dataset | Record, *,
                    reference: dict[str, np.ndarray] | None = None,
                    by_segment: bool = True, rezero: dict[str, np.ndarray] | None = None,
+                   residual_from: dict[str, np.ndarray] | None = None,
                    n_draws: int = 400, seed: int = 0) -> TransferCheck:
     """Predict ``data`` from its input with posterior ``post`` and check the bands.
 
@@ -193,6 +197,13 @@ def check_transfer(post: Any, z: np.ndarray, data: Dataset | Record, *,
         prediction over them, each draw by a further ``N(0, se^2)`` with ``se`` that
         mean's standard error (from the residual's effective sample size), and those
         samples are left out of every window.
+    residual_from : dict, optional
+        ``record name -> boolean mask (N,)`` of samples of *this* record whose residual
+        (measurement minus mean prediction, after re-zeroing) replaces the fit's training
+        residual in the record's predictive: the transfer error learned from a stretch
+        driven like the windows (e.g. the validation run's uncompensated segments for its
+        inverse-driven ones). Each contiguous run of the mask is one series; those
+        samples are left out of every window.
     n_draws : int
         Predictive draws.
     seed : int
@@ -214,7 +225,9 @@ def check_transfer(post: Any, z: np.ndarray, data: Dataset | Record, *,
     draws = Draws.of(post, z)
     reference = {} if reference is None else dict(reference)
     rezero = {} if rezero is None else dict(rezero)
-    for what, given in (("reference", reference), ("rezero", rezero)):
+    residual_from = {} if residual_from is None else dict(residual_from)
+    for what, given in (("reference", reference), ("rezero", rezero),
+                        ("residual_from", residual_from)):
         unknown = sorted(set(given) - {r.name for r in data})
         if unknown:
             raise ParameterError(f"{what}: no record named {unknown} in {data.name!r}")
@@ -230,16 +243,27 @@ def check_transfer(post: Any, z: np.ndarray, data: Dataset | Record, *,
         scored = rec.scored_mask.copy()
         zero = rezero.get(rec.name)
         if zero is not None:
-            zero = np.asarray(zero, dtype=bool)
-            if zero.shape != (rec.n,) or zero.sum() < 10:
-                raise ParameterError(f"rezero[{rec.name!r}]: expected a boolean mask of "
-                                     f"{rec.n} samples with at least 10 set, got shape "
-                                     f"{zero.shape} with {int(zero.sum())} set")
+            zero = _mask(zero, rec.n, f"rezero[{rec.name!r}]")
             gap = rec.y[zero] - np.mean(pred[:, zero], axis=0)
             se = float(np.std(gap) / np.sqrt(effective_size(gap)))
             pred = pred + float(np.mean(gap)) + rng.normal(0.0, se, (pred.shape[0], 1))
             scored &= ~zero
-        y_rep = pred + residual.sample(pred.shape[0], rec.n, rec.frequency_hz, rng)
+        learn = residual_from.get(rec.name)
+        source = residual
+        if learn is not None:
+            learn = _mask(learn, rec.n, f"residual_from[{rec.name!r}]")
+            gap = rec.y - np.mean(pred, axis=0)
+            runs = [gap[a:b] for a, b in _runs(learn & rec.scored_mask)
+                    if b - a >= MIN_SERIES]
+            if not runs:
+                raise ParameterError(f"residual_from[{rec.name!r}]: no run of {MIN_SERIES} "
+                                     "scored samples")
+            cycle = (rec.n if rec.frequency_hz is None
+                     else max(1, round(1.0 / (rec.frequency_hz * rec.dt))))
+            source = ResidualBlocks.from_series(runs, [rec.frequency_hz] * len(runs),
+                                                [cycle] * len(runs))
+            scored &= ~learn
+        y_rep = pred + source.sample(pred.shape[0], rec.n, rec.frequency_hz, rng)
         y_d = reference.get(rec.name)
         if y_d is not None and np.shape(y_d) != (rec.n,):
             raise ParameterError(f"reference[{rec.name!r}]: expected {rec.n} samples, got "
@@ -256,6 +280,22 @@ def check_transfer(post: Any, z: np.ndarray, data: Dataset | Record, *,
     if not windows:
         raise DataError(f"{data.name}: no window of 10 scored samples to check")
     return TransferCheck(post.model.name, tuple(windows), residual.to_dict())
+
+
+def _mask(values: Any, n: int, where: str) -> np.ndarray:
+    """A boolean mask of ``n`` samples with at least 10 set, or ParameterError."""
+    mask = np.asarray(values)
+    if mask.dtype != bool or mask.shape != (n,) or mask.sum() < 10:
+        raise ParameterError(f"{where}: expected a boolean mask of {n} samples with at least "
+                             f"10 set, got {mask.dtype} of shape {mask.shape} with "
+                             f"{int(np.count_nonzero(mask))} set")
+    return mask
+
+
+def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
+    """``(start, stop)`` of every run of True in ``mask``."""
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], mask.astype(np.int8), [0]])))
+    return list(zip(edges[::2].tolist(), edges[1::2].tolist(), strict=True))
 
 
 def _window(label: str, y: np.ndarray, pred: np.ndarray, y_rep: np.ndarray,
