@@ -134,3 +134,26 @@ def test_reference_file_errors_name_the_place(tmp_path):
     back.write_text("t,y\n" + "\n".join(f"{k if k != 5 else 3},{k}" for k in range(12)))
     with pytest.raises(DataError, match=r"back\.csv: column 't', row 7"):
         load_reference(back)
+
+
+def test_a_validation_record_supplies_the_residual_of_the_bands():
+    # oracle: the records the model was fitted on, given as "validation", hold exactly the
+    # training residual -- the bands must be the default ones, bit for bit; the records
+    # shifted by 1 um add that shift to the residual the bands carry (in quadrature)
+    data = loops(HYSTERESIS_ONLY, [1.0])
+    sampler = SamplerSettings(max_steps=600, n_walkers=24, seed=4)
+    from bayeshyst.data.record import Record
+    from bayeshyst.inference.fit import fit_model
+
+    fit = fit_model(data, "pi_play(n_operators=4)", "gaussian", sampler=sampler)
+    common = {"fit": fit, "sampler": sampler, "n_design_draws": 8, "n_predict_draws": 40}
+    default = compensate(data, "pi_play(n_operators=4)", **common)
+    same = compensate(data, "pi_play(n_operators=4)", validation=data, **common)
+    assert same.rows[0].predicted_band_percent == default.rows[0].predicted_band_percent
+    assert same.settings["residual_from"].startswith("validation records")
+    shifted = Dataset(tuple(Record(t=r.t, u=r.u, y=r.y + 1.0, name=r.name, warmup=r.warmup,
+                                   metadata=dict(r.metadata)) for r in data))
+    row = compensate(data, "pi_play(n_operators=4)", validation=shifted, **common).rows[0]
+    shift = 100.0 * 1.0 / np.ptp(row.curves["y_d"])
+    expected = np.hypot(default.rows[0].residual_rms_percent, shift)
+    assert row.residual_rms_percent == pytest.approx(expected, rel=0.1)

@@ -172,3 +172,21 @@ def test_help_lists_compensate(capsys):
     text = capsys.readouterr().out
     for option in ("--model", "--reference", "--design-draws", "--quantile", "--plant"):
         assert option in text
+
+
+def test_validation_file_supplies_the_residual_and_a_bad_one_writes_nothing(data_csv, tmp_path,
+                                                                            capsys):
+    out = tmp_path / "out"
+    # the training file itself as "validation": the bands carry the same residual, and the
+    # summary says where it came from
+    assert main(["compensate", str(data_csv), *RUN, "--validation", str(data_csv),
+                 "--out", str(out), "--json", "--no-figures", "--no-checkpoint"]) == 0
+    printed = json.loads(capsys.readouterr().out)
+    assert printed["settings"]["residual_from"].startswith("validation records")
+    missing = tmp_path / "nope.csv"
+    out2 = tmp_path / "out2"
+    assert main(["compensate", str(data_csv), *RUN, "--validation", str(missing),
+                 "--out", str(out2), "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert "nope.csv" in err and "Traceback" not in err
+    assert not out2.exists()

@@ -268,6 +268,13 @@ def cmd_compensate(args: argparse.Namespace) -> int:
     else:
         raise DataError(f"{args.reference}: no such reference file (--reference takes "
                         f"{' or '.join(REFERENCE_KINDS)} or a CSV file with columns t,y)")
+    validation = None
+    if args.validation is not None:
+        from bayeshyst.data import label_frequencies, load
+
+        validation = load(args.validation, columns=args.columns)
+        if not args.no_frequency_labels:
+            validation = label_frequencies(validation)
     out = Path(args.out)
     sampler = sampler_settings(
         args, checkpoint=None if args.no_checkpoint else out / "checkpoint.h5")
@@ -286,7 +293,7 @@ def cmd_compensate(args: argparse.Namespace) -> int:
         result = compensate(data, model, fit=fit, reference=reference,
                             plant=None if args.plant == "auto" else args.plant,
                             n_design_draws=args.design_draws, robust_quantile=args.quantile,
-                            sampler=sampler)
+                            sampler=sampler, validation=validation)
         idata = diagnostics.to_inference_data(fit.posterior, fit.sampling,
                                               seed=int(result.settings.get("seed", 0)))
         figures = None if args.no_figures else compensation_figures(result, fit=fit)

@@ -169,6 +169,11 @@ def build_parser() -> argparse.ArgumentParser:
     p_comp.add_argument("--discrepancy", choices=("none", "hsgp"), default="none",
                         help="fit with a model-discrepancy term (hsgp) and design and predict "
                              "the commands against model + discrepancy (default none)")
+    p_comp.add_argument("--validation", default=None, metavar="FILE",
+                        help="measured records NOT fitted on, driven along paths like the "
+                             "commands' (minor loops, another amplitude): the bands carry "
+                             "their residual instead of the training residual (same columns "
+                             "and units as DATA)")
     p_comp.set_defaults(func=cmd_compensate)
 
     p_inv = sub.add_parser("invert", help="a feedforward command for a reference from a saved "

@@ -215,6 +215,26 @@ class CompensationResult(TableRecord):
 
 # ------------------------------------------------------------------------------ driver
 
+def _validation_residual(post: Any, z: np.ndarray, validation: Dataset | Record
+                         ) -> ResidualBlocks:
+    """Residual of records the posterior was not fitted on, about its mean prediction."""
+    records = (validation,) if isinstance(validation, Record) else tuple(validation)
+    if not records:
+        raise DataError("validation: no record to take a residual from")
+    draws = Draws.of(post, z)
+    series, freqs, cycles = [], [], []
+    for rec in records:
+        pred = predict_outputs(post.model, rec.u, rec.t, draws, rec.frequency_hz)
+        ok = np.all(np.isfinite(pred), axis=1)
+        if not ok.any():
+            raise DataError(f"validation {rec.name}: no posterior draw simulates this record")
+        series.append((rec.y - np.mean(pred[ok], axis=0))[rec.scored])
+        freqs.append(rec.frequency_hz)
+        cycles.append(rec.n_scored if rec.frequency_hz is None
+                      else max(1, round(1.0 / (rec.frequency_hz * rec.dt))))
+    return ResidualBlocks.from_series(series, freqs, cycles)
+
+
 def _interval(values: np.ndarray) -> tuple[float, float]:
     """Central :data:`BAND` interval of ``values``."""
     lo, hi = np.quantile(values, [(1 - BAND) / 2, (1 + BAND) / 2])
@@ -305,6 +325,7 @@ def compensate(
     likelihood: str = "gaussian",
     sampler: SamplerSettings | None = None,
     discrepancy: str | None = None,
+    validation: Dataset | Record | None = None,
 ) -> CompensationResult:
     """Design feedforward from the posterior of ``model`` and evaluate it per frequency.
 
@@ -345,6 +366,13 @@ def compensate(
         the choice of draws and the residual series; a virtual plant's sensor noise at
         the ``k``-th reference is drawn from ``numpy.random.default_rng([seed, k, 1])``
         (the same for every command): same seed, same result.
+    validation : Dataset or Record, optional
+        Measured records the model was *not* fitted on, driven along paths like the
+        commands' (minor loops, another amplitude): the bands then resample their
+        residual -- measurement minus the posterior's mean prediction from their own
+        input -- instead of the training residual, so that they carry the error a
+        command shows on paths the identification data never drove. Default: the
+        training residual.
     discrepancy : {"none", "hsgp"}, optional
         Fit with a model discrepancy (ignored with ``fit``, which carries its own): the
         commands are then designed against model + discrepancy and the bands predicted
@@ -390,7 +418,9 @@ def compensate(
     nominal = Draws.of(post, fit.sampling.start.z)
     # what the fit leaves unexplained: the training residual about the posterior mean,
     # resampled onto every command so that the bands predict a measured error
-    residual = ResidualBlocks.of(post, fit.sampling.draws(RESIDUAL_DRAWS, seed=seed))
+    z_mean = fit.sampling.draws(RESIDUAL_DRAWS, seed=seed)
+    residual = (ResidualBlocks.of(post, z_mean) if validation is None
+                else _validation_residual(post, z_mean, validation))
     if virtual:
         plant_text = (f"virtual actuator ({', '.join(plant.effects)}), the simulator that "
                       "generated the data, measured with its sensor noise")
@@ -423,6 +453,10 @@ def compensate(
                 "n_design_draws": n_design_draws, "n_predict_draws": n_predict_draws,
                 "n_plants": 0 if virtual else n_plants, "robust_quantile": robust_quantile,
                 "band": BAND, "u_limits": list(u_limits), "seed": seed,
+                "residual_from": ("training records" if validation is None else
+                                  "validation records: " + ", ".join(
+                                      r.name for r in ((validation,) if isinstance(
+                                          validation, Record) else validation))),
                 "percent_of": "peak-to-peak of the reference"}
     return CompensationResult(model.name, plant_text,
                               "virtual actuator" if virtual else "posterior draw",
