@@ -46,6 +46,7 @@ from analyses._common import (
     base_parser,
     budget,
     name_list,
+    positive_int,
     run,
     write_csv,
     write_text,
@@ -172,7 +173,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                         help="model specs, comma-separated (default bouc_wen)")
     parser.add_argument("--discrepancy", type=name_list, default=None,
                         help="none and/or hsgp (default both)")
-    parser.add_argument("--steps", type=int, default=None, help="max sampler steps")
+    parser.add_argument("--steps", type=positive_int, default=None,
+                        help="max sampler steps per ensemble (default: converge, <= 20 000)")
     args = parser.parse_args(argv)
     return run(PROG, _analyse, args)
 
