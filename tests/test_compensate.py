@@ -157,3 +157,7 @@ def test_a_validation_record_supplies_the_residual_of_the_bands():
     shift = 100.0 * 1.0 / np.ptp(row.curves["y_d"])
     expected = np.hypot(default.rows[0].residual_rms_percent, shift)
     assert row.residual_rms_percent == pytest.approx(expected, rel=0.1)
+    r0 = data[0]
+    short = Record(t=r0.t[:60], u=r0.u[:60], y=r0.y[:60], name="short", warmup=55)
+    with pytest.raises(DataError, match="validation short: 5 scored samples"):
+        compensate(data, "pi_play(n_operators=4)", validation=short, **common)

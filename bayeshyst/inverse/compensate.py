@@ -37,7 +37,7 @@ from bayeshyst.data.record import Dataset, Record
 from bayeshyst.data.virtual import VirtualActuator
 from bayeshyst.errors import DataError, ParameterError
 from bayeshyst.inference.fit import FitResult, fit_model
-from bayeshyst.inference.residual import RESIDUAL_DRAWS, ResidualBlocks
+from bayeshyst.inference.residual import MIN_SAMPLES, RESIDUAL_DRAWS, ResidualBlocks
 from bayeshyst.inference.settings import SamplerSettings
 from bayeshyst.inverse.feedforward import (
     BAND,
@@ -228,7 +228,11 @@ def _validation_residual(post: Any, z: np.ndarray, validation: Dataset | Record
         ok = np.all(np.isfinite(pred), axis=1)
         if not ok.any():
             raise DataError(f"validation {rec.name}: no posterior draw simulates this record")
-        series.append((rec.y - np.mean(pred[ok], axis=0))[rec.scored])
+        resid = (rec.y - np.mean(pred[ok], axis=0))[rec.scored]
+        if resid.size < MIN_SAMPLES:
+            raise DataError(f"validation {rec.name}: {resid.size} scored samples; a residual "
+                            f"needs at least {MIN_SAMPLES}")
+        series.append(resid)
         freqs.append(rec.frequency_hz)
         cycles.append(rec.n_scored if rec.frequency_hz is None
                       else max(1, round(1.0 / (rec.frequency_hz * rec.dt))))
