@@ -281,6 +281,7 @@ def run_report(
     out_dir: str | Path | None = None,
     progress: bool = False,
     on_fit: Callable[[DiagnosisFit], None] | None = None,
+    validation: Dataset | Record | None = None,
 ) -> ReportResult:
     """Compare ``models`` per frequency, diagnose the best parametric one, design feedforward.
 
@@ -301,6 +302,11 @@ def run_report(
         One line per stage and per finished fit on stderr.
     on_fit : callable, optional
         Called with each diagnosis fit as it finishes.
+    validation : Dataset or Record, optional
+        Measured records not fitted on, driven like the feedforward commands: the
+        feedforward stage's bands resample their residual
+        (:func:`~bayeshyst.inverse.compensate.compensate`'s ``validation``); the
+        model-averaged design keeps the training residual.
 
     Returns
     -------
@@ -318,13 +324,14 @@ def run_report(
         # the model-averaged design reads the comparison's per-frequency posteriors back
         # from its files: without an out_dir they go to a folder removed at the end
         with tempfile.TemporaryDirectory(prefix="bayeshyst-report-") as tmp:
-            return _run_report(data, names, settings, Path(tmp), progress, on_fit)
-    return _run_report(data, names, settings, Path(out_dir), progress, on_fit)
+            return _run_report(data, names, settings, Path(tmp), progress, on_fit,
+                               validation)
+    return _run_report(data, names, settings, Path(out_dir), progress, on_fit, validation)
 
 
 def _run_report(data: Dataset, names: tuple[str, ...], s: ReportSettings, out: Path,
-                progress: bool, on_fit: Callable[[DiagnosisFit], None] | None
-                ) -> ReportResult:
+                progress: bool, on_fit: Callable[[DiagnosisFit], None] | None,
+                validation: Dataset | Record | None = None) -> ReportResult:
     times: dict[str, float] = {}
     sampler = s.sampler.replace(checkpoint=None)
     seed = sampler.seed
@@ -360,7 +367,8 @@ def _run_report(data: Dataset, names: tuple[str, ...], s: ReportSettings, out: P
         t0 = time.perf_counter()
         compensation = compensate(data, final.model, fit=final.fit,
                                   n_design_draws=s.design_draws,
-                                  robust_quantile=s.robust_quantile, sampler=sampler)
+                                  robust_quantile=s.robust_quantile, sampler=sampler,
+                                  validation=validation)
         times["compensate"] = time.perf_counter() - t0
     if s.averaged and any(f is not None for f in data.by_frequency()):
         _stage(progress, "5/5 designing model-averaged feedforward per frequency")

@@ -213,9 +213,11 @@ def test_metadata_with_script_comes_out_escaped(tmp_path: Path, capsys) -> None:
     data_file = tmp_path / "evil<b>.csv"
     write_csv(Dataset((rec,), name=f"bench {EVIL}"), data_file)
     out = tmp_path / "out"
+    # (the data file doubles as --validation: the feedforward bands then say where their
+    # residual came from -- one run instead of two)
     code = main(["report", str(data_file), "--models", "bouc_wen", "--steps", "100",
                  "--no-lofo", "--max-refits", "0", "--max-rounds", "1", "--no-figures",
-                 "--quiet", "--json", "--out", str(out)])
+                 "--quiet", "--json", "--validation", str(data_file), "--out", str(out)])
     assert code == 0
     # --json prints summary.json as written (same serialiser), byte for byte
     assert capsys.readouterr().out == (out / "summary.json").read_text()
@@ -226,6 +228,9 @@ def test_metadata_with_script_comes_out_escaped(tmp_path: Path, capsys) -> None:
     text = "".join(page.text)
     assert f"run {EVIL}" in text and f"bench {EVIL}" in text and "evil<b>.csv" in text
     assert "a & b" in text
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["compensation"]["settings"]["residual_from"] == (
+        f"validation records: {rec.name}")
 
 
 def test_report_samples_the_base_models_joint_posterior_once(
@@ -283,6 +288,9 @@ def test_report_bad_input_exits_2_and_writes_nothing(tmp_path: Path,
     assert main(["report", str(bundled_data()), "--models", "bouc_wen,no_such_model",
                  "--out", str(out)]) == 2
     assert "no_such_model" in capsys.readouterr().err
+    assert main(["report", str(bundled_data()), "--validation", str(tmp_path / "gone.csv"),
+                 "--out", str(out)]) == 2
+    assert "gone.csv" in capsys.readouterr().err
     assert not out.exists()
 
 

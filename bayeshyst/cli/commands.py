@@ -28,6 +28,16 @@ __all__ = ["cmd_compare", "cmd_compensate", "cmd_demo", "cmd_diagnose", "cmd_exp
            "cmd_fit", "cmd_invert", "cmd_models", "cmd_report", "cmd_study"]
 
 
+def load_validation(args: argparse.Namespace) -> Any:
+    """``--validation FILE`` read like the data (same ``--columns``), or None."""
+    from bayeshyst.data import label_frequencies, load
+
+    if args.validation is None:
+        return None
+    validation = load(args.validation, columns=args.columns)
+    return validation if args.no_frequency_labels else label_frequencies(validation)
+
+
 def load_data(args: argparse.Namespace) -> Any:
     """The command's data file with its ``--columns``, frequencies found where missing.
 
@@ -268,13 +278,7 @@ def cmd_compensate(args: argparse.Namespace) -> int:
     else:
         raise DataError(f"{args.reference}: no such reference file (--reference takes "
                         f"{' or '.join(REFERENCE_KINDS)} or a CSV file with columns t,y)")
-    validation = None
-    if args.validation is not None:
-        from bayeshyst.data import label_frequencies, load
-
-        validation = load(args.validation, columns=args.columns)
-        if not args.no_frequency_labels:
-            validation = label_frequencies(validation)
+    validation = load_validation(args)
     out = Path(args.out)
     sampler = sampler_settings(
         args, checkpoint=None if args.no_checkpoint else out / "checkpoint.h5")
@@ -445,7 +449,7 @@ _REPORT_RESULTS = ("compare/posteriors/*.nc",)
 
 def _report_run(data: Any, data_path: str, models: tuple[str, ...], settings: Any,
                 args: argparse.Namespace, command: str,
-                outputs: RunOutputs) -> tuple[Any, Any]:
+                outputs: RunOutputs, validation: Any = None) -> tuple[Any, Any]:
     """The shared part of ``report`` and ``demo``: run every stage and write.
 
     ``outputs`` is the caller's :func:`removed_on_failure` of ``--out`` (a finished
@@ -473,7 +477,8 @@ def _report_run(data: Any, data_path: str, models: tuple[str, ...], settings: An
         print(f"bayeshyst {command}: {data.name} ({len(data)} record(s); frequencies [Hz]: "
               f"{freqs}); models: {', '.join(models)}", file=sys.stderr)
     result = run_report(data, models, settings=settings, out_dir=out,
-                        progress=settings.sampler.progress, on_fit=on_fit)
+                        progress=settings.sampler.progress, on_fit=on_fit,
+                        validation=validation)
     posteriors = report_posteriors(result)
     figures = None if args.no_figures else report_figures(result, posteriors)
     summary = write_report_outputs(result, out, posteriors=posteriors, figures=figures,
@@ -513,8 +518,10 @@ def cmd_report(args: argparse.Namespace) -> int:
     data = load_data(args)
     models = check_models(args.models) if args.models else DEFAULT_MODELS
     settings = _report_settings(args)
+    validation = load_validation(args)
     with removed_on_failure(args.out, results=_REPORT_RESULTS) as outputs:
-        done = _report_run(data, str(args.data), models, settings, args, "report", outputs)
+        done = _report_run(data, str(args.data), models, settings, args, "report", outputs,
+                           validation)
     return _report_print(args, *done)
 
 

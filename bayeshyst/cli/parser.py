@@ -259,6 +259,10 @@ def build_parser() -> argparse.ArgumentParser:
                        help="skip the uncertainty analysis' calibration check (one more "
                             "posterior run of the final model without the last cycle of "
                             "every record)")
+    p_rep.add_argument("--validation", default=None, metavar="FILE",
+                       help="measured records NOT fitted on, driven along paths like the "
+                            "feedforward commands': the tracking bands carry their residual "
+                            "instead of the training residual (as in compensate)")
     p_rep.set_defaults(func=cmd_report)
 
     p_demo = sub.add_parser("demo", help="the whole study (bayeshyst report) on the bundled "
