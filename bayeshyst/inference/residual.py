@@ -56,7 +56,7 @@ from bayeshyst.errors import ParameterError
 from bayeshyst.inference.calibration import effective_size
 from bayeshyst.tables import TableRecord, frame
 
-__all__ = ["RESIDUAL_DRAWS", "ResidualBlocks"]
+__all__ = ["RESIDUAL_DRAWS", "ResidualBlocks", "cycle_samples"]
 
 #: Posterior draws whose mean prediction the training residual is taken about.
 RESIDUAL_DRAWS = 64
@@ -118,7 +118,7 @@ class ResidualBlocks(TableRecord):
                 continue
             series.append(resid)
             freqs.append(rec.frequency_hz)
-            lengths.append(_block_length(resid, _cycle_samples(rec)))
+            lengths.append(_block_length(resid, cycle_samples(rec)))
         if not series:
             raise ParameterError(f"no record has {MIN_SAMPLES} scored samples to take a "
                                  "residual from")
@@ -264,7 +264,7 @@ class ResidualBlocks(TableRecord):
         return "ResidualBlocks(" + "; ".join(parts) + ")"
 
 
-def _cycle_samples(rec: Any) -> int:
+def cycle_samples(rec: Any) -> int:
     """Samples in one input cycle of ``rec`` (all its scored samples without cycles)."""
     if rec.frequency_hz is not None:
         return max(1, round(1.0 / (rec.frequency_hz * rec.dt)))

@@ -37,7 +37,12 @@ from bayeshyst.data.record import Dataset, Record
 from bayeshyst.data.virtual import VirtualActuator
 from bayeshyst.errors import DataError, ParameterError
 from bayeshyst.inference.fit import FitResult, fit_model
-from bayeshyst.inference.residual import MIN_SAMPLES, RESIDUAL_DRAWS, ResidualBlocks
+from bayeshyst.inference.residual import (
+    MIN_SAMPLES,
+    RESIDUAL_DRAWS,
+    ResidualBlocks,
+    cycle_samples,
+)
 from bayeshyst.inference.settings import SamplerSettings
 from bayeshyst.inverse.feedforward import (
     BAND,
@@ -234,8 +239,7 @@ def _validation_residual(post: Any, z: np.ndarray, validation: Dataset | Record
                             f"needs at least {MIN_SAMPLES}")
         series.append(resid)
         freqs.append(rec.frequency_hz)
-        cycles.append(rec.n_scored if rec.frequency_hz is None
-                      else max(1, round(1.0 / (rec.frequency_hz * rec.dt))))
+        cycles.append(cycle_samples(rec))
     return ResidualBlocks.from_series(series, freqs, cycles)
 
 

@@ -34,7 +34,7 @@ from bayeshyst.inference.calibration import (
     effective_size,
     pit_values,
 )
-from bayeshyst.inference.residual import RESIDUAL_DRAWS, ResidualBlocks
+from bayeshyst.inference.residual import RESIDUAL_DRAWS, ResidualBlocks, cycle_samples
 from bayeshyst.inverse.feedforward import BAND, Draws, predict_outputs
 from bayeshyst.tables import TableRecord, frame
 
@@ -258,10 +258,8 @@ def check_transfer(post: Any, z: np.ndarray, data: Dataset | Record, *,
             if not runs:
                 raise ParameterError(f"residual_from[{rec.name!r}]: no run of {MIN_SERIES} "
                                      "scored samples")
-            cycle = (rec.n if rec.frequency_hz is None
-                     else max(1, round(1.0 / (rec.frequency_hz * rec.dt))))
             source = ResidualBlocks.from_series(runs, [rec.frequency_hz] * len(runs),
-                                                [cycle] * len(runs))
+                                                [cycle_samples(rec)] * len(runs))
             scored &= ~learn
         y_rep = pred + source.sample(pred.shape[0], rec.n, rec.frequency_hz, rng)
         y_d = reference.get(rec.name)
