@@ -487,8 +487,8 @@ def model_averaged_design(data: Dataset, comparison: ComparisonResult,
                 saved = load_fit(task.netcdf)
                 members.append(WeightedPosterior(
                     model, saved.model, Draws.of(saved.posterior, saved.z), float(w),
-                    ResidualBlocks.of(saved.posterior, saved.z[:: max(1, saved.z.shape[0]
-                                                                   // RESIDUAL_DRAWS)])))
+                    ResidualBlocks.of(saved.posterior, saved.draws(
+                        min(RESIDUAL_DRAWS, saved.n_draws), seed=settings.sampler.seed))))
         if not members:
             notes.append(f"{fc.label}: no model-averaged design (no member left)")
             continue

@@ -50,6 +50,7 @@ from bayeshyst.inverse.feedforward import (
     Feedforward,
     design_feedforward,
     predict_outputs,
+    predict_record,
     tracking_percent,
 )
 from bayeshyst.inverse.references import (
@@ -220,20 +221,15 @@ class CompensationResult(TableRecord):
 
 # ------------------------------------------------------------------------------ driver
 
-def _validation_residual(post: Any, z: np.ndarray, validation: Dataset | Record
-                         ) -> ResidualBlocks:
+def _validation_residual(post: Any, z: np.ndarray, validation: Dataset) -> ResidualBlocks:
     """Residual of records the posterior was not fitted on, about its mean prediction."""
-    records = (validation,) if isinstance(validation, Record) else tuple(validation)
-    if not records:
+    if not len(validation):
         raise DataError("validation: no record to take a residual from")
     draws = Draws.of(post, z)
     series, freqs, cycles = [], [], []
-    for rec in records:
-        pred = predict_outputs(post.model, rec.u, rec.t, draws, rec.frequency_hz)
-        ok = np.all(np.isfinite(pred), axis=1)
-        if not ok.any():
-            raise DataError(f"validation {rec.name}: no posterior draw simulates this record")
-        resid = (rec.y - np.mean(pred[ok], axis=0))[rec.scored]
+    for rec in validation:
+        pred = predict_record(post.model, rec, draws)
+        resid = (rec.y - np.mean(pred, axis=0))[rec.scored]
         if resid.size < MIN_SAMPLES:
             raise DataError(f"validation {rec.name}: {resid.size} scored samples; a residual "
                             f"needs at least {MIN_SAMPLES}")
@@ -392,6 +388,8 @@ def compensate(
     """
     if isinstance(data, Record):
         data = Dataset((data,), name=data.name)
+    if isinstance(validation, Record):
+        validation = Dataset((validation,), name=validation.name)
     sampler = SamplerSettings() if sampler is None else sampler
     if not isinstance(sampler, SamplerSettings):
         raise ParameterError(f"sampler must be a SamplerSettings, got {type(sampler).__name__}")
@@ -462,9 +460,8 @@ def compensate(
                 "n_plants": 0 if virtual else n_plants, "robust_quantile": robust_quantile,
                 "band": BAND, "u_limits": list(u_limits), "seed": seed,
                 "residual_from": ("training records" if validation is None else
-                                  "validation records: " + ", ".join(
-                                      r.name for r in ((validation,) if isinstance(
-                                          validation, Record) else validation))),
+                                  "validation records: "
+                                  + ", ".join(r.name for r in validation)),
                 "percent_of": "peak-to-peak of the reference"}
     return CompensationResult(model.name, plant_text,
                               "virtual actuator" if virtual else "posterior draw",

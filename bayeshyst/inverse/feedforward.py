@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from bayeshyst.errors import ParameterError
+from bayeshyst.errors import DataError, ParameterError
 from bayeshyst.inverse.numerical import Inversion, invert
 from bayeshyst.models.base import HysteresisModel
 
@@ -30,6 +30,7 @@ __all__ = [
     "Feedforward",
     "design_feedforward",
     "predict_outputs",
+    "predict_record",
     "tracking_percent",
 ]
 
@@ -92,6 +93,18 @@ def predict_outputs(model: HysteresisModel, u: np.ndarray, t: np.ndarray,
     """
     return (model.run_batch(u, t, draws.theta).y + draws.offset[:, None]
             + draws.delta_on(u, frequency_hz))
+
+
+def predict_record(model: HysteresisModel, rec: Any, draws: Draws) -> np.ndarray:
+    """Outputs ``(S_ok, N)`` of the draws that simulate record ``rec`` from its own input.
+
+    Failed draws are left out; DataError naming the record when none simulates it.
+    """
+    pred = predict_outputs(model, rec.u, rec.t, draws, rec.frequency_hz)
+    ok = np.all(np.isfinite(pred), axis=1)
+    if not ok.any():
+        raise DataError(f"{rec.name}: no posterior draw simulates this record")
+    return pred[ok]
 
 
 def tracking_percent(y: np.ndarray, y_d: np.ndarray, stroke: float,

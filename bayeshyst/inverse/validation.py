@@ -35,7 +35,7 @@ from bayeshyst.inference.calibration import (
     pit_values,
 )
 from bayeshyst.inference.residual import RESIDUAL_DRAWS, ResidualBlocks, cycle_samples
-from bayeshyst.inverse.feedforward import BAND, Draws, predict_outputs
+from bayeshyst.inverse.feedforward import BAND, Draws, predict_record
 from bayeshyst.tables import TableRecord, frame
 
 __all__ = ["TransferCheck", "TransferWindow", "check_transfer"]
@@ -218,10 +218,8 @@ def check_transfer(post: Any, z: np.ndarray, data: Dataset | Record, *,
     z = np.atleast_2d(np.asarray(z, float))
     if z.shape[0] < 2:
         raise ParameterError(f"z: need at least 2 posterior draws, got {z.shape[0]}")
-    if z.shape[0] > n_draws:
-        z = z[np.linspace(0, z.shape[0] - 1, n_draws).round().astype(int)]
-    residual = ResidualBlocks.of(post, z[np.linspace(0, z.shape[0] - 1, min(
-        RESIDUAL_DRAWS, z.shape[0])).round().astype(int)])
+    z = _thinned(z, n_draws)
+    residual = ResidualBlocks.of(post, _thinned(z, RESIDUAL_DRAWS))
     draws = Draws.of(post, z)
     reference = {} if reference is None else dict(reference)
     rezero = {} if rezero is None else dict(rezero)
@@ -235,11 +233,7 @@ def check_transfer(post: Any, z: np.ndarray, data: Dataset | Record, *,
     span = float(np.ptp(np.concatenate([r.y[r.scored] for r in post.data]))) or 1.0
     windows = []
     for rec in data:
-        pred = predict_outputs(post.model, rec.u, rec.t, draws, rec.frequency_hz)
-        ok = np.all(np.isfinite(pred), axis=1)
-        if not ok.any():
-            raise DataError(f"{rec.name}: no posterior draw simulates this record")
-        pred = pred[ok]
+        pred = predict_record(post.model, rec, draws)
         scored = rec.scored_mask.copy()
         zero = rezero.get(rec.name)
         if zero is not None:
@@ -278,6 +272,13 @@ def check_transfer(post: Any, z: np.ndarray, data: Dataset | Record, *,
     if not windows:
         raise DataError(f"{data.name}: no window of 10 scored samples to check")
     return TransferCheck(post.model.name, tuple(windows), residual.to_dict())
+
+
+def _thinned(z: np.ndarray, n: int) -> np.ndarray:
+    """At most ``n`` rows of ``z``, evenly spaced."""
+    if z.shape[0] <= n:
+        return z
+    return z[np.linspace(0, z.shape[0] - 1, n).round().astype(int)]
 
 
 def _mask(values: Any, n: int, where: str) -> np.ndarray:
