@@ -16,6 +16,7 @@ from bayeshyst.models import (  # noqa: F401  (importing registers the models)
     pi,
     pi_variants,
     preisach,
+    preisach_clockwise,
 )
 from bayeshyst.models._kernels import kernel_parallelism, serial_kernels_in_this_thread
 from bayeshyst.models.base import DataScales, HysteresisModel, Trajectory, data_scales
@@ -41,6 +42,7 @@ from bayeshyst.models.pi_variants import (
     RateDependentPrandtlIshlinskii,
 )
 from bayeshyst.models.preisach import Preisach, PreisachDensity
+from bayeshyst.models.preisach_clockwise import PreisachClockwise
 from bayeshyst.models.registry import get, model_class, names, register
 
 __all__ = [
@@ -61,6 +63,7 @@ __all__ = [
     "PrandtlIshlinskii",
     "PrandtlIshlinskiiStop",
     "Preisach",
+    "PreisachClockwise",
     "PreisachDensity",
     "RateDependentPrandtlIshlinskii",
     "Trajectory",

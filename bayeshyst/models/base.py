@@ -320,12 +320,18 @@ class HysteresisModel(ABC):
         Whether the output depends on the speed of the input (and so on ``t``).
     equation : str
         The review equation(s) the model implements, for docs and ``bayeshyst models``.
+    monotone_in_input : bool
+        Whether the output rises with the input on every branch for valid parameters
+        (what a numerical inverse needs). False for models of a compensator (a clockwise
+        relay grid, whose output steps down where a relay switches): their numerical
+        inversion reports the non-monotone steps (``Inversion.n_nonmonotone``).
     """
 
     name: ClassVar[str] = ""
     rate_dependent: ClassVar[bool] = False
     equation: ClassVar[str] = ""
     has_inverse: ClassVar[bool] = False
+    monotone_in_input: ClassVar[bool] = True
     has_output_offset: ClassVar[bool] = False
 
     # ------------------------------------------------------------------ subclass API

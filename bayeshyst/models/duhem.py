@@ -28,6 +28,7 @@ from bayeshyst.models.base import (
     kernel_buffers,
     sample_period,
 )
+from bayeshyst.models.output_driven_inverse import duhem_inverse_command
 from bayeshyst.models.registry import register
 from bayeshyst.params import LogNormal, Normal, Param, ParamSpace
 
@@ -116,8 +117,9 @@ class Duhem(LinearInParams, HysteresisModel):
     has_output_offset: ClassVar[bool] = True
     # for fixed alpha the output (from the relaxed start w0 = f(s0)) is linear in [f, g]
     linear_params: ClassVar[tuple[str, ...]] = ("f", "g")
-    equation: ClassVar[str] = "review Eq. 45"
+    equation: ClassVar[str] = "review Eq. 45, inverse ref. [84]"
     rate_dependent: ClassVar[bool] = False
+    has_inverse: ClassVar[bool] = True
     f_order: int = 3
     g_order: int = 1
 
@@ -164,6 +166,32 @@ class Duhem(LinearInParams, HysteresisModel):
                     theta["u_half"], state, y, failed)
         state[failed] = np.nan
         return y, state, failed
+
+    def inverse(self, y: Any, t: Any, theta: Mapping[str, Any], *,
+                state0: np.ndarray | None = None) -> np.ndarray:
+        """Feedforward input ``u`` (N,) that drives the model to output ``y`` (N,).
+
+        The Duhem model with its roles swapped, in the forward parameters (review ref.
+        [84]): ``ds/dw = 1 / (alpha sgn(dw) (f(s) - w) + g(s))`` integrated along ``y``
+        (:func:`~bayeshyst.models.output_driven_inverse.duhem_inverse_command`).
+
+        Parameters
+        ----------
+        y : array_like, shape (N,)
+            Desired output.
+        t : array_like, shape (N,)
+            Times (s), unused (rate-independent).
+        theta : mapping
+            Forward parameters (one vector).
+        state0 : ndarray, shape (2,), optional
+            The forward state ``[w, u_prev]``; default relaxed at ``w = y[0]``.
+
+        Raises
+        ------
+        ParameterError
+            Where the loop folds back (``dw/du <= 0``) or no relaxed state fits ``y[0]``.
+        """
+        return duhem_inverse_command(y, theta, state0=state0)
 
     def polynomials(self, theta: Mapping[str, Any]) -> tuple[float, Polynomial, Polynomial]:
         """The review's ``(alpha_V, f_V, g_V)`` in the raw input ``v`` (V).
