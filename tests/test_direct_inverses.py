@@ -530,3 +530,49 @@ def test_models_with_an_analytic_inverse_are_listed():
     have = {n for n in registry.names() if registry.model_class(n).has_inverse}
     assert {"pi_play", "mbw", "bouc_wen", "bouc_wen_asym", "duhem"} <= have
     assert "preisach_clockwise" not in have  # a direct inverse: it *is* a compensator
+
+
+# ------------------------------------------------------- compensate, when chosen
+
+
+def test_compensate_uses_the_closed_form_when_chosen():
+    # one fit, the nominal command both ways: the closed form of the Bouc–Wen MAP and the
+    # numerical inverse of the same MAP are the same command (to the root finder's
+    # tolerance), and so track the virtual plant equally
+    from bayeshyst.inference.fit import fit_model
+    from bayeshyst.inverse.compensate import compensate
+    from tests.test_compensate import HYSTERESIS_ONLY, loops
+
+    data = loops(HYSTERESIS_ONLY, [1.0], cycles=3)
+    # a short run: the nominal command is the MAP's either way, converged or not
+    sampler = SamplerSettings(max_steps=200, n_walkers=16, seed=3)
+    fit = fit_model(data, "bouc_wen", "gaussian", sampler=sampler)
+    common = {"fit": fit, "sampler": sampler, "n_design_draws": 4, "n_predict_draws": 20}
+    numerical = compensate(data, "bouc_wen", **common).rows[0]
+    closed = compensate(data, "bouc_wen", nominal_inverse="closed_form", **common).rows[0]
+    span = np.ptp(numerical.curves["u_nominal"])
+    np.testing.assert_allclose(closed.curves["u_nominal"], numerical.curves["u_nominal"],
+                               atol=1e-5 * span)
+    assert closed.nominal_nrmse_percent == pytest.approx(numerical.nominal_nrmse_percent,
+                                                         abs=1e-3)
+    assert closed.nominal_nrmse_percent < closed.uncompensated_nrmse_percent
+    with pytest.raises(ParameterError, match="no closed-form inverse"):
+        compensate(data, "preisach", nominal_inverse="closed_form", fit=fit)
+    with pytest.raises(ParameterError, match="nominal_inverse"):
+        compensate(data, "bouc_wen", nominal_inverse="exact", fit=fit)
+
+
+def test_cli_refuses_a_closed_form_nominal_for_a_model_without_one_before_fitting(
+        tmp_path, capsys):
+    from bayeshyst.cli import main
+    from bayeshyst.data import write_csv
+    from tests.test_compensate_cli import _virtual_data
+
+    path = tmp_path / "virtual.csv"
+    write_csv(_virtual_data(), path)
+    out = tmp_path / "out"
+    assert main(["compensate", str(path), "--model", "maxwell_slip", "--nominal-inverse",
+                 "closed_form", "--out", str(out), "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert "no closed-form inverse" in err and "bouc_wen" in err and "Traceback" not in err
+    assert not out.exists()

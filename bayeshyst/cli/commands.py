@@ -279,6 +279,10 @@ def cmd_compensate(args: argparse.Namespace) -> int:
         raise DataError(f"{args.reference}: no such reference file (--reference takes "
                         f"{' or '.join(REFERENCE_KINDS)} or a CSV file with columns t,y)")
     validation = load_validation(args)
+    if args.nominal_inverse == "closed_form":
+        from bayeshyst.inverse.closed_form import check_closed_form
+
+        check_closed_form(model)
     out = Path(args.out)
     sampler = sampler_settings(
         args, checkpoint=None if args.no_checkpoint else out / "checkpoint.h5")
@@ -297,7 +301,8 @@ def cmd_compensate(args: argparse.Namespace) -> int:
         result = compensate(data, model, fit=fit, reference=reference,
                             plant=None if args.plant == "auto" else args.plant,
                             n_design_draws=args.design_draws, robust_quantile=args.quantile,
-                            sampler=sampler, validation=validation)
+                            sampler=sampler, validation=validation,
+                            nominal_inverse=args.nominal_inverse)
         idata = diagnostics.to_inference_data(fit.posterior, fit.sampling,
                                               seed=int(result.settings.get("seed", 0)))
         figures = None if args.no_figures else compensation_figures(result, fit=fit)

@@ -174,6 +174,11 @@ def build_parser() -> argparse.ArgumentParser:
                              "commands' (minor loops, another amplitude): the bands carry "
                              "their residual instead of the training residual (same columns "
                              "and units as DATA)")
+    p_comp.add_argument("--nominal-inverse", choices=("numerical", "closed_form"),
+                        default="numerical",
+                        help="the nominal command: the MAP inverted numerically (default) "
+                             "or by the model's closed-form inverse (pi_play, mbw, "
+                             "bouc_wen, bouc_wen_asym, duhem)")
     p_comp.set_defaults(func=cmd_compensate)
 
     p_inv = sub.add_parser("invert", help="a feedforward command for a reference from a saved "

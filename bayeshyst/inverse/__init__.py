@@ -1,7 +1,9 @@
 """Inverse models and feedforward compensation (MODELS.md §8).
 
 * :mod:`~bayeshyst.inverse.analytic` -- closed-form inverses (play-PI, modified
-  Bouc–Wen Eq. 55) and data for direct-inverse identification (stop-PI, GP);
+  Bouc–Wen Eq. 55, Bouc–Wen [93], Duhem [84]) and data for direct-inverse identification
+  (stop-PI, GP, clockwise-relay Preisach); :mod:`~bayeshyst.inverse.closed_form` -- the
+  nominal command of ``compensate`` from a closed form;
 * :mod:`~bayeshyst.inverse.numerical` -- any model or composition, sample by sample
   through its one-step map, for one parameter vector or many posterior draws at once
   (posterior-mean or robust quantile objective); linear dynamics after the hysteresis

@@ -5,10 +5,14 @@
   :attr:`~bayeshyst.models.pi.PIInverse.stop_theta`);
 * modified Bouc–Wen: the inverse MBW operator, review Eq. 55
   (:meth:`~bayeshyst.models.bouc_wen.ModifiedBoucWen.inverse`);
+* Bouc–Wen: the multiplicative structure ``u = (y_d + h) / k`` (review ref. [93]) with
+  ``h`` driven by the output, and Coleman–Hodgdon Duhem solved for its input (ref. [84])
+  (:mod:`bayeshyst.models.output_driven_inverse`);
 * **direct inverse**: a model identified with the output as its input and the input as
   its output is itself the compensator (a stop-PI, review ref. [57]; the GP with roles
-  swapped, :func:`~bayeshyst.gp.fit_gp_inverse`). :func:`swap_input_output` gives the
-  data for that identification.
+  swapped, :func:`~bayeshyst.gp.fit_gp_inverse`; the clockwise-relay Preisach grid,
+  review Eq. 9–10, ref. [60], :class:`~bayeshyst.models.preisach_clockwise.
+  PreisachClockwise`). :func:`swap_input_output` gives the data for that identification.
 
 Every other model (and every composition) is inverted numerically,
 :func:`bayeshyst.inverse.numerical.invert`.
@@ -36,7 +40,8 @@ def analytic_inverse(model: HysteresisModel, y_d: Any, t: Any,
     Parameters
     ----------
     model : HysteresisModel
-        A model with ``has_inverse`` (``pi_play``, ``mbw``).
+        A model with ``has_inverse`` (``pi_play``, ``mbw``, ``bouc_wen``,
+        ``bouc_wen_asym``, ``duhem``).
     y_d : array_like, shape (N,)
         Desired output (output unit).
     t : array_like, shape (N,)

@@ -44,6 +44,11 @@ from bayeshyst.inference.residual import (
     cycle_samples,
 )
 from bayeshyst.inference.settings import SamplerSettings
+from bayeshyst.inverse.closed_form import (
+    NOMINAL_INVERSES,
+    check_closed_form,
+    closed_form_feedforward,
+)
 from bayeshyst.inverse.feedforward import (
     BAND,
     Draws,
@@ -330,6 +335,7 @@ def compensate(
     sampler: SamplerSettings | None = None,
     discrepancy: str | None = None,
     validation: Dataset | Record | None = None,
+    nominal_inverse: str = "numerical",
 ) -> CompensationResult:
     """Design feedforward from the posterior of ``model`` and evaluate it per frequency.
 
@@ -381,6 +387,11 @@ def compensate(
         Fit with a model discrepancy (ignored with ``fit``, which carries its own): the
         commands are then designed against model + discrepancy and the bands predicted
         from both (:func:`~bayeshyst.inverse.feedforward.design_feedforward`).
+    nominal_inverse : {"numerical", "closed_form"}
+        How the nominal command inverts the MAP: per-sample root finding (default), or
+        the model's closed-form inverse where it has one (``has_inverse``: ``pi_play``,
+        ``mbw``, ``bouc_wen``, ``bouc_wen_asym``, ``duhem``;
+        :mod:`~bayeshyst.inverse.closed_form`), not with a discrepancy.
 
     Returns
     -------
@@ -404,6 +415,12 @@ def compensate(
         raise ParameterError(f"u_margin must be >= 0, got {u_margin}")
     if not 0.0 < robust_quantile < 1.0:
         raise ParameterError(f"robust_quantile must be in (0, 1), got {robust_quantile}")
+    if nominal_inverse not in NOMINAL_INVERSES:
+        raise ParameterError(f"nominal_inverse must be one of {NOMINAL_INVERSES}, "
+                             f"got {nominal_inverse!r}")
+    if nominal_inverse == "closed_form":
+        # refused before the fit, not after it
+        check_closed_form(get_model(model) if isinstance(model, str) else model)
     if fit is not None:
         wanted = get_model(model) if isinstance(model, str) else model
         if wanted.name != fit.posterior.model.name:
@@ -422,6 +439,8 @@ def compensate(
     sizes = (n_design_draws, n_predict_draws) + (() if virtual else (n_plants,))
     design, predict, *rest = _split_draws(fit, sizes, seed)
     nominal = Draws.of(post, fit.sampling.start.z)
+    if nominal_inverse == "closed_form":
+        check_closed_form(model, nominal)
     # what the fit leaves unexplained: the training residual about the posterior mean,
     # resampled onto every command so that the bands predict a measured error
     z_mean = fit.sampling.draws(RESIDUAL_DRAWS, seed=seed)
@@ -448,7 +467,8 @@ def compensate(
     rows = []
     for k, (ref, group) in enumerate(refs):
         rows.append(_evaluate(model, ref, group, nominal, design, predict, run_plant,
-                              u_limits, robust_quantile, virtual, residual, (seed, k)))
+                              u_limits, robust_quantile, virtual, residual, (seed, k),
+                              nominal_inverse))
         _log.info("%s: realised tracking NRMSE %.3g %% (posterior command), band "
                   "[%.3g, %.3g] %%", rows[-1].label, rows[-1].posterior_nrmse_percent,
                   *rows[-1].predicted_band_percent)
@@ -462,7 +482,8 @@ def compensate(
                 "residual_from": ("training records" if validation is None else
                                   "validation records: "
                                   + ", ".join(r.name for r in validation)),
-                "percent_of": "peak-to-peak of the reference"}
+                "percent_of": "peak-to-peak of the reference",
+                "nominal_inverse": nominal_inverse}
     return CompensationResult(model.name, plant_text,
                               "virtual actuator" if virtual else "posterior draw",
                               tuple(rows), tuple(statements), bool(fit.converged), settings)
@@ -471,7 +492,7 @@ def compensate(
 def _evaluate(model: HysteresisModel, ref: Reference, group: Dataset, nominal: Draws,
               design: Draws, predict: Draws, run_plant: Any, u_limits: tuple[float, float],
               q: float, virtual: bool, residual: ResidualBlocks,
-              key: tuple[int, int]) -> CompensationRow:
+              key: tuple[int, int], nominal_inverse: str = "numerical") -> CompensationRow:
     t, y_d, mask, stroke = ref.t, ref.y_d, ref.scored, ref.stroke
     a, b = _scaled_input(group)
     u_scaled = (y_d - a) / b
@@ -486,8 +507,13 @@ def _evaluate(model: HysteresisModel, ref: Reference, group: Dataset, nominal: D
     }
     common: Mapping[str, Any] = {"u_limits": u_limits, "periodic": ref.periodic,
                                  "scored": mask, "frequency_hz": f, "residual": resid}
-    commands["nominal"] = design_feedforward(model, y_d, t, nominal, predict, label="nominal",
-                                             **common)
+    if nominal_inverse == "closed_form":
+        commands["nominal"] = closed_form_feedforward(
+            model, y_d, t, nominal, predict, label="nominal", u_limits=u_limits,
+            scored=mask, frequency_hz=f, residual=resid)
+    else:
+        commands["nominal"] = design_feedforward(model, y_d, t, nominal, predict,
+                                                 label="nominal", **common)
     commands["posterior"] = design_feedforward(model, y_d, t, design, predict,
                                                label="posterior", **common)
     commands["robust"] = design_feedforward(model, y_d, t, design, predict, label="robust",
