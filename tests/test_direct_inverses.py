@@ -576,3 +576,25 @@ def test_cli_refuses_a_closed_form_nominal_for_a_model_without_one_before_fittin
     err = capsys.readouterr().err
     assert "no closed-form inverse" in err and "bouc_wen" in err and "Traceback" not in err
     assert not out.exists()
+
+
+def test_closed_form_feedforward_counts_saturation_and_checks_itself():
+    from bayeshyst.inverse.closed_form import closed_form_feedforward
+    from bayeshyst.inverse.feedforward import Draws
+
+    model = get("bouc_wen")
+    t, u_true = smooth_input()
+    theta, y_d = monotone_draw(model, t, u_true)
+    one = Draws({k: np.asarray(v)[None] for k, v in theta.items()}, np.array([0.5]))
+    ff = closed_form_feedforward(model, y_d + 0.5, t, one, one, label="nominal")
+    assert ff.inversion.n_saturated == 0 and ff.inversion.max_error <= 1e-7 * np.ptp(y_d)
+    np.testing.assert_allclose(ff.u, u_true, atol=1e-6 * 150)  # the offset taken off first
+    capped = closed_form_feedforward(model, y_d + 0.5, t, one, one, label="nominal",
+                                     u_limits=(0.0, 120.0))
+    assert capped.inversion.n_saturated == int(np.sum(u_true > 120.0)) > 0
+    assert capped.u.max() == 120.0
+    assert capped.inversion.max_error > 1e-3 * np.ptp(y_d)  # measured, not hidden
+    with pytest.raises(ParameterError, match="one parameter vector"):
+        two = Draws({k: np.repeat(np.asarray(v)[None], 2, axis=0) for k, v in theta.items()},
+                    np.zeros(2))
+        closed_form_feedforward(model, y_d, t, two, two, label="nominal")

@@ -6,7 +6,10 @@ by per-sample root finding (:mod:`bayeshyst.inverse.numerical`). The result is a
 :class:`~bayeshyst.inverse.feedforward.Feedforward` like the numerical one: the command
 is checked by a forward simulation of the model (``Inversion.max_error``), and a command
 beyond ``u_limits`` is held at the limit and counted (``n_saturated``), as the numerical
-inverse does.
+inverse does. Unlike the numerical inverse, the closed form does not re-anchor its state
+after a saturated sample (it follows the reference as if the limit were not there); the
+forward check then measures the error this leaves, and a design that saturates is better
+made numerically.
 """
 
 from __future__ import annotations

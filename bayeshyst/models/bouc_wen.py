@@ -270,8 +270,11 @@ class BoucWen(LinearInParams, HysteresisModel):
         ParameterError
             Outside the stable region, or where the loop folds back (``dy/du <= 0``).
         """
-        delta = _first(theta, "delta") if "delta" in self.param_space().names else 0.0
-        return bouc_wen_inverse(y, theta, sign=self.sign, delta=delta, state0=state0)
+        return bouc_wen_inverse(y, theta, sign=self.sign, delta=self._delta_scalar(theta),
+                                state0=state0)
+
+    def _delta_scalar(self, theta: Mapping[str, Any]) -> float:
+        return 0.0
 
     def _run(self, u, t, theta, state0):
         state = np.array(state0, dtype=np.float64, copy=True, order="C")
@@ -350,6 +353,9 @@ class AsymmetricBoucWen(BoucWen):
 
     def _delta(self, theta: Mapping[str, np.ndarray]) -> np.ndarray:
         return theta["delta"]
+
+    def _delta_scalar(self, theta: Mapping[str, Any]) -> float:
+        return _first(theta, "delta")
 
 
 @register
