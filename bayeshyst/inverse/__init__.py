@@ -19,6 +19,7 @@
 """
 
 from bayeshyst.inverse.analytic import analytic_inverse, swap_input_output
+from bayeshyst.inverse.closed_form import closed_form_feedforward
 from bayeshyst.inverse.compensate import CompensationResult, CompensationRow, compensate
 from bayeshyst.inverse.feedforward import (
     Draws,
@@ -41,6 +42,7 @@ __all__ = [
     "Member",
     "Reference",
     "analytic_inverse",
+    "closed_form_feedforward",
     "compensate",
     "deconvolve",
     "design_feedforward",
