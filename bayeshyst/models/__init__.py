@@ -9,6 +9,7 @@ from __future__ import annotations
 # importing the family modules registers their models
 from bayeshyst.models import (  # noqa: F401  (importing registers the models)
     bouc_wen,
+    bouc_wen_variants,
     compose,
     duhem,
     maxwell,
@@ -25,6 +26,7 @@ from bayeshyst.models.bouc_wen import (
     BoucWenOscillator,
     ModifiedBoucWen,
 )
+from bayeshyst.models.bouc_wen_variants import AsymmetricBoucWenSgn, FrequencyFactorBoucWen
 from bayeshyst.models.compose import Composite, model_spec
 from bayeshyst.models.duhem import Duhem, ImprovedDuhem
 from bayeshyst.models.maxwell import MaxwellSlip
@@ -45,12 +47,14 @@ from bayeshyst.models.registry import get, model_class, names, register
 
 __all__ = [
     "AsymmetricBoucWen",
+    "AsymmetricBoucWenSgn",
     "AsymmetricPrandtlIshlinskii",
     "BoucWen",
     "BoucWenOscillator",
     "Composite",
     "DataScales",
     "Duhem",
+    "FrequencyFactorBoucWen",
     "GeneralizedPrandtlIshlinskii",
     "HysteresisModel",
     "ImprovedDuhem",
