@@ -306,3 +306,76 @@ def test_bad_settings_and_times_are_refused(name):
     t, u = _irregular(30)
     with pytest.raises(ParameterError, match="strictly increasing"):
         get(name).simulate(u, t[::-1], MODELS[name])
+
+
+# ------------------------------------------------------------------ posterior recovery
+
+SGN_TRUTH = {"k": 0.3, "alpha": 0.12, "beta": 0.004, "gamma": 0.001, "n": 1.3, "delta": -0.15}
+
+
+def sgn_record(seed, n=1200, sigma=0.05):
+    """Two drive rates (2 Hz, then 6 Hz), so that δ's 1/|u̇| scaling is seen."""
+    t = np.arange(n) * 1e-3
+    f = np.where(t < 0.5 * t[-1], 2.0, 6.0)
+    phase = 2 * np.pi * np.cumsum(f) * 1e-3
+    u = 75.0 - 75.0 * np.cos(phase)
+    y = AsymmetricBoucWenSgn().simulate(u, t, SGN_TRUTH)
+    y = y + np.random.default_rng(seed).normal(0.0, sigma, n)
+    return Record(t=t, u=u, y=y, name=f"sgn{seed}", warmup=150)
+
+
+def _sgn_stats(seeds):
+    from bayeshyst.inference.posterior import Posterior
+    from tests.test_recovery import _fit_stats
+
+    out = []
+    for seed in seeds:
+        post = Posterior(sgn_record(seed), "bouc_wen_asym_sgn")
+        out.append(_fit_stats(post, {**SGN_TRUTH, "obs.offset": 0.0, "noise.sigma": 0.05},
+                              seed))
+    return out, post.ndim
+
+
+def test_asym_sgn_posterior_is_calibrated():
+    # oracle: the truth's squared Mahalanobis distances over independent fits ~ chi2
+    from tests.test_recovery import _check_calibration
+
+    fits, ndim = _sgn_stats(range(2))
+    _check_calibration(fits, ndim)
+
+
+@pytest.mark.slow
+def test_asym_sgn_90_percent_intervals_cover_at_the_nominal_rate():
+    from tests.test_recovery import _check_calibration, _check_coverage
+
+    fits, ndim = _sgn_stats(range(2, 22))
+    _check_calibration(fits, ndim)
+    _check_coverage(fits)
+
+
+FREQ_TRUTH = {"f_n": 120.0, "zeta": 0.3, "gain": 0.3, "alpha": 0.12, "beta": 0.004,
+              "gamma": 0.001, "n": 1.3, "delta": -0.15, "tau": 1.5e-3}
+
+
+def freq_record(seed, n=1600, sigma=0.05):
+    """Three drive frequencies (4, 20, 60 Hz at 2 kHz) around the stage's 120 Hz."""
+    t = np.arange(n) * 5e-4
+    f = np.select([t < 0.25, t < 0.5], [4.0, 20.0], 60.0)
+    u = 75.0 - 75.0 * np.cos(2 * np.pi * np.cumsum(f) * 5e-4)
+    y = FrequencyFactorBoucWen().simulate(u, t, FREQ_TRUTH)
+    y = y + np.random.default_rng(seed).normal(0.0, sigma, n)
+    return Record(t=t, u=u, y=y, name=f"freq{seed}", warmup=150)
+
+
+@pytest.mark.slow
+def test_frequency_factor_posterior_is_calibrated():
+    # ~1-2 min per fit on two busy cores: slow-marked, chi2 calibration over 5 fits
+    from bayeshyst.inference.posterior import Posterior
+    from tests.test_recovery import _check_calibration, _fit_stats
+
+    fits = []
+    for seed in range(5):
+        post = Posterior(freq_record(seed), "bouc_wen_freq")
+        fits.append(_fit_stats(post, {**FREQ_TRUTH, "obs.offset": 0.0, "noise.sigma": 0.05},
+                               seed))
+    _check_calibration(fits, post.ndim)
