@@ -111,6 +111,7 @@ COMPOSITIONS = {
         "second_order.f_n": 250.0, "second_order.zeta": 0.2},
     "duhem+second_order+creep_fractional": {"second_order.f_n": 400.0,
                                             "second_order.zeta": 0.3},
+    "pi_play+creep_vibration": {"creep_vibration.f_n": 300.0, "creep_vibration.zeta": 0.1},
 }
 
 

@@ -12,6 +12,7 @@ from bayeshyst.models import (  # noqa: F401  (importing registers the models)
     bouc_wen_variants,
     compose,
     duhem,
+    hammerstein,
     maxwell,
     mrc,
     pi,
@@ -29,6 +30,7 @@ from bayeshyst.models.bouc_wen import (
 from bayeshyst.models.bouc_wen_variants import AsymmetricBoucWenSgn, FrequencyFactorBoucWen
 from bayeshyst.models.compose import Composite, model_spec
 from bayeshyst.models.duhem import Duhem, ImprovedDuhem
+from bayeshyst.models.hammerstein import CreepVibration, FractionalHammerstein
 from bayeshyst.models.maxwell import MaxwellSlip
 from bayeshyst.models.mrc import MRCElectromechanical
 from bayeshyst.models.pi import (
@@ -52,8 +54,10 @@ __all__ = [
     "BoucWen",
     "BoucWenOscillator",
     "Composite",
+    "CreepVibration",
     "DataScales",
     "Duhem",
+    "FractionalHammerstein",
     "FrequencyFactorBoucWen",
     "GeneralizedPrandtlIshlinskii",
     "HysteresisModel",
