@@ -251,3 +251,76 @@ def test_tau_prior_spans_sampling_period_to_record_length():
     prior = FractionalHammerstein().param_space(rec)["tau"].prior
     lo, hi = math.exp(prior.mu - 2 * prior.sigma), math.exp(prior.mu + 2 * prior.sigma)
     assert lo == pytest.approx(1e-4, rel=1e-3) and hi == pytest.approx(t[-1], rel=1e-3)
+
+
+# ------------------------------------------------------------------ posterior recovery
+
+FH_TRUTH = {"k": 0.3, "alpha": 0.12, "beta": 0.004, "gamma": 0.001, "n": 1.3, "gain": 0.3,
+            "tau": 0.05, "lam": 0.6}
+
+
+def fh_record(seed, n=1500, sigma=0.05):
+    """A 2 Hz sine, a held step (creep), then a 10 Hz sine, at 1 kHz."""
+    t = np.arange(n) * 1e-3
+    u = np.where(t < 0.5, 75.0 - 75.0 * np.cos(2 * np.pi * 2.0 * t), 110.0)
+    u = np.where(t >= 1.0, 75.0 - 35.0 * np.cos(2 * np.pi * 10.0 * (t - 1.0)), u)
+    y = FractionalHammerstein().simulate(u, t, FH_TRUTH)
+    y = y + np.random.default_rng(seed).normal(0.0, sigma, n)
+    return Record(t=t, u=u, y=y, name=f"fh{seed}", warmup=150)
+
+
+def _fh_stats(seeds):
+    from bayeshyst.inference.posterior import Posterior
+    from tests.test_recovery import _fit_stats
+
+    out = []
+    for seed in seeds:
+        post = Posterior(fh_record(seed), "bouc_wen_fractional")
+        out.append(_fit_stats(post, {**FH_TRUTH, "obs.offset": 0.0, "noise.sigma": 0.05},
+                              seed))
+    return out, post.ndim
+
+
+@pytest.mark.slow
+def test_fractional_hammerstein_posterior_is_calibrated():
+    # oracle: the truth's squared Mahalanobis distances over independent fits ~ chi2
+    from tests.test_recovery import _check_calibration
+
+    fits, ndim = _fh_stats(range(5))
+    _check_calibration(fits, ndim)
+
+
+CV_SPEC = "pi_play(n_operators=4)+creep_vibration(n_terms=2)"
+
+
+def cv_record(seed, n=2000, sigma=0.05):
+    """Truth drawn from the prior (PI weights kept positive, creep gains a few percent)."""
+    model = get(CV_SPEC)
+    t = np.arange(n) * 5e-4
+    u = np.where(t < 0.4, 75.0 - 75.0 * np.cos(2 * np.pi * 5.0 * t), 100.0)
+    u = np.where(t >= 0.6, 75.0 - 40.0 * np.cos(2 * np.pi * 60.0 * (t - 0.6)), u)
+    rec0 = Record(t=t, u=u, y=0.3 * u, name="scale")
+    space = model.param_space(rec0)
+    theta = space.unpack(space.sample_prior(np.random.default_rng(100 + seed), 1))
+    theta["static.w"] = np.abs(theta["static.w"])
+    theta["static.p0"] = np.abs(theta["static.p0"])
+    theta["creep_vibration.c"] = np.array([[0.03, 0.02]])
+    theta["creep_vibration.f_n"] = np.array([150.0])
+    theta["creep_vibration.zeta"] = np.array([0.2])
+    y = model.run_batch(u, t, theta).y[0] + np.random.default_rng(seed).normal(0, sigma, n)
+    truth = {k: v[0] for k, v in theta.items() if k in space.names}
+    return Record(t=t, u=u, y=y, name=f"cv{seed}", warmup=200), truth
+
+
+@pytest.mark.slow
+def test_additive_hammerstein_posterior_is_calibrated():
+    from bayeshyst.inference.posterior import Posterior
+    from tests.test_recovery import _check_calibration, _fit_stats
+
+    fits = []
+    for seed in range(5):
+        rec, truth = cv_record(seed)
+        post = Posterior(rec, CV_SPEC)
+        fits.append(_fit_stats(post, {**truth, "obs.offset": 0.0, "noise.sigma": 0.05},
+                               seed))
+    _check_calibration(fits, post.ndim)

@@ -19,6 +19,7 @@ import numpy as np
 
 from bayeshyst.errors import ModelError, ParameterError
 from bayeshyst.models._kernels.blocks import second_order_batch
+from bayeshyst.models._kernels.bouc_wen import C_L
 from bayeshyst.models._kernels.bouc_wen_variants import bw_sgn_batch, lag_foh_batch
 from bayeshyst.models.base import (
     DataScales,
@@ -230,7 +231,7 @@ class FrequencyFactorBoucWen(LinearInParams, HysteresisModel):
     linear_params: ClassVar[tuple[str, ...]] = ("gain",)
     linear_affine: ClassVar[bool] = True
     sign: int = -1
-    step_scale: float = 0.2
+    step_scale: float = C_L
 
     def __post_init__(self) -> None:
         _check_scale(self.step_scale, "step_scale", 0.5)
