@@ -275,6 +275,22 @@ def test_batched_equals_one_by_one_and_prior_draws_never_nan(name):
         np.testing.assert_array_equal(single.y[0], traj.y[j])
 
 
+@pytest.mark.parametrize("name", [*MODELS, "bouc_wen_fractional"])
+def test_serial_and_parallel_kernels_agree_bit_for_bit(name):
+    from bayeshyst.models import kernel_parallelism
+
+    t, u = _irregular()
+    m = get(name)
+    space = m.param_space(Record(t=t, u=u, y=0.4 * u, name="r"))
+    thetas = space.unpack(space.sample_prior(np.random.default_rng(2), 12))
+    with kernel_parallelism(0):
+        par = m.run_batch(u, t, thetas)
+    with kernel_parallelism(None):
+        ser = m.run_batch(u, t, thetas)
+    np.testing.assert_array_equal(par.y, ser.y)
+    np.testing.assert_array_equal(par.failed, ser.failed)
+
+
 @pytest.mark.parametrize("name", list(MODELS))
 def test_linear_design_reproduces_the_output(name):
     t, u = _irregular()
