@@ -399,7 +399,7 @@ def test_constant_input_stays_at_rest(name):
 def test_parameters_are_declared_with_units_and_descriptions():
     assert set(block_names()) == {"arx", "second_order", "creep", "creep_fractional",
                                   "drift", "delay", "asym_output", "aux", "change_point",
-                                  "disturbance", "unexplained"}
+                                  "disturbance", "unexplained", "creep_vibration"}
     for name in block_names():
         cls = block_class(name)
         space = cls(**cls.example).param_space(REC)

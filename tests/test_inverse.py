@@ -29,16 +29,18 @@ def smooth_input(n_cycles: float = 2.5, f: float = 10.0, lead: int = 40) -> tupl
     return t, u
 
 
-def invertible_theta(model, t, u, seeds=range(400), positive=()):
+def invertible_theta(model, t, u, seeds=range(400), positive=(), fixed=None):
     """A prior draw whose output rises with the input on every branch (so it has an inverse).
 
     ``positive`` names parameters taken in absolute value first (a relay grid's weights:
-    a prior draw of 55 of them is almost never all positive).
+    a prior draw of 55 of them is almost never all positive); ``fixed`` sets values
+    (``name -> float``) in every draw.
     """
     space = model.param_space(SCALES)
     for seed in seeds:
         theta = space.unpack(space.sample_prior(np.random.default_rng(seed), 1))
         theta.update({k: np.abs(theta[k]) for k in positive})
+        theta.update({k: np.array([v]) for k, v in (fixed or {}).items()})
         traj = model.run_batch(u, t, theta)
         if traj.failed[0]:
             continue
@@ -51,10 +53,11 @@ def invertible_theta(model, t, u, seeds=range(400), positive=()):
     pytest.fail(f"no invertible prior draw of {model.name} in {len(seeds)} seeds")
 
 
+DYNAMIC = ("mrc", "bouc_wen_oscillator", "bouc_wen_freq")
 # models of a compensator (monotone_in_input False: a clockwise relay grid) are not
 # invertible; tests/test_direct_inverses.py checks that their inversion says so
-STATIC = [n for n in registry.names() if n not in ("mrc", "bouc_wen_oscillator")
-          and registry.model_class(n).monotone_in_input]
+STATIC = [n for n in registry.names()
+          if n not in DYNAMIC and registry.model_class(n).monotone_in_input]
 
 
 @pytest.mark.parametrize("name", STATIC)
@@ -70,14 +73,16 @@ def test_numerical_inverse_every_model(name):
     assert inv.n_saturated == 0 and inv.n_failed_draws == 0
 
 
-@pytest.mark.parametrize("name", ["mrc", "bouc_wen_oscillator"])
+@pytest.mark.parametrize("name", DYNAMIC)
 def test_internal_dynamics_quasi_static_sampling(name):
     # mass dynamics far faster than the sampling: the one-step map has full feedthrough
     model = get(name)
     t, u_true = smooth_input()
     space = model.param_space(SCALES)
     key = "f_n" if "f_n" in space.names else "fn"
-    theta, y_d = invertible_theta(model, t, u_true)
+    # bouc_wen_freq's other internal dynamics, the frequency factor's lag, fast as well
+    fast = {key: 20 * FS, "tau": 0.05 / FS} if name == "bouc_wen_freq" else None
+    theta, y_d = invertible_theta(model, t, u_true, fixed=fast)
     theta[key] = np.array([20 * FS])
     y_d = model.run_batch(u_true, t, theta).y[0]
     inv = invert(model, y_d, t, theta, u_limits=(-100.0, 250.0))
@@ -109,6 +114,7 @@ COMPOSITIONS = {
         "second_order.f_n": 250.0, "second_order.zeta": 0.2},
     "duhem+second_order+creep_fractional": {"second_order.f_n": 400.0,
                                             "second_order.zeta": 0.3},
+    "pi_play+creep_vibration": {"creep_vibration.f_n": 300.0, "creep_vibration.zeta": 0.1},
 }
 
 

@@ -9,8 +9,10 @@ from __future__ import annotations
 # importing the family modules registers their models
 from bayeshyst.models import (  # noqa: F401  (importing registers the models)
     bouc_wen,
+    bouc_wen_variants,
     compose,
     duhem,
+    hammerstein,
     maxwell,
     mrc,
     pi,
@@ -26,8 +28,10 @@ from bayeshyst.models.bouc_wen import (
     BoucWenOscillator,
     ModifiedBoucWen,
 )
+from bayeshyst.models.bouc_wen_variants import AsymmetricBoucWenSgn, FrequencyFactorBoucWen
 from bayeshyst.models.compose import Composite, model_spec
 from bayeshyst.models.duhem import Duhem, ImprovedDuhem
+from bayeshyst.models.hammerstein import CreepVibration, FractionalHammerstein
 from bayeshyst.models.maxwell import MaxwellSlip
 from bayeshyst.models.mrc import MRCElectromechanical
 from bayeshyst.models.pi import (
@@ -47,12 +51,16 @@ from bayeshyst.models.registry import get, model_class, names, register
 
 __all__ = [
     "AsymmetricBoucWen",
+    "AsymmetricBoucWenSgn",
     "AsymmetricPrandtlIshlinskii",
     "BoucWen",
     "BoucWenOscillator",
     "Composite",
+    "CreepVibration",
     "DataScales",
     "Duhem",
+    "FractionalHammerstein",
+    "FrequencyFactorBoucWen",
     "GeneralizedPrandtlIshlinskii",
     "HysteresisModel",
     "ImprovedDuhem",
