@@ -51,7 +51,10 @@ def invertible_theta(model, t, u, seeds=range(400), positive=()):
     pytest.fail(f"no invertible prior draw of {model.name} in {len(seeds)} seeds")
 
 
-STATIC = [n for n in registry.names() if n not in ("mrc", "bouc_wen_oscillator")]
+# butterfly models are non-monotone in the input below -E_c and refuse the wide
+# u_limits used here (check_invertible); tests/test_bipolar.py inverts them on one wing
+STATIC = [n for n in registry.names()
+          if n not in ("mrc", "bouc_wen_oscillator", "butterfly", "butterfly_bw")]
 
 
 @pytest.mark.parametrize("name", STATIC)
