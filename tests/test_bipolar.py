@@ -29,8 +29,9 @@ THETA = {"e_c": 0.9, "width": 0.25, "q": 1.2, "d_lin": 0.06}
 BIPOLAR = DataScales(-2.0, 2.0, -0.2, 1.4, "kV/mm", "um")
 
 
-def slow_butterfly(u, e_c, width, q, d, v0, polar=False):
-    """Play of half-width e_c, P = tanh(v / w), S = q P^2 + d u, one sample at a time."""
+def slow_butterfly(u, e_c, width, q, d, v0, polar=False, eta=0.0, w_rev=1.0):
+    """Play of half-width e_c, P = (1 - eta) tanh(v / w) + eta tanh(u / w_rev),
+    S = q P^2 + d u, one sample at a time."""
     v = float(v0)
     out = []
     for x in u:
@@ -38,7 +39,7 @@ def slow_butterfly(u, e_c, width, q, d, v0, polar=False):
             v = x - e_c
         elif x + e_c < v:
             v = x + e_c
-        p = math.tanh(v / width)
+        p = (1.0 - eta) * math.tanh(v / width) + eta * math.tanh(x / w_rev)
         out.append(p if polar else q * p * p + d * x)
     return np.array(out), v
 
@@ -80,6 +81,28 @@ def test_kernel_matches_slow_oracle(start):
     np.testing.assert_allclose(model.polarisation(u, THETA, state0=s0),
                                slow_butterfly(u, *THETA.values(), -1.3, polar=True)[0],
                                atol=1e-15)
+
+
+def test_reversible_part_matches_the_oracle_and_vanishes_at_eta_zero():
+    model = get("butterfly(reversible=True)")
+    t, u = irregular_bipolar(seed=4)
+    th = {**THETA, "eta": 0.3, "w_rev": 1.7}
+    want, _ = slow_butterfly(u, *THETA.values(), u[0] + 0.9, eta=0.3, w_rev=1.7)
+    np.testing.assert_allclose(model.simulate(u, t, th), want, rtol=0, atol=1e-13)
+    np.testing.assert_array_equal(model.simulate(u, t, {**th, "eta": 0.0}),
+                                  get("butterfly").simulate(u, t, THETA))
+    p = model.polarisation(u, th)
+    assert np.max(np.abs(p)) < 1.0  # still in units of saturation
+    # the wings rise outward on both sides: just after either reversal the play is still,
+    # and the strain falls away from +E_max and from -E_max alike (flat without it)
+    tc, uc = cycle(n_per=400, cycles=2)
+    top, bottom = 400 + 100, 400 + 300  # the sine's maximum and minimum of cycle 2
+    for eta, sign in ((0.3, 1.0), (0.0, 0.0)):
+        sc = model.simulate(uc, tc, {**th, "eta": eta, "d_lin": 0.0})
+        after_top = np.diff(sc[top:top + 20])
+        after_bottom = np.diff(sc[bottom:bottom + 20])
+        assert np.all(np.sign(after_top) == -sign) and np.all(np.sign(after_bottom) == -sign)
+    assert model.param_space(BIPOLAR).names == ("e_c", "width", "eta", "w_rev", "q", "d_lin")
 
 
 def test_polarisation_is_a_preisach_ensemble_of_symmetric_relays():
@@ -146,15 +169,17 @@ def test_bipolar_cycle_draws_a_butterfly_with_minima_at_plus_minus_ec():
     assert abs(ul[np.flatnonzero(rising)[np.argmin(s2[rising])]] - THETA["e_c"]) < 0.5 * 0.25
 
 
-def test_polarisation_loop_is_point_symmetric_from_the_virgin_state():
-    model = get("butterfly(start='virgin')")
+@pytest.mark.parametrize("extra", [{}, {"eta": 0.3, "w_rev": 1.7}])
+def test_polarisation_loop_is_point_symmetric_from_the_virgin_state(extra):
+    model = get(f"butterfly(start='virgin', reversible={bool(extra)})")
+    theta = {**THETA, **extra}
     t, u = irregular_bipolar(n=600, seed=5)
     u = u - u[0]  # starts at zero field: the virgin state is then symmetric
-    p_plus = model.polarisation(u, THETA)
-    p_minus = model.polarisation(-u, THETA)
+    p_plus = model.polarisation(u, theta)
+    p_minus = model.polarisation(-u, theta)
     np.testing.assert_allclose(p_minus, -p_plus, rtol=0, atol=1e-15)
     assert np.ptp(p_plus) > 1.5  # the drive does switch the polarisation
-    th0 = {**THETA, "d_lin": 0.0}
+    th0 = {**theta, "d_lin": 0.0}
     np.testing.assert_allclose(model.simulate(-u, t, th0), model.simulate(u, t, th0),
                                atol=1e-15)
 
@@ -198,7 +223,7 @@ def test_unipolar_drive_after_poling_is_monotone_and_counter_clockwise():
 
 
 def test_batched_equals_one_by_one_and_pieces_equal_one_run():
-    for spec in ("butterfly", "butterfly_bw"):
+    for spec in ("butterfly", "butterfly(reversible=True)", "butterfly_bw"):
         model = get(spec)
         space = model.param_space(BIPOLAR)
         thetas = space.unpack(space.sample_prior(np.random.default_rng(4), 6))
@@ -220,7 +245,7 @@ def test_batched_equals_one_by_one_and_pieces_equal_one_run():
 
 
 def test_prior_keeps_ec_in_the_drive_and_draws_never_give_nan():
-    model = get("butterfly")
+    model = get("butterfly(reversible=True)")
     t, u = irregular_bipolar()
     for sc in (BIPOLAR, DataScales(0.0, 150.0, 0.0, 40.0)):
         space = model.param_space(sc)
@@ -229,11 +254,13 @@ def test_prior_keeps_ec_in_the_drive_and_draws_never_give_nan():
         traj = model.run_batch(u, t, thetas)
         assert not traj.failed.any() and np.all(np.isfinite(traj.y))
     # invalid vectors are flagged and their rows NaN, never silently simulated
-    bad = batch(THETA, 3)
+    bad = batch({**THETA, "eta": 0.3, "w_rev": 1.7}, 5)
     bad["width"][1] = 0.0
     bad["e_c"][2] = -0.1
+    bad["eta"][3] = 1.0
+    bad["w_rev"][4] = 0.0
     traj = model.run_batch(u, t, bad)
-    assert traj.failed.tolist() == [False, True, True]
+    assert traj.failed.tolist() == [False, True, True, True, True]
     assert np.isnan(traj.y[1:]).all() and np.isfinite(traj.y[0]).all()
 
 
@@ -251,6 +278,8 @@ def test_bad_settings_and_states_are_refused():
         get("butterfly(start='negative')")
     with pytest.raises(ModelError, match="start"):
         get("butterfly_bw(start=1)")
+    with pytest.raises(ModelError, match="reversible"):
+        get("butterfly(reversible=1)")
     model = get("butterfly")
     t, u = irregular_bipolar(n=20)
     with pytest.raises(ParameterError, match="state"):
@@ -292,6 +321,12 @@ def test_inverse_over_a_bipolar_range_is_refused_with_the_reason():
         invert(model, y_d, t, theta)  # unlimited commands reach below -E_c too
     with pytest.raises(ModelError, match="d_lin < 0"):
         invert(model, y_d, t, {**theta, "d_lin": np.array([-0.01])}, u_limits=(0.0, 2.5))
+    # with a reversible part P >= 0 needs E >= 0: -0.5 (inside -E_c) is refused too
+    rev = get("butterfly(reversible=True)")
+    th_rev = {**theta, "eta": np.array([0.3]), "w_rev": np.array([1.7])}
+    with pytest.raises(ModelError, match="below 0"):
+        invert(rev, y_d, t, th_rev, u_limits=(-0.5, 2.5))
+    invert(model, y_d[:5], t[:5], theta, u_limits=(-0.5, 2.5))  # the plain model takes it
     # the composite is checked through its base model
     comp = get("butterfly+creep")
     space = comp.param_space(BIPOLAR)

@@ -9,7 +9,8 @@ The phenomenological form writes the strain through the polarisation::
     P = H[E]                    symmetric, saturating, rate-independent hysteresis
     S = Q P^2 + d_lin E         quadratic electrostriction plus a linear term, Q > 0
 
-:class:`Butterfly` is that form; :class:`ButterflyBoucWen` adds an asymmetric Bouc–Wen
+:class:`Butterfly` is that form (optionally with a reversible part of ``P`` that follows
+the field without hysteresis); :class:`ButterflyBoucWen` adds an asymmetric Bouc–Wen
 term, the hybrid static model of the review's ref. [110] (§10).
 
 Units and identifiability. ``P`` is in units of its saturation, ``|P| < 1``: the strain
@@ -50,7 +51,7 @@ from bayeshyst.models.base import (
 )
 from bayeshyst.models.bouc_wen import AsymmetricBoucWen
 from bayeshyst.models.registry import register
-from bayeshyst.params import LogNormal, Normal, Param, ParamSpace, TruncatedNormal
+from bayeshyst.params import LogNormal, Normal, Param, ParamSpace, TruncatedNormal, Uniform
 
 __all__ = ["STARTS", "Butterfly", "ButterflyBoucWen"]
 
@@ -83,16 +84,22 @@ def _switching_params(sc: DataScales) -> tuple[Param, ...]:
     )
 
 
-def _check_one_wing(name: str, theta: Mapping[str, np.ndarray], u_lo: float) -> None:
+def _check_one_wing(name: str, theta: Mapping[str, np.ndarray], u_lo: float,
+                    reversible: bool = False) -> None:
     """Refuse a command range that reaches below ``-E_c`` (module docstring, Inversion)."""
     e_c = np.asarray(theta["e_c"], dtype=float)
     floor = -float(np.min(e_c)) if e_c.size else -np.inf
+    what = f"-E_c = {floor:.4g}"
+    if reversible:
+        # the reversible part turns negative with the field: P >= 0 only for E >= 0
+        floor, what = 0.0, "0 (the reversible polarisation follows the field's sign)"
     if not u_lo >= floor:
         raise ModelError(
             f"{name}: the strain is not monotone in the field over a command range "
-            f"reaching {u_lo:.4g}: below -E_c = {floor:.4g} the polarisation switches sign "
+            f"reaching {u_lo:.4g}: below {what} the polarisation can change sign "
             "and the butterfly has no inverse. It is invertible on one wing only: after "
-            "positive poling, keep the command at E >= -E_c, e.g. u_limits=(0, E_max)")
+            "positive poling, keep the command at E >= -E_c (E >= 0 with a reversible "
+            "part), e.g. u_limits=(0, E_max)")
 
 
 def _play_state(theta: Mapping[str, np.ndarray], u0: float, start: str) -> np.ndarray:
@@ -129,6 +136,14 @@ class Butterfly(LinearInParams, HysteresisModel):
     reversal on and has no field at which switching starts; a 2-D Preisach density
     needs an Everett table per parameter vector.
 
+    Reversible polarisation (``reversible=True``): the wings of a measured butterfly
+    rise with the field on both sides because part of the polarisation follows the
+    field without hysteresis (the piezoelectric effect is ``2 Q P_r`` times it). It is
+    the same Preisach reading on the diagonal (relays of zero half-width, logistic
+    centres of scale ``w_r / 2``):
+    ``P = (1 - eta) tanh(F_{E_c}[E] / w) + eta tanh(E / w_r)``, still ``|P| < 1``.
+    ``P = 0`` on the major loop then lies slightly inside ``±E_c``.
+
     Parameters
     ----------
     start : {"poled", "virgin"}
@@ -138,6 +153,8 @@ class Butterfly(LinearInParams, HysteresisModel):
         ``v = 0`` at zero field, then a monotone path to ``E_0``
         (``v_0 = clip(0, E_0 - E_c, E_0 + E_c)``): symmetric, so the response to
         ``-E`` is the mirror image.
+    reversible : bool
+        Add the reversible polarisation (parameters ``eta``, ``w_rev``; default False).
 
     Notes
     -----
@@ -147,10 +164,13 @@ class Butterfly(LinearInParams, HysteresisModel):
     the drive range, for bipolar and unipolar data alike); ``width`` ``w`` (input unit)
     ``~ LogNormal(median 0.15 u_ref, 0.7)``; ``q`` ``Q`` (output unit, ``> 0``)
     ``~ LogNormal(median y_span, 1)``; ``d_lin`` (output unit per input unit)
-    ``~ Normal(0, 0.5 y_span / u_ref)``. No offset: ``obs.offset`` (module docstring).
+    ``~ Normal(0, 0.5 y_span / u_ref)``; with ``reversible``, ``eta`` (1)
+    ``~ Uniform(0, 1)`` and ``w_rev`` (input unit) ``~ LogNormal(median u_ref, 0.7)``.
+    No offset: ``obs.offset`` (module docstring).
 
     ``S`` is linear in ``(q, d_lin)`` for fixed ``(e_c, width)`` (columns ``P^2`` and
-    ``E``): the sampler draws them from their conditional Gaussian. State ``[v]``.
+    ``E``): the sampler draws them from their conditional Gaussian. State ``[v]``
+    (``v_0`` as for ``start``, whatever ``reversible``).
     Rate-independent: the times are ignored. Failed simulations (``e_c < 0``,
     ``width <= 0``, non-finite values) are flagged, never NaN in a log-probability.
     """
@@ -159,9 +179,12 @@ class Butterfly(LinearInParams, HysteresisModel):
     equation: ClassVar[str] = "review Eq. 11 (play), §10 ref. [110]; MODELS.md §9"
     linear_params: ClassVar[tuple[str, ...]] = ("q", "d_lin")
     start: str = "poled"
+    reversible: bool = False
 
     def __post_init__(self) -> None:
         _check_start(self.start)
+        if not isinstance(self.reversible, bool):
+            raise ModelError(f"reversible must be True or False, got {self.reversible!r}")
 
     def param_space(self, data: Any = None) -> ParamSpace:
         """``e_c``, ``width``, ``q`` and ``d_lin`` with the priors of the class Notes.
@@ -169,8 +192,15 @@ class Butterfly(LinearInParams, HysteresisModel):
         ``data`` as in :meth:`HysteresisModel.param_space`.
         """
         sc = data_scales(data)
+        rev = (
+            Param("eta", Uniform(0.0, 1.0), unit="1",
+                  description="reversible fraction of the polarisation"),
+            Param("w_rev", LogNormal.from_median(_u_ref(sc), 0.7), unit=sc.u_unit,
+                  description="width of the reversible part eta tanh(E / w_rev)"),
+        ) if self.reversible else ()
         return ParamSpace((
             *_switching_params(sc),
+            *rev,
             Param("q", LogNormal.from_median(sc.y_span, 1.0), unit=sc.y_unit,
                   description="electrostrictive strain Q at saturation (S = Q P^2 + ...)"),
             Param("d_lin", Normal(0.0, 0.5 * sc.y_span / _u_ref(sc)),
@@ -185,8 +215,11 @@ class Butterfly(LinearInParams, HysteresisModel):
             raise ParameterError(f"{self.name}: state must have 1 entry [v], got "
                                  f"{state0.shape}")
         y, state, failed = kernel_buffers(state0, u.shape[0])
-        butterfly_batch(u, theta["e_c"], theta["width"], theta["q"], theta["d_lin"], polar,
-                        state, y, failed)
+        width = state.shape[0]
+        eta = theta["eta"] if self.reversible else np.zeros(width)
+        w_rev = theta["w_rev"] if self.reversible else np.ones(width)
+        butterfly_batch(u, theta["e_c"], theta["width"], eta, w_rev, theta["q"],
+                        theta["d_lin"], polar, state, y, failed)
         state[failed] = np.nan
         return y, state, failed
 
@@ -200,9 +233,10 @@ class Butterfly(LinearInParams, HysteresisModel):
         From a state with ``v >= 0`` (poled, or virgin at ``E_0 >= -E_c``) a command
         ``E >= -E_c`` keeps ``v >= 0`` and ``P >= 0``, where ``S`` is non-decreasing in
         ``E`` if ``d_lin >= 0``; below ``-E_c`` the polarisation switches and ``S``
-        decreases with ``E``. See :meth:`HysteresisModel.check_invertible`.
+        decreases with ``E``. With the reversible part the floor is ``E >= 0``.
+        See :meth:`HysteresisModel.check_invertible`.
         """
-        _check_one_wing(self.name, theta, u_lo)
+        _check_one_wing(self.name, theta, u_lo, self.reversible)
         d = np.asarray(theta["d_lin"], dtype=float)
         if np.any(d < 0):
             raise ModelError(f"{self.name}: d_lin < 0 ({float(d.min()):.4g}) makes the strain "
@@ -325,8 +359,8 @@ class ButterflyBoucWen(HysteresisModel):
         y, state, failed = kernel_buffers(state0, u.shape[0])
         zeros = np.zeros(state.shape[0])
         play_state = np.ascontiguousarray(state[:, :1])
-        butterfly_batch(u, theta["e_c"], theta["width"], theta["q"], zeros, False,
-                        play_state, y, failed)
+        butterfly_batch(u, theta["e_c"], theta["width"], zeros, np.ones(state.shape[0]),
+                        theta["q"], zeros, False, play_state, y, failed)
         state[:, :1] = play_state
         bw_state = np.ascontiguousarray(state[:, 1:])
         y_bw = np.empty_like(y)
