@@ -288,6 +288,30 @@ def test_bad_settings_and_states_are_refused():
         model.polarisation(u, {**THETA, "width": -1.0})
 
 
+def test_butterfly_bw_is_rate_independent_and_still_a_butterfly():
+    model = get("butterfly_bw")
+    theta = {"e_c": 0.9, "width": 0.25, "q": 1.2, "k": 0.05, "alpha": 0.1, "beta": 0.5,
+             "gamma": 0.1, "n": 1.0, "delta": 0.01}
+    t, u = cycle(n_per=800)
+    y = model.simulate(u, t, theta)
+    warped = np.cumsum(np.random.default_rng(1).uniform(0.1, 5.0, t.size))
+    np.testing.assert_array_equal(model.simulate(u, warped, theta), y)
+    last = slice(1600, 2400)
+    rising = np.gradient(u[last]) > 0
+    ys, us = y[last][rising], u[last][rising]
+    i = np.argmin(ys)
+    # the dip near +E_c on the rising branch, and the strain back up at +E_max
+    assert abs(us[i] - 0.9) < 0.25 and ys[i] < 0.2 * ys[np.argmax(us)]
+
+
+def test_settings_survive_the_model_spec():
+    from bayeshyst.models import model_spec
+
+    for spec in ("butterfly(start='virgin', reversible=True)", "butterfly_bw(start='virgin')"):
+        model = get(spec)
+        assert get(model_spec(model)) == model
+
+
 # ----------------------------------------------------------------------- inverse
 
 
