@@ -26,8 +26,11 @@ Inversion. ``S`` is non-monotone in ``E`` wherever ``P`` changes sign, so a butt
 no inverse over a bipolar command; on one wing — a unipolar command ``E >= 0`` after
 positive poling, where ``P > 0`` stays — the one-step map is non-decreasing (for
 ``d_lin >= 0``) and the generic numerical inverse
-(:func:`bayeshyst.inverse.numerical.invert`) applies. Over a bipolar target it reports
-the decreasing one-step map in ``Inversion.n_nonmonotone`` (tested).
+(:func:`bayeshyst.inverse.numerical.invert`) applies. A command range reaching below
+``-E_c`` is refused with the reason (:meth:`Butterfly.check_invertible`): the per-sample
+root finder only walks towards the target from the last command, so it would not see the
+decreasing part of the one-step map (``Inversion.n_nonmonotone`` stays 0) and would meet
+a bipolar target silently on the other wing, with a command jumping by ``2 E_c``.
 """
 
 from __future__ import annotations
