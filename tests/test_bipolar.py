@@ -264,6 +264,16 @@ def test_prior_keeps_ec_in_the_drive_and_draws_never_give_nan():
     assert np.isnan(traj.y[1:]).all() and np.isfinite(traj.y[0]).all()
 
 
+@pytest.mark.parametrize("spec", ["butterfly(reversible=True)", "butterfly_bw"])
+def test_log_prob_of_prior_draws_is_finite_or_minus_inf(spec):
+    # prior draws outside a model's support (Bouc–Wen's stable region) fail the
+    # simulation: flagged, so the log-probability is -inf, never NaN
+    post = Posterior(butterfly_record(0), spec)
+    z = post.space.sample_prior(np.random.default_rng(0), 64)
+    lp = post.log_prob_batch(z)
+    assert not np.isnan(lp).any() and np.isfinite(lp).sum() >= 32
+
+
 def test_output_is_linear_in_q_and_d():
     model = get("butterfly")
     t, u = irregular_bipolar(n=300)
