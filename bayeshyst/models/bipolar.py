@@ -141,11 +141,16 @@ class Butterfly(LinearInParams, HysteresisModel):
 
     Reversible polarisation (``reversible=True``): the wings of a measured butterfly
     rise with the field on both sides because part of the polarisation follows the
-    field without hysteresis (the piezoelectric effect is ``2 Q P_r`` times it). It is
+    field without hysteresis (the linearised piezoelectric coefficient is
+    ``2 Q P_r dP_rev/dE``). It is
     the same Preisach reading on the diagonal (relays of zero half-width, logistic
     centres of scale ``w_r / 2``):
     ``P = (1 - eta) tanh(F_{E_c}[E] / w) + eta tanh(E / w_r)``, still ``|P| < 1``.
-    ``P = 0`` on the major loop then lies slightly inside ``±E_c``.
+    ``P = 0`` on the major loop then lies slightly inside ``±E_c``. ``Q``, ``eta`` and
+    ``w_rev`` trade off where the reversible part stays nearly linear over the drive
+    (``Q eta^2`` and ``Q (1 - eta)^2`` are what the wings pin): expect wide, correlated
+    marginals for them, while ``E_c``, ``w`` and ``d_lin`` stay sharp (measured on the
+    virtual actuator's bipolar mode: ``Q`` to ±35 %, ``E_c`` to ±0.1 %).
 
     Parameters
     ----------
