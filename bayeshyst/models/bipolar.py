@@ -146,11 +146,13 @@ class Butterfly(LinearInParams, HysteresisModel):
     the same Preisach reading on the diagonal (relays of zero half-width, logistic
     centres of scale ``w_r / 2``):
     ``P = (1 - eta) tanh(F_{E_c}[E] / w) + eta tanh(E / w_r)``, still ``|P| < 1``.
-    ``P = 0`` on the major loop then lies slightly inside ``±E_c``. ``Q``, ``eta`` and
-    ``w_rev`` trade off where the reversible part stays nearly linear over the drive
-    (``Q eta^2`` and ``Q (1 - eta)^2`` are what the wings pin): expect wide, correlated
-    marginals for them, while ``E_c``, ``w`` and ``d_lin`` stay sharp (measured on the
-    virtual actuator's bipolar mode: ``Q`` to ±35 %, ``E_c`` to ±0.1 %).
+    ``P = 0`` on the major loop then lies slightly inside ``±E_c``. While the reversible
+    part stays nearly linear over the drive, the data pin ``Q (1 - eta)^2`` (the
+    switched part), ``Q eta (1 - eta) / w_rev`` (the wings' slope) and only weakly
+    ``Q eta^2 / w_rev^2`` (their curvature), so ``Q``, ``eta`` and ``w_rev`` trade off
+    along a ridge: expect wide, correlated marginals for them, while ``E_c``, ``w`` and
+    ``d_lin`` stay sharp (measured on the virtual actuator's bipolar mode: ``Q`` to
+    ±35 %, ``E_c`` to ±0.1 %).
 
     Parameters
     ----------
