@@ -373,51 +373,73 @@ def test_inverse_over_a_bipolar_range_is_refused_with_the_reason():
 # ---------------------------------------------------------------------- recovery
 
 TRUTH = {"e_c": 0.9, "width": 0.25, "q": 1.2, "d_lin": 0.06}
+BW_TRUTH = {"e_c": 0.9, "width": 0.25, "q": 1.2, "k": 0.05, "alpha": 0.1, "beta": 0.5,
+            "gamma": 0.1, "n": 1.0, "delta": 0.01}
+#: the Bouc–Wen shape: held at the truth in the butterfly_bw fits (below)
+BW_SHAPE = ("beta", "gamma", "n")
 SIGMA = 0.01
 
 
-def butterfly_record(seed, n_per=200):
+def butterfly_record(seed, spec="butterfly", truth=None, n_per=200):
     """Two bipolar amplitudes (above the coercive field), poled start, white noise."""
     t1, u1 = cycle(amplitude=2.0, n_per=n_per, cycles=2)
     u2 = 1.5 * np.sin(2 * np.pi * 10.0 * t1)
     u = np.r_[u1, u2]
     t = np.arange(u.size) * 5e-4
-    y = get("butterfly").simulate(u, t, TRUTH) + 0.05
+    y = get(spec).simulate(u, t, TRUTH if truth is None else truth) + 0.05
     y = y + np.random.default_rng(seed).normal(0.0, SIGMA, u.size)
     return Record(t=t, u=u, y=y, name=f"butterfly{seed}", warmup=n_per // 4,
                   units={"t": "s", "u": "kV/mm", "y": "um"})
 
 
-def _fit_stats(seed):
-    post = Posterior(butterfly_record(seed), "butterfly")
+def _fit_stats(seed, spec="butterfly"):
+    """(squared Mahalanobis distance of the truth, 90 % HDI hits, dimension) of one fit.
+
+    butterfly_bw is fitted with the Bouc–Wen shape (beta, gamma, n) held at the truth:
+    free, those three trade off along the ridge documented in bayeshyst.models.bouc_wen,
+    and one fit took 5 min without converging (R-hat 1.21 after 8000 steps, every truth
+    inside its band): too slow for a test, and a property of Bouc–Wen, tested there.
+    """
+    truth = TRUTH if spec == "butterfly" else BW_TRUTH
+    rec = butterfly_record(seed, spec, truth)
+    model = get(spec)
+    space = model.param_space(rec)
+    if spec == "butterfly_bw":
+        for name in BW_SHAPE:
+            space = space.fix(name, truth[name])
+    post = Posterior(rec, model, space=space)
     res = sample_posterior(post, SamplerSettings(seed=seed, max_steps=6000, n_walkers=16))
     assert res.converged, res.convergence
-    truth = {**TRUTH, "obs.offset": 0.05, "noise.sigma": SIGMA}
-    zt = post.space.pack(truth)
+    free = {k: v for k, v in truth.items() if k in space.names}
+    full = {**free, "obs.offset": 0.05, "noise.sigma": SIGMA}
+    zt = post.space.pack(full)
     z = res.flat_z
     d = zt - z.mean(axis=0)
     d2 = float(d @ np.linalg.solve(np.cov(z.T), d))
     summ = {s.label: s for s in res.summary(0.9)}
-    hits = {k: summ[k].hdi_lo <= v <= summ[k].hdi_hi for k, v in truth.items()}
+    hits = {k: summ[k].hdi_lo <= v <= summ[k].hdi_hi for k, v in full.items()}
     return d2, hits, post.ndim
 
 
-def test_butterfly_posterior_recovers_the_truth():
+@pytest.mark.parametrize("spec", ["butterfly", "butterfly_bw"])
+def test_posterior_recovers_the_truth(spec):
     # one fit: the truth's squared Mahalanobis distance is ~ chi2(d) for a calibrated
     # posterior; a two-sided 0.1 % test
-    d2, _, ndim = _fit_stats(0)
+    d2, _, ndim = _fit_stats(0, spec)
     p = stats.chi2.sf(d2, ndim)
     assert 5e-4 < p < 1 - 5e-4, (d2, p)
 
 
 @pytest.mark.slow
-def test_butterfly_90_percent_intervals_cover_at_the_nominal_rate():
-    fits = [_fit_stats(seed) for seed in range(1, 13)]
+@pytest.mark.parametrize("spec", ["butterfly", "butterfly_bw"])
+def test_90_percent_intervals_cover_at_the_nominal_rate(spec):
+    fits = [_fit_stats(seed, spec) for seed in range(1, 13)]
     d2 = np.array([f[0] for f in fits])
     ndim = fits[0][2]
     p = stats.chi2.sf(d2.sum(), ndim * len(d2))
     assert 5e-4 < p < 1 - 5e-4, (d2, p)
-    for label in fits[0][1]:
+    labels = list(fits[0][1])
+    for label in labels:
         k = sum(f[1][label] for f in fits)
-        # binomial test per parameter, Bonferroni over the 6 of them
-        assert stats.binomtest(k, len(fits), 0.9).pvalue > 1e-3 / 6, (label, k)
+        # binomial test per parameter, Bonferroni over the parameters
+        assert stats.binomtest(k, len(fits), 0.9).pvalue > 1e-3 / len(labels), (label, k)
