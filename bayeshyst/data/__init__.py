@@ -11,7 +11,9 @@
   (:mod:`bayeshyst.data.measured`);
 * :class:`VirtualActuator`, :func:`bundle` -- the documented simulator with known
   truth and the bundled datasets (:mod:`bayeshyst.data.virtual`), excitation signals
-  (:mod:`bayeshyst.data.excitation`).
+  (:mod:`bayeshyst.data.excitation`);
+* :class:`BipolarActuator`, :func:`bipolar_records` -- its bipolar mode: butterfly
+  strain loops with a known coercive field (:mod:`bayeshyst.data.virtual_bipolar`).
 """
 
 from __future__ import annotations
@@ -48,18 +50,22 @@ from bayeshyst.data.virtual import (
     hysteresis_percent,
     loop_width,
 )
+from bayeshyst.data.virtual_bipolar import BIPOLAR_UNITS, BipolarActuator, bipolar_records
 
 __all__ = [
+    "BIPOLAR_UNITS",
     "BUNDLE_FREQUENCIES_HZ",
     "BUNDLE_SEED",
     "DEFAULT_UNITS",
     "MIN_SAMPLES",
     "STROKE_UM",
+    "BipolarActuator",
     "CycleSplit",
     "Dataset",
     "Record",
     "Table",
     "VirtualActuator",
+    "bipolar_records",
     "bundle",
     "creep_per_decade",
     "cycle_labels",

@@ -432,6 +432,9 @@ def invert(model: HysteresisModel, y_d: Any, t: Any, thetas: Mapping[str, Any], 
         non-finite reference, limits not increasing).
     SimulationError
         If every draw fails.
+    ModelError
+        If the model's output is not monotone in the input over ``u_limits``
+        (:meth:`~bayeshyst.models.base.HysteresisModel.check_invertible`).
     """
     return invert_pooled([Member(model, thetas, offset)], y_d, t, objective=objective,
                          quantile=quantile, u_limits=u_limits, periodic=periodic,
@@ -483,6 +486,10 @@ def invert_pooled(members: Any, y_d: Any, t: Any, *, objective: str = "mean",
     parts = []
     for m in members:
         theta_b, n_m = m.model._batch_theta(m.thetas, batched=True)
+        # a model non-monotone in its input (a butterfly) is invertible on part of its
+        # range only: it refuses u_limits reaching beyond, with the reason
+        base, base_theta = leading_part(m.model, 0, theta_b)
+        base.check_invertible(base_theta, lo, hi)
         # (S, 1): one offset per draw; (S, N): a known additive term per draw and sample
         # (the model discrepancy evaluated along a previous command)
         off = np.zeros((n_m, 1)) if m.offset is None else np.asarray(m.offset, dtype=float)

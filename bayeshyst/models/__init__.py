@@ -8,6 +8,7 @@ from __future__ import annotations
 
 # importing the family modules registers their models
 from bayeshyst.models import (  # noqa: F401  (importing registers the models)
+    bipolar,
     bouc_wen,
     bouc_wen_variants,
     compose,
@@ -22,6 +23,7 @@ from bayeshyst.models import (  # noqa: F401  (importing registers the models)
 )
 from bayeshyst.models._kernels import kernel_parallelism, serial_kernels_in_this_thread
 from bayeshyst.models.base import DataScales, HysteresisModel, Trajectory, data_scales
+from bayeshyst.models.bipolar import Butterfly, ButterflyBoucWen
 from bayeshyst.models.bouc_wen import (
     AsymmetricBoucWen,
     BoucWen,
@@ -55,6 +57,8 @@ __all__ = [
     "AsymmetricPrandtlIshlinskii",
     "BoucWen",
     "BoucWenOscillator",
+    "Butterfly",
+    "ButterflyBoucWen",
     "Composite",
     "CreepVibration",
     "DataScales",

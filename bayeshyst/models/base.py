@@ -373,6 +373,26 @@ class HysteresisModel(ABC):
         """
         return ()
 
+    def check_invertible(self, theta: Mapping[str, np.ndarray], u_lo: float,
+                         u_hi: float) -> None:
+        """Raise ModelError unless the one-step map is non-decreasing on ``[u_lo, u_hi]``.
+
+        Numerical inversion (:mod:`bayeshyst.inverse.numerical`) finds each command sample
+        by bracketing a root of the one-step map, which is only unique where that map is
+        non-decreasing in the input; it asks the model first. Every family that draws a
+        monotone, counter-clockwise loop has nothing to check (this default); a model whose
+        output is non-monotone in the input over part of its range (a butterfly, which
+        is invertible on one wing only) refuses a command range that reaches beyond it.
+
+        Parameters
+        ----------
+        theta : mapping
+            ``name -> (W, *shape)``: the parameter vectors to be inverted together.
+        u_lo, u_hi : float
+            Admissible command range (input unit), possibly infinite.
+        """
+        return None
+
     def _run_with(self, u: np.ndarray, t: np.ndarray, theta: Mapping[str, np.ndarray],
                   state0: np.ndarray, covariates: Mapping[str, np.ndarray] | None
                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
