@@ -136,9 +136,11 @@ class Creep(EffectBlock):
 @register_block
 @dataclass(frozen=True)
 class FractionalCreep(EffectBlock):
-    """Fractional-order creep ``y = w + gain (x - w)``, ``x = w / (tau s^lam + 1)``.
+    """Fractional-order creep ``y = w + gain (x - w)``, ``x = w / ((tau s)^lam + 1)``.
 
-    The step response of ``1 / (tau s^lam + 1)`` is ``1 - E_lam(-(t/tau)^lam)`` (Mittag-
+    ``tau`` is a time constant (s) at every order; MODELS.md's ``1/(tau' s^lam + 1)`` is
+    the same family with ``tau' = tau^lam`` (s^lam, a unit that changes with the order).
+    The step response of ``1 / ((tau s)^lam + 1)`` is ``1 - E_lam(-(t/tau)^lam)`` (Mittag-
     Leffler), which is completely monotone:
     ``E_lam(-(t/tau)^lam) = int_0^inf exp(-r t / tau) K(r) dr`` with the spectral density
     ``K(r) = sin(lam pi) r^(lam-1) / (pi (r^(2 lam) + 2 r^lam cos(lam pi) + 1))``. The
@@ -168,7 +170,7 @@ class FractionalCreep(EffectBlock):
 
     name: ClassVar[str] = "creep_fractional"
     affine: ClassVar[bool] = True
-    equation: ClassVar[str] = "y = w + gain (w/(tau s^lam + 1) - w), diffusive modes"
+    equation: ClassVar[str] = "y = w + gain (w/((tau s)^lam + 1) - w), diffusive modes"
     n_modes: int = 41
     per_decade: float = 4.0
 
