@@ -51,7 +51,9 @@ def invertible_theta(model, t, u, seeds=range(400), positive=()):
     pytest.fail(f"no invertible prior draw of {model.name} in {len(seeds)} seeds")
 
 
-STATIC = [n for n in registry.names() if n not in ("mrc", "bouc_wen_oscillator")]
+# pi_osp_rate: its rate envelopes make each branch non-minimum-phase; its causal inverse
+# is exact only for tau below ~ the sample period (tests/test_pi_operators.py)
+STATIC = [n for n in registry.names() if n not in ("mrc", "bouc_wen_oscillator", "pi_osp_rate")]
 
 
 @pytest.mark.parametrize("name", STATIC)

@@ -14,6 +14,7 @@ from bayeshyst.models import (  # noqa: F401  (importing registers the models)
     maxwell,
     mrc,
     pi,
+    pi_operators,
     pi_variants,
     preisach,
 )
@@ -35,6 +36,12 @@ from bayeshyst.models.pi import (
     PrandtlIshlinskiiStop,
     play_pi_inverse,
 )
+from bayeshyst.models.pi_operators import (
+    DeadZonePrandtlIshlinskii,
+    OneSidePlayPrandtlIshlinskii,
+    RateDependentOneSidePlayPI,
+    RightLeftPrandtlIshlinskii,
+)
 from bayeshyst.models.pi_variants import (
     AsymmetricPrandtlIshlinskii,
     GeneralizedPrandtlIshlinskii,
@@ -50,6 +57,7 @@ __all__ = [
     "BoucWenOscillator",
     "Composite",
     "DataScales",
+    "DeadZonePrandtlIshlinskii",
     "Duhem",
     "GeneralizedPrandtlIshlinskii",
     "HysteresisModel",
@@ -57,12 +65,15 @@ __all__ = [
     "MRCElectromechanical",
     "MaxwellSlip",
     "ModifiedBoucWen",
+    "OneSidePlayPrandtlIshlinskii",
     "PIInverse",
     "PrandtlIshlinskii",
     "PrandtlIshlinskiiStop",
     "Preisach",
     "PreisachDensity",
+    "RateDependentOneSidePlayPI",
     "RateDependentPrandtlIshlinskii",
+    "RightLeftPrandtlIshlinskii",
     "Trajectory",
     "data_scales",
     "get",
