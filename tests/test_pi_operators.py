@@ -17,7 +17,12 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from bayeshyst.data import Record
 from bayeshyst.errors import ModelError, ParameterError, SimulationError
+from bayeshyst.inference.optimize import find_map
+from bayeshyst.inference.posterior import Posterior
+from bayeshyst.inference.sampling import sample_posterior
+from bayeshyst.inference.settings import SamplerSettings
 from bayeshyst.inverse.numerical import invert
 from bayeshyst.models import get
 from bayeshyst.models.pi import PrandtlIshlinskii
@@ -29,6 +34,7 @@ from bayeshyst.models.pi_operators import (
     dead_zone_thresholds,
 )
 from bayeshyst.models.pi_variants import typical_rate
+from tests.test_recovery import _check_calibration, _check_coverage, _fit_stats
 
 N_OP = 5
 MODELS = {
@@ -299,6 +305,20 @@ def test_mrpi_loop_widens_with_frequency():
             np.testing.assert_allclose(areas, areas[0], rtol=1e-12)
 
 
+def test_mrpi_output_follows_the_input_direction_at_any_rate_lag():
+    # per monotone step: with non-negative weights and a monotone polynomial the output
+    # never moves against the input, however large tau (the clamp form would)
+    model = MODELS["osp_rate"]
+    u, t = _irregular(20)
+    theta = dict(model.param_space(_record()).fixed) | {
+        "p0": 0.2, "a2": 0.0, "a3": 0.0, "w": np.full(N_OP, 0.1)}
+    for tau in (0.0, 1e-3, 1e-2, 1.0):
+        y = model.simulate(u, t, theta | {"tau_l": tau, "tau_r": 2 * tau})
+        assert np.all(np.diff(y) * np.sign(np.diff(u)) >= -1e-12 * np.ptp(y)), tau
+    # and the rate does act here: the lag changes the output
+    assert np.abs(y - model.simulate(u, t, theta | {"tau_l": 0.0, "tau_r": 0.0})).max() > 1.0
+
+
 @HYST
 @given(u=st.lists(st.floats(-1.0, 1.0), min_size=2, max_size=40), data=st.data())
 def test_rate_independent_models_ignore_a_monotone_time_warp(u, data):
@@ -479,3 +499,69 @@ def test_mrpi_inverse_failure_for_long_rate_lags_is_reported_not_hidden():
     err = np.max(np.abs(y - y_d))
     assert err > 1e-2 * np.ptp(y_d)
     assert inv.max_error == pytest.approx(err, rel=1e-6)
+
+
+# ------------------------------------------------------------------ posterior recovery
+# The checks of tests/test_recovery.py: the truth's squared Mahalanobis distance summed
+# over independent fits is ~ chi2(S d) (two-sided 0.1 % test), and (slow) each 90 % HDI
+# covers the truth at the binomial rate (Bonferroni over parameters).
+
+SIGMA = 0.05
+RECOVERY = {
+    # pi_osp: linear in all its weights; only the offset and the noise are not
+    "osp": ("pi_osp(n_operators=4)",
+            {"p0": 0.15, "w": np.array([0.08, 0.06, 0.04, 0.02]), "a2": 0.03, "a3": -0.02}),
+    # pi_deadzone: g is the linear block, p0 and w are sampled by the ensemble
+    "deadzone": ("pi_deadzone(n_operators=4, n_deadzones=2)",
+                 {"p0": 0.15, "w": np.array([0.08, 0.06, 0.04, 0.02]),
+                  "g": np.array([0.4, -0.3])}),
+}
+
+
+def _recovery_fit(kind, seed):
+    """(posterior, result, truth) of one fit to data simulated from the model + noise."""
+    spec, truth = RECOVERY[kind]
+    model = get(spec)
+    t = np.arange(1200) * 1e-3
+    u = 75.0 - 70.0 * np.cos(2 * np.pi * 2.0 * t) * np.exp(-0.4 * t)  # minor loops inside
+    # priors and fixed placements (dead-zone thresholds) from a proxy record with the
+    # same input and output ranges, so that truth and fit share the fixed values
+    space = model.param_space(Record(t=t, u=u, y=0.35 * u, name="proxy"))
+    y = model.simulate(u, t, dict(space.fixed) | truth)
+    rec = Record(t=t, u=u, y=y + np.random.default_rng(seed).normal(0.0, SIGMA, t.size),
+                 name=f"{kind}{seed}", warmup=200)
+    post = Posterior(rec, model, space=space)
+    settings = SamplerSettings(seed=seed, max_steps=8000, n_walkers=16)
+    # the dead-zone MPI's posterior has a minor mode (play part scaled up against the
+    # offset and a negative first dead-zone weight) that the default screen of prior
+    # draws lands in for some seeds; a global MAP search finds the major one
+    start = find_map(post, seed=seed, global_search=True) if kind == "deadzone" else None
+    res = sample_posterior(post, settings, start=start)
+    return post, res, truth | {"obs.offset": 0.0, "noise.sigma": SIGMA}
+
+
+def _recovery_stats(kind, seeds):
+    out = []
+    for seed in seeds:
+        post, res, truth = _recovery_fit(kind, seed)
+        out.append(_fit_stats(post, truth, seed, res))
+    return out, post.ndim
+
+
+def test_osp_mpi_posterior_is_calibrated():
+    fits, ndim = _recovery_stats("osp", range(3))
+    _check_calibration(fits, ndim)
+
+
+@pytest.mark.slow
+def test_osp_mpi_90_percent_intervals_cover_at_the_nominal_rate():
+    fits, ndim = _recovery_stats("osp", range(3, 23))
+    _check_calibration(fits, ndim)
+    _check_coverage(fits)
+
+
+@pytest.mark.slow
+def test_deadzone_mpi_posterior_is_calibrated_and_covers_at_the_nominal_rate():
+    fits, ndim = _recovery_stats("deadzone", range(20))
+    _check_calibration(fits, ndim)
+    _check_coverage(fits)

@@ -340,7 +340,8 @@ class RateDependentOneSidePlayPI(LinearInParams, HysteresisModel):
     threshold ``r̄(u̇)`` (the review contrasts [63] with [53]'s thresholds). A signed
     ``u - τ u̇`` was tried and rejected: it is the input delayed by ``τ`` to first order,
     so the output keeps rising after the input has turned (a phase lag, not a
-    hysteresis loop) and has no sample-by-sample inverse. ``τ_l = τ_r = 0`` is ``pi_osp``
+    hysteresis loop: the output is no longer monotone along the input's monotone
+    pieces). ``τ_l = τ_r = 0`` is ``pi_osp``
     exactly from any state inside the bands. The input polynomial and the one-side play
     are ``pi_osp``'s (see there for that form).
 

@@ -27,6 +27,7 @@ place; the loop over walkers runs in parallel for large batches and serially oth
 
 from __future__ import annotations
 
+import numpy as np
 from numba import njit, prange
 
 from bayeshyst.models._kernels import batch_kernel
@@ -45,6 +46,12 @@ __all__ = [
 @njit(cache=True, error_model="numpy")
 def _right_left_one(u, p0, wr, wl, rr, rl, ulo, span, s, y):
     n = wr.shape[0]
+    # the boundaries' slopes S / (S - r), once per walker rather than per sample
+    slope_r = np.empty(n)
+    slope_l = np.empty(n)
+    for i in range(n):
+        slope_r[i] = span / (span - rr[i])
+        slope_l[i] = span / (span - rl[i])
     for k in range(u.shape[0]):
         uk = u[k]
         acc = p0 * uk
@@ -52,7 +59,7 @@ def _right_left_one(u, p0, wr, wl, rr, rl, ulo, span, s, y):
         for i in range(n):
             # right play: rises along the line from (u_lo + r, u_lo) to (u_hi, u_hi),
             # falls along u; max outermost (the rising boundary wins if inverted)
-            lo = ulo + (x - rr[i]) * (span / (span - rr[i]))
+            lo = ulo + (x - rr[i]) * slope_r[i]
             vi = s[i]
             vi = uk if vi > uk else vi
             vi = lo if vi < lo else vi
@@ -61,7 +68,7 @@ def _right_left_one(u, p0, wr, wl, rr, rl, ulo, span, s, y):
         for i in range(n):
             # left play: falls along the line from (u_lo, u_lo) to (u_hi - r, u_hi),
             # rises along u; min outermost (the falling boundary wins if inverted)
-            hi = ulo + x * (span / (span - rl[i]))
+            hi = ulo + x * slope_l[i]
             vi = s[n + i]
             vi = uk if vi < uk else vi
             vi = hi if vi > hi else vi
