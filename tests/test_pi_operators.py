@@ -202,6 +202,32 @@ def test_deadzone_output_is_the_piecewise_linear_map_of_the_play_output():
                                atol=1e-12 * np.abs(z).max())
 
 
+def test_deadzone_non_monotone_draw_is_simulated_and_its_inverse_says_so():
+    # g = [0.3, -1.6, 0.2] at d = [15.75, 26.25, 36.75]: slope 1 + 0.3 - 1.6 < 0 between
+    # the second and third dead zone. The prior (Normal(0, 0.5)) allows such draws; like
+    # pi_play's negative partial sums they are simulated, not failed (g is linear)
+    model = DeadZonePrandtlIshlinskii(N_OP, n_deadzones=3)
+    fs = 2000.0
+    t = np.arange(700) / fs
+    u = 75.0 - 60.0 * np.cos(2 * np.pi * 10.0 * t)
+    base = dict(model.param_space(Record(t=t, u=u, y=0.35 * u, name="r")).fixed) | {
+        "p0": 0.2, "w": np.full(N_OP, 0.03)}
+    np.testing.assert_allclose(base["d"], [15.75, 26.25, 36.75])
+    folds = base | {"g": np.array([0.3, -1.6, 0.2])}
+    rises = base | {"g": np.array([0.3, -0.6, 0.2])}  # partial sums 1.3, 0.7, 0.9 > 0
+    against = {}
+    for name, theta in (("folds", folds), ("rises", rises)):
+        traj = model.run(u, t, theta)
+        assert not traj.failed
+        against[name] = np.sum(np.diff(traj.y) * np.sign(np.diff(u)) < 0)
+    assert against["rises"] == 0 and against["folds"] > 10
+    # the inverse of the folding draw cannot meet a target it has no branch for, and says so
+    y_d = model.simulate(u, t, rises)
+    inv = invert(model, y_d, t, {k: np.asarray(v)[None] for k, v in folds.items()},
+                 u_limits=(-100.0, 250.0))
+    assert inv.n_nonmonotone > 0 and inv.max_error > 0.1 * np.ptp(y_d)
+
+
 def test_osp_without_polynomial_is_half_threshold_play_minus_offset():
     model = MODELS["osp"]
     rec = _record()

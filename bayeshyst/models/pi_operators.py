@@ -169,8 +169,8 @@ class DeadZonePrandtlIshlinskii(LinearInParams, HysteresisModel):
     model of [106]).
 
     Form chosen: Kuhnen writes ``y = sum_j g_j S_{d_j}[sum_i w_i F_{r_i}[u]]`` with
-    ``d_0 = 0``; that product is degenerate (scaling ``w`` by ``c`` and ``g`` by ``1/c``
-    changes nothing at ``d = 0``), so the ``d_0 = 0`` weight is fixed at 1 (``y = z + …``)
+    ``d_0 = 0``; that product is degenerate (scaling ``w`` and ``d`` by ``c`` and ``g``
+    by ``1/c`` changes nothing), so the ``d_0 = 0`` weight is fixed at 1 (``y = z + …``)
     and the play part keeps ``pi_play``'s parameters and priors. The model is bilinear:
     linear in ``g`` for fixed play parameters (``z`` is then a fixed signal), *not* in
     ``[p0, w]`` (``S_d`` bends ``z``). So ``g`` is the exactly sampled linear group
@@ -194,6 +194,12 @@ class DeadZonePrandtlIshlinskii(LinearInParams, HysteresisModel):
     negative partial sums, such draws are simulated, not failed (whether a walker fails
     may not depend on the linear group ``g``, or its exact conditional would be wrong);
     the numerical inverse needs a monotone draw. Initial state: plays relaxed at ``u_0``.
+
+    Fitting: being bilinear, the posterior can have a minor mode (the play part scaled
+    up, traded against the output offset and a negative first dead-zone weight). In
+    recovery tests the default MAP screen ended there for some seeds with both starts
+    agreeing, so no global search was triggered; start the sampler from
+    ``find_map(post, global_search=True)`` (``tests/test_pi_operators.py`` does).
     """
 
     name: ClassVar[str] = "pi_deadzone"
