@@ -4,7 +4,9 @@ Oracles: slow pure-Python loops written from the equations in the models' docstr
 (review Eq. 23–27, refs. [56] [62] [63] [106]); the classical ``pi_play`` where a model
 reduces to it; analytic branches of a full cycle; the reflection identity between the
 right and the left play; properties (rate independence under a time warp and its
-failure for the MRPI, state continuation, batched == one-by-one, the linear design).
+failure for the MRPI, state continuation, batched == one-by-one, the linear design);
+the numerical inverse's round trip; posterior recovery on data from each model (quick
+chi2 calibration for the one-side-play MPI, slow coverage over 20 seeds for all four).
 """
 
 from __future__ import annotations
@@ -537,6 +539,14 @@ RECOVERY = {
     # pi_osp: linear in all its weights; only the offset and the noise are not
     "osp": ("pi_osp(n_operators=4)",
             {"p0": 0.15, "w": np.array([0.08, 0.06, 0.04, 0.02]), "a2": 0.03, "a3": -0.02}),
+    # pi_right_left: linear in all its weights
+    "right_left": ("pi_right_left(n_operators=3)",
+                   {"p0": 0.15, "w_right": np.array([0.06, 0.04, 0.03]),
+                    "w_left": np.array([0.02, 0.05, 0.01])}),
+    # pi_osp_rate: the same linear block plus the rate lags (fitted on two frequencies)
+    "osp_rate": ("pi_osp_rate(n_operators=4)",
+                 {"p0": 0.15, "w": np.array([0.08, 0.06, 0.04, 0.02]), "a2": 0.03,
+                  "a3": -0.02, "tau_l": 2e-3, "tau_r": 1e-3}),
     # pi_deadzone: g is the linear block, p0 and w are sampled by the ensemble
     "deadzone": ("pi_deadzone(n_operators=4, n_deadzones=2)",
                  {"p0": 0.15, "w": np.array([0.08, 0.06, 0.04, 0.02]),
@@ -548,8 +558,12 @@ def _recovery_fit(kind, seed):
     """(posterior, result, truth) of one fit to data simulated from the model + noise."""
     spec, truth = RECOVERY[kind]
     model = get(spec)
-    t = np.arange(1200) * 1e-3
-    u = 75.0 - 70.0 * np.cos(2 * np.pi * 2.0 * t) * np.exp(-0.4 * t)  # minor loops inside
+    if kind == "osp_rate":  # 2 Hz, then 12 Hz: the loop width changes with the rate
+        t = np.arange(1500) * 1e-3
+        u = 75.0 - 70.0 * np.cos(2 * np.pi * np.cumsum(np.where(t < 0.75, 2.0, 12.0)) * 1e-3)
+    else:
+        t = np.arange(1200) * 1e-3
+        u = 75.0 - 70.0 * np.cos(2 * np.pi * 2.0 * t) * np.exp(-0.4 * t)  # minor loops
     # priors and fixed placements (dead-zone thresholds) from a proxy record with the
     # same input and output ranges, so that truth and fit share the fixed values
     space = model.param_space(Record(t=t, u=u, y=0.35 * u, name="proxy"))
@@ -580,8 +594,22 @@ def test_osp_mpi_posterior_is_calibrated():
 
 
 @pytest.mark.slow
+def test_right_left_90_percent_intervals_cover_at_the_nominal_rate():
+    fits, ndim = _recovery_stats("right_left", range(20))
+    _check_calibration(fits, ndim)
+    _check_coverage(fits)
+
+
+@pytest.mark.slow
 def test_osp_mpi_90_percent_intervals_cover_at_the_nominal_rate():
     fits, ndim = _recovery_stats("osp", range(3, 23))
+    _check_calibration(fits, ndim)
+    _check_coverage(fits)
+
+
+@pytest.mark.slow
+def test_mrpi_90_percent_intervals_cover_at_the_nominal_rate():
+    fits, ndim = _recovery_stats("osp_rate", range(20))
     _check_calibration(fits, ndim)
     _check_coverage(fits)
 
