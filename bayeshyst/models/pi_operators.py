@@ -81,9 +81,13 @@ class RightLeftPrandtlIshlinskii(LinearInParams, HysteresisModel):
     extremum the period has not reached yet) and is refitted per period from the data.
     We use its value for a full-range period, the diagonal ``F = v`` (chord through
     ``(0, 0)`` and ``(1, 1)``), and write the normalisation in volts with the data's input
-    range. The output is Eq. 26 as written. Outside the range the bands close and invert;
-    the outer ``max`` (right) / ``min`` (left) then win, as the nesting says. This form
-    has no parameter value that is the classical ``pi_play``.
+    range. A causal chord through the operator's outputs at the input's last maximum and
+    minimum was tried and dropped: whenever the amplitude grows it has to be
+    extrapolated past the last extremum (in a trial on a 0–100 V range the left play's
+    output reached 150 V), and neither source says how. The output is Eq. 26 as
+    written. Outside the range the bands close and invert; the outer ``max`` (right) /
+    ``min`` (left) then win, as the nesting says. This form has no parameter value that
+    is the classical ``pi_play``; equal sides give its point symmetry instead.
 
     Parameters
     ----------
