@@ -15,6 +15,7 @@ from bayeshyst.models import (  # noqa: F401  (importing registers the models)
     mrc,
     pi,
     pi_variants,
+    pi_weighted,
     preisach,
 )
 from bayeshyst.models._kernels import kernel_parallelism, serial_kernels_in_this_thread
@@ -40,6 +41,7 @@ from bayeshyst.models.pi_variants import (
     GeneralizedPrandtlIshlinskii,
     RateDependentPrandtlIshlinskii,
 )
+from bayeshyst.models.pi_weighted import CovariatePI, PolynomialInputPI, RateWeightedPI
 from bayeshyst.models.preisach import Preisach, PreisachDensity
 from bayeshyst.models.registry import get, model_class, names, register
 
@@ -49,6 +51,7 @@ __all__ = [
     "BoucWen",
     "BoucWenOscillator",
     "Composite",
+    "CovariatePI",
     "DataScales",
     "Duhem",
     "GeneralizedPrandtlIshlinskii",
@@ -58,11 +61,13 @@ __all__ = [
     "MaxwellSlip",
     "ModifiedBoucWen",
     "PIInverse",
+    "PolynomialInputPI",
     "PrandtlIshlinskii",
     "PrandtlIshlinskiiStop",
     "Preisach",
     "PreisachDensity",
     "RateDependentPrandtlIshlinskii",
+    "RateWeightedPI",
     "Trajectory",
     "data_scales",
     "get",

@@ -598,7 +598,8 @@ class LinearInParams:
         return [int(np.prod(shapes[n], dtype=int)) for n in names]
 
     def linear_design(self, u: Any, t: Any, thetas: Mapping[str, Any],
-                      names: tuple[str, ...] | None = None) -> LinearDesign:
+                      names: tuple[str, ...] | None = None, *,
+                      covariates: Mapping[str, Any] | None = None) -> LinearDesign:
         """``Phi`` and ``c`` of ``W`` parameter vectors, from the relaxed initial state.
 
         Parameters
@@ -643,7 +644,7 @@ class LinearInParams:
             arr = np.asarray(thetas[n], dtype=float)
             batch[n] = np.repeat(arr, n_sig, axis=0)  # walker-major: (W * n_sig, ...)
         batch.update(unit_signals(names, shapes, width, n_sig))
-        traj = self.run_batch(u, t, batch)
+        traj = self.run_batch(u, t, batch, covariates=covariates)
         y = traj.y.reshape(width, n_sig, -1)
         failed = traj.failed.reshape(width, n_sig).any(axis=1)
         if homogeneous:
@@ -656,7 +657,8 @@ class LinearInParams:
                             failed)
 
     def regressors(self, u: Any, t: Any, theta: Mapping[str, Any], *,
-                   state0: np.ndarray | None = None) -> np.ndarray:
+                   state0: np.ndarray | None = None,
+                   covariates: Mapping[str, Any] | None = None) -> np.ndarray:
         """Design matrix ``Phi`` (N, P) with ``simulate(u, t, theta) == Phi @ beta``.
 
         Parameters
@@ -669,6 +671,8 @@ class LinearInParams:
         state0 : ndarray, shape (S,), optional
             State before the first sample. Only valid where the state does not depend
             on the linear parameters (operator models); default relaxed at ``u[0]``.
+        covariates : mapping of str to array_like, optional
+            Measured channels, for a model that reads some (as in :meth:`run`).
 
         Returns
         -------
@@ -703,4 +707,5 @@ class LinearInParams:
             thetas[n] = basis[:, start:start + size].reshape(width, *shapes[n])
             start += size
         s0 = None if state0 is None else np.tile(np.asarray(state0, dtype=float), (width, 1))
-        return np.ascontiguousarray(self.simulate_batch(u, t, thetas, state0=s0).T)
+        return np.ascontiguousarray(self.simulate_batch(u, t, thetas, state0=s0,
+                                                        covariates=covariates).T)

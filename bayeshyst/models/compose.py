@@ -183,8 +183,12 @@ class Composite(LinearInParams, HysteresisModel):
                                  f"linear: {list(group)}")
         if where == -1:
             base_theta, _ = self._split(thetas)
-            base = self.base.linear_design(u, t, base_theta,
-                                           tuple(n[len(STATIC) + 1:] for n in names))
+            base_names = tuple(n[len(STATIC) + 1:] for n in names)
+            # a base that reads a measured column (pi_covariate) gets it
+            base = (self.base.linear_design(u, t, base_theta, base_names,
+                                            covariates=covariates)
+                    if self.base.covariates else
+                    self.base.linear_design(u, t, base_theta, base_names))
             return self.apply_blocks_to_design(base, t, thetas, names, covariates=covariates)
         return self._block_design(where, u, t, thetas, names, covariates)
 
@@ -311,8 +315,9 @@ class Composite(LinearInParams, HysteresisModel):
 
     @property
     def covariates(self) -> tuple[str, ...]:  # type: ignore[override]
-        """Measured columns the blocks read, in order of first use."""
-        return tuple(dict.fromkeys(c for b in self.blocks for c in b.covariates))
+        """Measured columns the base and the blocks read, in order of first use."""
+        return tuple(dict.fromkeys(c for part in (self.base, *self.blocks)
+                                   for c in part.covariates))
 
     def _run(self, u, t, theta, state0):
         return self._run_with(u, t, theta, state0, None)
@@ -324,8 +329,9 @@ class Composite(LinearInParams, HysteresisModel):
         if n_base < 0:
             raise ParameterError(f"{self.name}: state0 has {state0.shape[1]} entries, the "
                                  f"blocks alone need {sum(sizes)}")
-        w, s_base, failed = self.base._run(u, t, base_theta,
-                                           np.ascontiguousarray(state0[:, :n_base]))
+        w, s_base, failed = self.base._run_with(u, t, base_theta,
+                                                np.ascontiguousarray(state0[:, :n_base]),
+                                                covariates)
         failed = np.array(failed, dtype=bool)
         states = [s_base]
         start = n_base
