@@ -436,3 +436,72 @@ def test_bad_settings_and_inputs_are_refused():
     with pytest.raises(ModelError, match="temperature_c"):
         MODELS["cov"].run([0.0, 1.0], [0.0, 1.0], _theta(MODELS["cov"], 21),
                           covariates={COL: [1.0]})
+
+
+# ------------------------------------------------------------------ posterior recovery
+
+RECOVERY = {
+    # a temperature ramp 20 -> 40 °C: slope +8 %, width +20 % over the record
+    "pi_covariate": (CovariatePI(4), {"a": 0.004, "b": 0.01}),
+    "pi_poly": (PolynomialInputPI(4, degree=3), {"g": np.array([-1.0, 0.5])}),
+    # negative rate exponents: the loop widens with the rate (counter-clockwise)
+    "pi_rate_weights": (RateWeightedPI(4), {"m1": -0.1, "m2": 0.1, "s1": -0.15, "s2": -0.1}),
+}
+SIGMA = 0.02
+
+
+def recovery_record(name: str, seed: int, n: int = 2000) -> tuple[Record, dict]:
+    """Data simulated by the model (noise sd 0.02 µm on a ~30 µm stroke) and the truth."""
+    model, extra = RECOVERY[name]
+    t = np.arange(n) * 1e-3
+    u = 75.0 - 60.0 * np.cos(2 * np.pi * 2.0 * t) + 10.0 * np.sin(2 * np.pi * 5.0 * t)
+    cov = {COL: 20.0 + 20.0 * t / t[-1]}
+    # the fixed values (thresholds, c0, scalings) are those the fit will use
+    fixed = model.param_space(Record(t=t, u=u, y=0.2 * u, name="x", covariates=cov)).fixed
+    truth = dict(fixed) | {"p0": 0.15, "w": np.array([0.05, 0.04, 0.03, 0.02])} | extra
+    y = model.simulate(u, t, truth, covariates=cov if model.covariates else None)
+    y = y + np.random.default_rng(seed).normal(0.0, SIGMA, n)
+    rec = Record(t=t, u=u, y=y, name=f"{name}{seed}", warmup=250, covariates=cov,
+                 metadata={"frequency_hz": 2.0})
+    free = {k: v for k, v in truth.items() if k not in fixed}
+    return rec, free | {"obs.offset": 0.0, "noise.sigma": SIGMA}
+
+
+def _recovery_stats(name: str, seeds, n: int = 2000):
+    from bayeshyst.inference.sampling import sample_posterior
+    from bayeshyst.inference.settings import SamplerSettings
+    from tests.test_recovery import _fit_stats
+
+    out = []
+    for seed in seeds:
+        rec, truth = recovery_record(name, seed, n)
+        post = Posterior(rec, RECOVERY[name][0])
+        res = sample_posterior(post, SamplerSettings(seed=seed, max_steps=8000, n_walkers=24))
+        out.append(_fit_stats(post, truth, seed, res))
+    return out, post.ndim
+
+
+def test_covariate_and_polynomial_posteriors_are_calibrated():
+    # one fit each; the truth's squared Mahalanobis distances summed ~ chi2(d1 + d2),
+    # two-sided 0.1 % (tests/test_recovery.py's check)
+    from scipy import stats
+
+    d2, dof = 0.0, 0
+    for name, n in (("pi_covariate", 1200), ("pi_poly", 2000)):
+        fits, ndim = _recovery_stats(name, [0], n)
+        d2 += fits[0][0]
+        dof += ndim
+    p = stats.chi2.sf(d2, dof)
+    assert 1e-3 / 2 < p < 1 - 1e-3 / 2, (d2, dof, p)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", list(RECOVERY))
+def test_90_percent_intervals_cover_the_truth_at_the_nominal_rate(name):
+    # 20 independent noise draws: calibration (chi2) and each parameter's HDI coverage
+    # (binomial, Bonferroni over parameters), a and b of the temperature ramp included
+    from tests.test_recovery import _check_calibration, _check_coverage
+
+    fits, ndim = _recovery_stats(name, range(1, 21))
+    _check_calibration(fits, ndim)
+    _check_coverage(fits)
