@@ -396,6 +396,51 @@ def test_a_composite_passes_the_column_to_its_base():
         MODELS["cov"].simulate(u, t, base_theta, covariates={COL: c}), rtol=1e-12, atol=1e-12)
 
 
+@pytest.mark.parametrize("spec", ["pi_covariate(n_operators=4)",
+                                  "pi_covariate(n_operators=4)+creep"])
+def test_the_samplers_linear_block_sees_the_column(spec):
+    # oracle: the model's own simulation with the column; the design the exact linear
+    # draws use must reproduce it (at nominal conditions it would not: a, b != 0)
+    from bayeshyst.inference.linear import LinearStructure
+
+    t, u, c = _irregular(300)
+    post = Posterior(_data(t, u, c), spec)
+    lin = LinearStructure.of(post)
+    assert lin is not None and lin.model_names
+    z = post.space.sample_prior(np.random.default_rng(22), 3)
+    sens = [i for i, n in enumerate(post.space.names) if n.endswith(("a", "b"))
+            and n.rsplit(".", 1)[-1] in ("a", "b")]
+    z[:, [post.space.slice_of(post.space.names[i]).start for i in sens]] = [0.02, 0.04]
+    (phi, const), = lin.designs(z)[0]
+    beta = lin.beta_of(z)
+    pred = (phi @ beta[:, :, None])[:, :, 0] + const
+    theta, _, off = post._split_theta(post.space.unpack(z))
+    y = post.model.run_batch(u, t, theta, covariates={COL: c}).y + np.reshape(off, (-1, 1))
+    np.testing.assert_allclose(pred, y, rtol=1e-9, atol=1e-9 * np.abs(y).max())
+    nominal = post.model.run_batch(u, t, theta).y + np.reshape(off, (-1, 1))
+    assert np.abs(nominal - y).max() > 1e-3
+
+
+@pytest.mark.parametrize("spec", ["pi_play(n_operators=4)+aux(column='temperature_c')+creep",
+                                  "pi_covariate(n_operators=4)+creep"])
+def test_composite_blocks_rest_at_the_first_samples_column(spec):
+    # a block after a column-reading part starts at rest at that part's output with the
+    # column's first value; the linear design assumes the same (before, the run rested
+    # at nominal conditions and the two disagreed by a creep transient)
+    model = get(spec)
+    t, u, c = _irregular(300)
+    space = model.param_space(_data(t, u, c))
+    th = space.unpack(space.sample_prior(np.random.default_rng(23), 2))
+    for k, v in (("aux.g", 0.2), ("aux.h", 0.5), ("static.a", 0.02), ("static.b", 0.04)):
+        if k in th:
+            th[k] = np.full_like(th[k], v)
+    names = model.linear_group[1]
+    design = model.linear_design(u, t, th, covariates={COL: c})
+    beta = np.concatenate([np.reshape(th[n], (2, -1)) for n in names], axis=1)
+    y = model.run_batch(u, t, th, covariates={COL: c}).y
+    np.testing.assert_allclose(design.predict(beta), y, rtol=1e-10, atol=1e-10 * np.abs(y).max())
+
+
 def test_conjugate_posterior_reads_the_column():
     model = MODELS["cov"]
     t, u, c = _irregular(300)
@@ -481,18 +526,14 @@ def _recovery_stats(name: str, seeds, n: int = 2000):
     return out, post.ndim
 
 
-def test_covariate_and_polynomial_posteriors_are_calibrated():
-    # one fit each; the truth's squared Mahalanobis distances summed ~ chi2(d1 + d2),
-    # two-sided 0.1 % (tests/test_recovery.py's check)
+def test_covariate_posterior_under_a_temperature_ramp_is_calibrated():
+    # one fit: the truth's squared Mahalanobis distance ~ chi2(d), two-sided 0.1 %
+    # (tests/test_recovery.py's check); many seeds and the other models: the slow test
     from scipy import stats
 
-    d2, dof = 0.0, 0
-    for name, n in (("pi_covariate", 1200), ("pi_poly", 2000)):
-        fits, ndim = _recovery_stats(name, [0], n)
-        d2 += fits[0][0]
-        dof += ndim
-    p = stats.chi2.sf(d2, dof)
-    assert 1e-3 / 2 < p < 1 - 1e-3 / 2, (d2, dof, p)
+    fits, ndim = _recovery_stats("pi_covariate", [0], 1200)
+    p = stats.chi2.sf(fits[0][0], ndim)
+    assert 1e-3 / 2 < p < 1 - 1e-3 / 2, (fits[0][0], ndim, p)
 
 
 @pytest.mark.slow

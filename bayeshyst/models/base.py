@@ -367,6 +367,15 @@ class HysteresisModel(ABC):
         """
         return ()
 
+    def _initial_state_with(self, theta: Mapping[str, np.ndarray], u0: float,
+                            covariates: Mapping[str, np.ndarray] | None) -> np.ndarray:
+        """:meth:`_initial_state` given the measured channels (N,) of the run.
+
+        The default ignores them; a composite rests its blocks at the output its parts
+        give at the first sample's channel values.
+        """
+        return self._initial_state(theta, u0)
+
     def _run_with(self, u: np.ndarray, t: np.ndarray, theta: Mapping[str, np.ndarray],
                   state0: np.ndarray, covariates: Mapping[str, np.ndarray] | None
                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -415,7 +424,7 @@ class HysteresisModel(ABC):
         u, t = check_signal(u, t)
         cov = check_covariates(covariates, self.covariates, u.size, self.name)
         tb, _ = self._batch_theta(theta, batched=False)
-        s0 = (self._initial_state(tb, float(u[0])) if state0 is None
+        s0 = (self._initial_state_with(tb, float(u[0]), cov) if state0 is None
               else np.ascontiguousarray(np.asarray(state0, dtype=np.float64)[None, :]))
         y, state, failed = self._run_with(u, t, tb, s0, cov)
         if failed[0]:
@@ -478,7 +487,7 @@ class HysteresisModel(ABC):
         cov = check_covariates(covariates, self.covariates, u.size, self.name)
         tb, width = self._batch_theta(thetas, batched=True)
         if state0 is None:
-            s0 = self._initial_state(tb, float(u[0]))
+            s0 = self._initial_state_with(tb, float(u[0]), cov)
         else:
             s0 = np.ascontiguousarray(state0, dtype=np.float64)
             if s0.ndim != 2 or s0.shape[0] != width:

@@ -297,11 +297,18 @@ class Composite(LinearInParams, HysteresisModel):
                 [ParamSpace.sub_theta(theta, ns) for ns in self.namespaces])
 
     def _initial_state(self, theta: Mapping[str, np.ndarray], u0: float) -> np.ndarray:
+        return self._initial_state_with(theta, u0, None)
+
+    def _initial_state_with(self, theta: Mapping[str, np.ndarray], u0: float,
+                            covariates: Mapping[str, np.ndarray] | None) -> np.ndarray:
         base_theta, block_thetas = self._split(theta)
         s_base = self.base._initial_state(base_theta, u0)
+        # the measured columns at the first sample: the blocks rest at the output the
+        # parts give there (what the linear design's signals start from too)
+        first = None if covariates is None else {k: v[:1] for k, v in covariates.items()}
         # the base's output at rest: one sample at u0 from a copy of its relaxed state
-        w, _, _ = self.base._run(np.array([float(u0)]), np.zeros(1), base_theta,
-                                 np.array(s_base, dtype=np.float64, order="C"))
+        w, _, _ = self.base._run_with(np.array([float(u0)]), np.zeros(1), base_theta,
+                                      np.array(s_base, dtype=np.float64, order="C"), first)
         w0 = np.ascontiguousarray(w[:, 0])
         states = [np.asarray(s_base, dtype=np.float64)]
         for i, (block, th) in enumerate(zip(self.blocks, block_thetas, strict=True)):
@@ -309,7 +316,8 @@ class Composite(LinearInParams, HysteresisModel):
             states.append(s)
             if i + 1 < len(self.blocks):
                 # the next block rests at this block's steady output for w0
-                out, _, _ = block._apply(np.ascontiguousarray(w0[:, None]), np.zeros(1), th, s)
+                out, _, _ = block._apply_with(np.ascontiguousarray(w0[:, None]), np.zeros(1),
+                                              th, s, first)
                 w0 = np.ascontiguousarray(out[:, 0])
         return np.ascontiguousarray(np.concatenate(states, axis=1))
 
