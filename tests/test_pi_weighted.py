@@ -546,3 +546,13 @@ def test_90_percent_intervals_cover_the_truth_at_the_nominal_rate(name):
     fits, ndim = _recovery_stats(name, range(1, 21))
     _check_calibration(fits, ndim)
     _check_coverage(fits)
+
+
+def test_structural_settings_round_trip_through_the_model_spec():
+    # a saved fit rebuilds its model from this string
+    from bayeshyst.models import model_spec
+
+    for model in (CovariatePI(4, column="load_n"), RateWeightedPI(3, rate_thresholds=True),
+                  PolynomialInputPI(2, degree=5)):
+        assert get(model_spec(model)) == model
+    assert get(model_spec(CovariatePI(4, column="load_n"))).covariates == ("load_n",)

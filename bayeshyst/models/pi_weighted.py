@@ -317,7 +317,6 @@ class CovariatePI(LinearInWeights, HysteresisModel):
 
     name: ClassVar[str] = "pi_covariate"
     equation: ClassVar[str] = "review Eq. 20 with weights and thresholds of a measured column (§3)"
-    has_inverse: ClassVar[bool] = False
     n_operators: int = 10
     column: str = "temperature_c"
 
