@@ -59,8 +59,11 @@ DYNAMIC = ("mrc", "bouc_wen_oscillator", "bouc_wen_freq")
 # Butterfly models are non-monotone in the input below -E_c and refuse the wide
 # u_limits used here (check_invertible); tests/test_bipolar.py inverts them on one wing.
 # pi_osp_rate: its rate envelopes make each branch non-minimum-phase; its causal inverse
-# is exact only for tau below ~ the sample period (tests/test_pi_operators.py)
-NOT_GENERIC = ("butterfly", "butterfly_bw", "pi_osp_rate")
+# is exact only for tau below ~ the sample period (tests/test_pi_operators.py).
+# pi_rate_weights: its weights follow the signed input rate (review Eq. 31-32), so near
+# every reversal away from u = 0 the output moves against the input (tests/
+# test_pi_weighted.py shows it and inverts its rate-independent case)
+NOT_GENERIC = ("butterfly", "butterfly_bw", "pi_osp_rate", "pi_rate_weights")
 STATIC = [n for n in registry.names()
           if n not in DYNAMIC + NOT_GENERIC and registry.model_class(n).monotone_in_input]
 

@@ -24,7 +24,7 @@ import numpy as np
 from scipy import linalg
 
 from bayeshyst.errors import ModelError, ParameterError
-from bayeshyst.inference.posterior import NOISE, OBS, Posterior
+from bayeshyst.inference.posterior import NOISE, OBS, Posterior, record_covariates
 from bayeshyst.params import Normal
 
 __all__ = ["GaussianPosterior", "conjugate_posterior"]
@@ -127,7 +127,10 @@ def conjugate_posterior(
     rows, ys = [], []
     for rec in post.data:
         s0_idx = rec.scored.start or 0
-        phi = model.regressors(rec.u, rec.t, theta)[s0_idx:]
+        cov = record_covariates(model, rec)
+        # a model that reads a measured column gets it; the others keep their signature
+        phi = (model.regressors(rec.u, rec.t, theta) if cov is None
+               else model.regressors(rec.u, rec.t, theta, covariates=cov))[s0_idx:]
         if post.offset:
             phi = np.column_stack([phi, np.ones(phi.shape[0])])
         rows.append(phi)

@@ -319,6 +319,8 @@ class LinearStructure:
         if not isinstance(model, Composite) or not self.model_names or self.design_idx.size == 0 \
                 or model.linear_group[0] != -1:  # a block's coefficients: no base design
             return None
+        if model.base.covariates:  # its design depends on each record's measured column
+            return None
         owners = {_owner(self.post.space, i) for i in self.design_idx}
         if any(o.startswith(STATIC + ".") for o in owners):
             return None
@@ -395,7 +397,7 @@ class LinearStructure:
                 if self._base_designs is not None:
                     d = model.apply_blocks_to_design(self._base_designs[i], rec["t"], theta,
                                                      self.model_names, covariates=cov)
-                elif cov is not None:  # only a composite reads covariates
+                elif cov is not None:  # a model (or a block) that reads a measured column
                     d = model.linear_design(rec["u"], rec["t"], theta, self.model_names,
                                             covariates=cov)
                 else:

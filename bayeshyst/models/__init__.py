@@ -19,6 +19,7 @@ from bayeshyst.models import (  # noqa: F401  (importing registers the models)
     pi,
     pi_operators,
     pi_variants,
+    pi_weighted,
     preisach,
     preisach_clockwise,
 )
@@ -54,6 +55,7 @@ from bayeshyst.models.pi_variants import (
     GeneralizedPrandtlIshlinskii,
     RateDependentPrandtlIshlinskii,
 )
+from bayeshyst.models.pi_weighted import CovariatePI, PolynomialInputPI, RateWeightedPI
 from bayeshyst.models.preisach import Preisach, PreisachDensity
 from bayeshyst.models.preisach_clockwise import PreisachClockwise
 from bayeshyst.models.registry import get, model_class, names, register
@@ -67,6 +69,7 @@ __all__ = [
     "Butterfly",
     "ButterflyBoucWen",
     "Composite",
+    "CovariatePI",
     "CreepVibration",
     "DataScales",
     "DeadZonePrandtlIshlinskii",
@@ -81,6 +84,7 @@ __all__ = [
     "ModifiedBoucWen",
     "OneSidePlayPrandtlIshlinskii",
     "PIInverse",
+    "PolynomialInputPI",
     "PrandtlIshlinskii",
     "PrandtlIshlinskiiStop",
     "Preisach",
@@ -88,6 +92,7 @@ __all__ = [
     "PreisachDensity",
     "RateDependentOneSidePlayPI",
     "RateDependentPrandtlIshlinskii",
+    "RateWeightedPI",
     "RightLeftPrandtlIshlinskii",
     "Trajectory",
     "data_scales",

@@ -393,6 +393,15 @@ class HysteresisModel(ABC):
         """
         return None
 
+    def _initial_state_with(self, theta: Mapping[str, np.ndarray], u0: float,
+                            covariates: Mapping[str, np.ndarray] | None) -> np.ndarray:
+        """:meth:`_initial_state` given the measured channels (N,) of the run.
+
+        The default ignores them; a composite rests its blocks at the output its parts
+        give at the first sample's channel values.
+        """
+        return self._initial_state(theta, u0)
+
     def _run_with(self, u: np.ndarray, t: np.ndarray, theta: Mapping[str, np.ndarray],
                   state0: np.ndarray, covariates: Mapping[str, np.ndarray] | None
                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -441,7 +450,7 @@ class HysteresisModel(ABC):
         u, t = check_signal(u, t)
         cov = check_covariates(covariates, self.covariates, u.size, self.name)
         tb, _ = self._batch_theta(theta, batched=False)
-        s0 = (self._initial_state(tb, float(u[0])) if state0 is None
+        s0 = (self._initial_state_with(tb, float(u[0]), cov) if state0 is None
               else np.ascontiguousarray(np.asarray(state0, dtype=np.float64)[None, :]))
         y, state, failed = self._run_with(u, t, tb, s0, cov)
         if failed[0]:
@@ -504,7 +513,7 @@ class HysteresisModel(ABC):
         cov = check_covariates(covariates, self.covariates, u.size, self.name)
         tb, width = self._batch_theta(thetas, batched=True)
         if state0 is None:
-            s0 = self._initial_state(tb, float(u[0]))
+            s0 = self._initial_state_with(tb, float(u[0]), cov)
         else:
             s0 = np.ascontiguousarray(state0, dtype=np.float64)
             if s0.ndim != 2 or s0.shape[0] != width:
@@ -624,7 +633,8 @@ class LinearInParams:
         return [int(np.prod(shapes[n], dtype=int)) for n in names]
 
     def linear_design(self, u: Any, t: Any, thetas: Mapping[str, Any],
-                      names: tuple[str, ...] | None = None) -> LinearDesign:
+                      names: tuple[str, ...] | None = None, *,
+                      covariates: Mapping[str, Any] | None = None) -> LinearDesign:
         """``Phi`` and ``c`` of ``W`` parameter vectors, from the relaxed initial state.
 
         Parameters
@@ -669,7 +679,7 @@ class LinearInParams:
             arr = np.asarray(thetas[n], dtype=float)
             batch[n] = np.repeat(arr, n_sig, axis=0)  # walker-major: (W * n_sig, ...)
         batch.update(unit_signals(names, shapes, width, n_sig))
-        traj = self.run_batch(u, t, batch)
+        traj = self.run_batch(u, t, batch, covariates=covariates)
         y = traj.y.reshape(width, n_sig, -1)
         failed = traj.failed.reshape(width, n_sig).any(axis=1)
         if homogeneous:
@@ -682,7 +692,8 @@ class LinearInParams:
                             failed)
 
     def regressors(self, u: Any, t: Any, theta: Mapping[str, Any], *,
-                   state0: np.ndarray | None = None) -> np.ndarray:
+                   state0: np.ndarray | None = None,
+                   covariates: Mapping[str, Any] | None = None) -> np.ndarray:
         """Design matrix ``Phi`` (N, P) with ``simulate(u, t, theta) == Phi @ beta``.
 
         Parameters
@@ -695,6 +706,8 @@ class LinearInParams:
         state0 : ndarray, shape (S,), optional
             State before the first sample. Only valid where the state does not depend
             on the linear parameters (operator models); default relaxed at ``u[0]``.
+        covariates : mapping of str to array_like, optional
+            Measured channels, for a model that reads some (as in :meth:`run`).
 
         Returns
         -------
@@ -729,4 +742,5 @@ class LinearInParams:
             thetas[n] = basis[:, start:start + size].reshape(width, *shapes[n])
             start += size
         s0 = None if state0 is None else np.tile(np.asarray(state0, dtype=float), (width, 1))
-        return np.ascontiguousarray(self.simulate_batch(u, t, thetas, state0=s0).T)
+        return np.ascontiguousarray(self.simulate_batch(u, t, thetas, state0=s0,
+                                                        covariates=covariates).T)

@@ -183,8 +183,12 @@ class Composite(LinearInParams, HysteresisModel):
                                  f"linear: {list(group)}")
         if where == -1:
             base_theta, _ = self._split(thetas)
-            base = self.base.linear_design(u, t, base_theta,
-                                           tuple(n[len(STATIC) + 1:] for n in names))
+            base_names = tuple(n[len(STATIC) + 1:] for n in names)
+            # a base that reads a measured column (pi_covariate) gets it
+            base = (self.base.linear_design(u, t, base_theta, base_names,
+                                            covariates=covariates)
+                    if self.base.covariates else
+                    self.base.linear_design(u, t, base_theta, base_names))
             return self.apply_blocks_to_design(base, t, thetas, names, covariates=covariates)
         return self._block_design(where, u, t, thetas, names, covariates)
 
@@ -293,11 +297,18 @@ class Composite(LinearInParams, HysteresisModel):
                 [ParamSpace.sub_theta(theta, ns) for ns in self.namespaces])
 
     def _initial_state(self, theta: Mapping[str, np.ndarray], u0: float) -> np.ndarray:
+        return self._initial_state_with(theta, u0, None)
+
+    def _initial_state_with(self, theta: Mapping[str, np.ndarray], u0: float,
+                            covariates: Mapping[str, np.ndarray] | None) -> np.ndarray:
         base_theta, block_thetas = self._split(theta)
         s_base = self.base._initial_state(base_theta, u0)
+        # the measured columns at the first sample: the blocks rest at the output the
+        # parts give there (what the linear design's signals start from too)
+        first = None if covariates is None else {k: v[:1] for k, v in covariates.items()}
         # the base's output at rest: one sample at u0 from a copy of its relaxed state
-        w, _, _ = self.base._run(np.array([float(u0)]), np.zeros(1), base_theta,
-                                 np.array(s_base, dtype=np.float64, order="C"))
+        w, _, _ = self.base._run_with(np.array([float(u0)]), np.zeros(1), base_theta,
+                                      np.array(s_base, dtype=np.float64, order="C"), first)
         w0 = np.ascontiguousarray(w[:, 0])
         states = [np.asarray(s_base, dtype=np.float64)]
         for i, (block, th) in enumerate(zip(self.blocks, block_thetas, strict=True)):
@@ -305,14 +316,16 @@ class Composite(LinearInParams, HysteresisModel):
             states.append(s)
             if i + 1 < len(self.blocks):
                 # the next block rests at this block's steady output for w0
-                out, _, _ = block._apply(np.ascontiguousarray(w0[:, None]), np.zeros(1), th, s)
+                out, _, _ = block._apply_with(np.ascontiguousarray(w0[:, None]), np.zeros(1),
+                                              th, s, first)
                 w0 = np.ascontiguousarray(out[:, 0])
         return np.ascontiguousarray(np.concatenate(states, axis=1))
 
     @property
     def covariates(self) -> tuple[str, ...]:  # type: ignore[override]
-        """Measured columns the blocks read, in order of first use."""
-        return tuple(dict.fromkeys(c for b in self.blocks for c in b.covariates))
+        """Measured columns the base and the blocks read, in order of first use."""
+        return tuple(dict.fromkeys(c for part in (self.base, *self.blocks)
+                                   for c in part.covariates))
 
     def _run(self, u, t, theta, state0):
         return self._run_with(u, t, theta, state0, None)
@@ -324,8 +337,9 @@ class Composite(LinearInParams, HysteresisModel):
         if n_base < 0:
             raise ParameterError(f"{self.name}: state0 has {state0.shape[1]} entries, the "
                                  f"blocks alone need {sum(sizes)}")
-        w, s_base, failed = self.base._run(u, t, base_theta,
-                                           np.ascontiguousarray(state0[:, :n_base]))
+        w, s_base, failed = self.base._run_with(u, t, base_theta,
+                                                np.ascontiguousarray(state0[:, :n_base]),
+                                                covariates)
         failed = np.array(failed, dtype=bool)
         states = [s_base]
         start = n_base
