@@ -554,8 +554,8 @@ RECOVERY = {
 }
 
 
-def _recovery_fit(kind, seed):
-    """(posterior, result, truth) of one fit to data simulated from the model + noise."""
+def _recovery_post(kind, seed):
+    """(posterior, truth) of data simulated from the model + noise."""
     spec, truth = RECOVERY[kind]
     model = get(spec)
     if kind == "osp_rate":  # 2 Hz, then 12 Hz: the loop width changes with the rate
@@ -571,13 +571,18 @@ def _recovery_fit(kind, seed):
     rec = Record(t=t, u=u, y=y + np.random.default_rng(seed).normal(0.0, SIGMA, t.size),
                  name=f"{kind}{seed}", warmup=200)
     post = Posterior(rec, model, space=space)
+    return post, truth | {"obs.offset": 0.0, "noise.sigma": SIGMA}
+
+
+def _recovery_fit(kind, seed):
+    """(posterior, result, truth) of one fit to data simulated from the model + noise."""
+    post, truth = _recovery_post(kind, seed)
     settings = SamplerSettings(seed=seed, max_steps=8000, n_walkers=16)
     # the dead-zone MPI's posterior has a minor mode (play part scaled up against the
-    # offset and a negative first dead-zone weight) that the default screen of prior
-    # draws lands in for some seeds; a global MAP search finds the major one
-    start = find_map(post, seed=seed, global_search=True) if kind == "deadzone" else None
-    res = sample_posterior(post, settings, start=start)
-    return post, res, truth | {"obs.offset": 0.0, "noise.sigma": SIGMA}
+    # offset and a negative first dead-zone weight) that the screen's local searches can
+    # both land in; the model declares it, so the default path searches globally too
+    res = sample_posterior(post, settings)
+    return post, res, truth
 
 
 def _recovery_stats(kind, seeds):
@@ -619,3 +624,16 @@ def test_deadzone_mpi_posterior_is_calibrated_and_covers_at_the_nominal_rate():
     fits, ndim = _recovery_stats("deadzone", range(20))
     _check_calibration(fits, ndim)
     _check_coverage(fits)
+
+
+@pytest.mark.slow
+def test_deadzone_default_map_search_finds_the_major_mode():
+    # oracle: the MAP of a search that always runs the global differential evolution;
+    # before pi_deadzone declared multimodal_posterior, the default search ended in the
+    # minor mode (noise sigma ~0.36 against 0.05) for 3 of 6 seeds, both starts agreeing
+    for seed in range(6):
+        post, _ = _recovery_post("deadzone", seed)
+        default = find_map(post, seed=seed)
+        forced = find_map(post, seed=seed, global_search=True)
+        assert default.log_prob >= forced.log_prob - 0.5, (seed, default.log_prob,
+                                                           forced.log_prob)

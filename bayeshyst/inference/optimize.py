@@ -263,7 +263,7 @@ def find_map(
         settle it; two that do not call the global search).
     global_search : bool or "auto"
         Run the differential evolution always (True), never (False), or when the
-        starts disagree ("auto").
+        starts disagree or the model declares ``multimodal_posterior`` ("auto").
     de_maxiter : int
         Generations of the differential evolution.
     x0 : ndarray, shape (ndim,), optional
@@ -354,8 +354,10 @@ def find_map(
     cheap = (structure is not None and 0 < structure.design_idx.size <= 3
              and structure.other_idx.size <= 4)
     disagreed = not agree(optima)
-    if global_search is True or (global_search == "auto" and (disagreed or cheap)):
-        full = global_search is True or disagreed
+    # a family with a known minor mode: agreeing starts prove nothing (both can be in it)
+    declared = global_search == "auto" and bool(post.model.multimodal_posterior)
+    if global_search is True or (global_search == "auto" and (disagreed or cheap or declared)):
+        full = global_search is True or disagreed or declared
         zg = _global_search(post, rng, cand, f, de_maxiter if full else min(de_maxiter, 40),
                             structure)
         found = _polish(post, zg, target)

@@ -325,6 +325,11 @@ class HysteresisModel(ABC):
         (what a numerical inverse needs). False for models of a compensator (a clockwise
         relay grid, whose output steps down where a relay switches): their numerical
         inversion reports the non-monotone steps (``Inversion.n_nonmonotone``).
+    multimodal_posterior : bool
+        Whether the family is known to give posteriors with a minor mode that local
+        searches from prior draws can agree on (a bilinear model): the MAP search then
+        always searches the prior globally as well
+        (:func:`~bayeshyst.inference.optimize.find_map`, ``global_search="auto"``).
     """
 
     name: ClassVar[str] = ""
@@ -332,6 +337,7 @@ class HysteresisModel(ABC):
     equation: ClassVar[str] = ""
     has_inverse: ClassVar[bool] = False
     monotone_in_input: ClassVar[bool] = True
+    multimodal_posterior: ClassVar[bool] = False
     has_output_offset: ClassVar[bool] = False
 
     # ------------------------------------------------------------------ subclass API

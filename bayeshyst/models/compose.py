@@ -113,6 +113,11 @@ class Composite(LinearInParams, HysteresisModel):
         return self.base.rate_dependent or any(b.rate_dependent for b in self.blocks)
 
     @property
+    def multimodal_posterior(self) -> bool:  # type: ignore[override]
+        """Whether the base is known to give a minor posterior mode."""
+        return self.base.multimodal_posterior
+
+    @property
     def equation(self) -> str:  # type: ignore[override]
         """The non-empty equations of the base and the blocks, joined by ``->``."""
         parts = [self.base.equation, *(b.equation for b in self.blocks)]
