@@ -16,6 +16,7 @@ from bayeshyst.models import (  # noqa: F401  (importing registers the models)
     pi,
     pi_variants,
     preisach,
+    preisach_variants,
 )
 from bayeshyst.models._kernels import kernel_parallelism, serial_kernels_in_this_thread
 from bayeshyst.models.base import DataScales, HysteresisModel, Trajectory, data_scales
@@ -41,6 +42,11 @@ from bayeshyst.models.pi_variants import (
     RateDependentPrandtlIshlinskii,
 )
 from bayeshyst.models.preisach import Preisach, PreisachDensity
+from bayeshyst.models.preisach_variants import (
+    DiagonalPreisach,
+    PreisachDensityRate,
+    PreisachRate,
+)
 from bayeshyst.models.registry import get, model_class, names, register
 
 __all__ = [
@@ -50,6 +56,7 @@ __all__ = [
     "BoucWenOscillator",
     "Composite",
     "DataScales",
+    "DiagonalPreisach",
     "Duhem",
     "GeneralizedPrandtlIshlinskii",
     "HysteresisModel",
@@ -62,6 +69,8 @@ __all__ = [
     "PrandtlIshlinskiiStop",
     "Preisach",
     "PreisachDensity",
+    "PreisachDensityRate",
+    "PreisachRate",
     "RateDependentPrandtlIshlinskii",
     "Trajectory",
     "data_scales",
