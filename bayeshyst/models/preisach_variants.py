@@ -73,6 +73,12 @@ _RATE_NOTES = """
     log-normal prior with the median at :func:`~bayeshyst.models.pi_variants.typical_rate`
     of the data, a decade either way at one sd), as in ``pi_rate``. Walkers with
     ``c < 0`` or ``udot0 <= 0`` are reported failed.
+
+    Inverse: for ``c > 0`` the one-step map ``u_k -> y_k`` is not monotone. On a fall
+    the weight grows as ``u_k`` moves away from ``u_{k-1}`` while the relays hold, so
+    the output first rises; the sample-by-sample numerical inverse
+    (:mod:`bayeshyst.inverse.numerical`) then has no unique root and counts such samples
+    in ``n_nonmonotone`` (tested in ``tests/test_inverse.py``).
 """
 
 
@@ -161,7 +167,8 @@ class PreisachRate(_RateWeighted, Preisach):
     """
 
     name: ClassVar[str] = "preisach_rate"
-    equation: ClassVar[str] = "review Eq. 1-4, 7-8, refs. [39] [44]"
+    equation: ClassVar[str] = ("review Eq. 1-4, 7-8, refs. [39] [44] "
+                               "(weights mu*(1+c*ln(1+abs(du/dt)/udot0)))")
 
     def _weighted_constant(self, theta, tables):
         if self.relay == "01":
@@ -190,7 +197,8 @@ class PreisachDensityRate(_RateWeighted, PreisachDensity):
     """
 
     name: ClassVar[str] = "preisach_density_rate"
-    equation: ClassVar[str] = "review Eq. 3-4, 7-8, refs. [39] [44]"
+    equation: ClassVar[str] = ("review Eq. 3-4, 7-8, refs. [39] [44] "
+                               "(density times 1+c*ln(1+abs(du/dt)/udot0))")
 
 
 # the shared Notes (a class docstring must be a literal, so they are appended here)
@@ -251,7 +259,8 @@ class DiagonalPreisach(LinearInParams, HysteresisModel):
     name: ClassVar[str] = "preisach_diagonal"
     has_output_offset: ClassVar[bool] = True
     linear_params: ClassVar[tuple[str, ...]] = ("offset", "mu")
-    equation: ClassVar[str] = "review Eq. 1-4, ref. [42]"
+    equation: ClassVar[str] = ("review Eq. 1-4, ref. [42] "
+                               "(each cell's weight spread along its diagonal)")
     n_levels: int = 12
 
     def __post_init__(self) -> None:
