@@ -59,9 +59,10 @@ _RATE_NOTES = """
     weighted: the output offset (and ``k_rev`` of the density model) is not part of the
     double integral. The relay states, and so the wiping-out property and the memory,
     are rate-independent; at constant ``|u̇|`` the model is its parent with every weight
-    scaled by one constant. Where ``|u̇|`` changes (at every reversal of a sine) the
-    output moves with the weight while the relays hold: the loop is not closed by
-    relays alone.
+    scaled by one constant. Where ``|u̇|`` changes the output moves with the weight
+    while the relays hold: at the turning points of a sine (``u̇ = 0``) it is back on
+    the rate-independent loop, in between it is pushed away from ``c0`` in proportion
+    to the weight, which widens the loop mid-stroke.
 
     Discretisation: ``u̇_k`` is the backward difference ``(u_k - u_{k-1}) / (t_k -
     t_{k-1})`` (causal; ``t`` must increase strictly). The state is the staircase
@@ -140,7 +141,6 @@ class _RateWeighted:
         rate = np.ascontiguousarray(np.column_stack([np.where(skip, 0.0, c),
                                                      np.where(skip, 1.0, ud0)]))
         y, state, failed = kernel_buffers(state0, u.shape[0])
-        state[:] = state0
         rate_staircase_batch(u, t, nodes, tables, self._bilinear,  # type: ignore[attr-defined]
                              coef, rate, skip, state, y, failed)
         return y, state, failed | ~np.all(np.isfinite(state), axis=1)
@@ -306,7 +306,6 @@ class DiagonalPreisach(LinearInParams, HysteresisModel):
                  & np.all(np.isfinite(state0), axis=1))
         bounds[skip] = (0.0, 1.0)  # harmless stand-ins: the kernel never divides by 0
         y, state, failed = kernel_buffers(state0, u.shape[0])
-        state[:] = state0
         diagonal_preisach_batch(u, offset, mu, bounds, skip, state, y, failed)
         return y, state, failed | ~np.all(np.isfinite(state), axis=1)
 
