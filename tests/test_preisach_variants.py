@@ -342,6 +342,25 @@ def test_diagonal_is_rate_independent():
     np.testing.assert_array_equal(model.simulate(u, t, theta), model.simulate(u, warped, theta))
 
 
+@pytest.mark.parametrize("name", ["grid01", "density", "diagonal"])
+def test_positive_weights_give_counter_clockwise_loops(name):
+    # a relay only switches up on a rise and down on a fall, so with positive weights the
+    # falling branch lies above the rising one at every input level (counter-clockwise)
+    model = {**RATE_MODELS, "diagonal": DiagonalPreisach(6)}[name]
+    theta = _theta(model, 29, **({"c": 0.5, "udot0": 1e3} if name != "diagonal" else {}))
+    if "mu" in theta:
+        theta["mu"] = np.abs(theta["mu"]) + 0.01
+    n = 400
+    k = np.arange(2 * n + 1)
+    u = 50.0 - 45.0 * np.cos(2 * np.pi * k / n)
+    y = model.simulate(u, k * 1e-3, theta)
+    rise, fall = slice(n, n + n // 2 + 1), slice(n + n // 2, 2 * n + 1)
+    level = np.linspace(10.0, 90.0, 33)
+    y_rise = np.interp(level, u[rise], y[rise])
+    y_fall = np.interp(level, u[fall][::-1], y[fall][::-1])
+    assert np.all(y_fall - y_rise > 0.0)
+
+
 # ------------------------------------------------------------------ shared properties
 ALL = {**RATE_MODELS, "diagonal": DiagonalPreisach(5)}
 
