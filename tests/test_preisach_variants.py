@@ -26,6 +26,7 @@ from bayeshyst.inference.sampling import sample_posterior
 from bayeshyst.inference.settings import SamplerSettings
 from bayeshyst.models import get, kernel_parallelism
 from bayeshyst.models.base import DataScales
+from bayeshyst.models.pi import PrandtlIshlinskii
 from bayeshyst.models.preisach import Preisach, PreisachDensity
 from bayeshyst.models.preisach_variants import (
     DiagonalPreisach,
@@ -296,6 +297,38 @@ def test_diagonal_output_is_continuous_where_the_relay_grid_steps():
     np.testing.assert_allclose(out - theta["offset"], [0.0, 10.0, 10.0], rtol=0, atol=1e-12)
 
 
+def test_diagonal_with_one_weight_per_line_is_the_cell_model_with_tied_weights():
+    tied, cells = DiagonalPreisach(5, weights="diagonal"), DiagonalPreisach(5)
+    theta = _theta(tied, 30)
+    i, j = np.tril_indices(5)
+    u, t = _irregular(31)
+    np.testing.assert_array_equal(
+        tied.simulate(u, t, theta), cells.simulate(u, t, {**theta, "mu": theta["mu"][i - j]}))
+    assert tied.param_space(SCALES)["mu"].shape == (5,)
+
+
+def test_diagonal_with_one_weight_per_line_is_a_play_pi_model_inside_the_plane():
+    # oracle: pi_play (review Eq. 11-12), thresholds d h / 2 and weights w_d / h, started
+    # from the same plays (u0 - d h / 2); the identity holds once every play is inside
+    # its line's centre range, i.e. after the input has reached the top of the plane
+    n_lev = 5
+    tied = DiagonalPreisach(n_lev, weights="diagonal")
+    theta = _theta(tied, 32)
+    lo, hi = theta["bounds"]
+    h = (hi - lo) / n_lev
+    u, t = _irregular(33)
+    u = np.clip(np.concatenate([[lo, hi], u]), lo, hi)
+    t = np.arange(u.size, dtype=float)
+    w = theta["mu"] / h
+    half = 0.5 * h * np.arange(1, n_lev)
+    play = PrandtlIshlinskii(n_lev - 1)
+    y_pi = play.run(u, t, {"p0": w[0], "w": w[1:], "r": half},
+                    state0=u[0] - half).y
+    const = theta["offset"] - np.sum(w * (lo + 0.5 * h * np.arange(n_lev)))
+    np.testing.assert_allclose(tied.simulate(u, t, theta)[1:], (y_pi + const)[1:], rtol=0,
+                               atol=1e-10)
+
+
 @FAST
 @given(seed=st.integers(0, 2**31 - 1),
        prefix=st.lists(st.floats(0, 100), min_size=1, max_size=15),
@@ -362,13 +395,14 @@ def test_positive_weights_give_counter_clockwise_loops(name):
 
 
 # ------------------------------------------------------------------ shared properties
-ALL = {**RATE_MODELS, "diagonal": DiagonalPreisach(5)}
+ALL = {**RATE_MODELS, "diagonal": DiagonalPreisach(5),
+       "diagonal_tied": DiagonalPreisach(5, weights="diagonal")}
 
 
 @pytest.mark.parametrize("name", list(ALL))
 def test_two_pieces_and_single_samples_equal_one_run(name):
     model = ALL[name]
-    theta = _theta(model, 19, **({"c": 0.4, "udot0": 2e3} if name != "diagonal" else {}))
+    theta = _theta(model, 19, **({"c": 0.4, "udot0": 2e3} if name in RATE_MODELS else {}))
     u, t = _irregular(20, 120)
     whole = model.run(u, t, theta)
     a = model.run(u[:47], t[:47], theta)
@@ -409,7 +443,7 @@ def test_prior_draws_never_give_nan(name):
     assert np.all(np.isfinite(traj.y))
 
 
-@pytest.mark.parametrize("name", ["grid01", "diagonal"])
+@pytest.mark.parametrize("name", ["grid01", "diagonal", "diagonal_tied"])
 def test_linear_design_reproduces_the_output(name):
     model = ALL[name]
     space = model.param_space(SCALES)
@@ -434,6 +468,8 @@ def test_rate_prior_is_scaled_from_the_data_rate():
 def test_bad_settings_states_and_inputs_are_refused():
     with pytest.raises(ModelError, match="n_levels"):
         DiagonalPreisach(0)
+    with pytest.raises(ModelError, match="weights must be"):
+        DiagonalPreisach(3, weights="row")
     with pytest.raises(ModelError, match="relay"):
         PreisachRate(3, relay="x")
     with pytest.raises(ModelError, match="max_memory"):

@@ -18,13 +18,14 @@ initial state and the memory are those of :mod:`bayeshyst.models.preisach`.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
 import numpy as np
 
-from bayeshyst.errors import ParameterError
+from bayeshyst.errors import ModelError, ParameterError
 from bayeshyst.models._kernels.preisach import memory_valid
 from bayeshyst.models._kernels.preisach_variants import (
     diagonal_preisach_batch,
@@ -40,7 +41,7 @@ from bayeshyst.models.base import (
 from bayeshyst.models.pi_variants import typical_rate
 from bayeshyst.models.preisach import Preisach, PreisachDensity
 from bayeshyst.models.registry import register
-from bayeshyst.params import HalfNormal, LogNormal, Param, ParamSpace, Uniform
+from bayeshyst.params import HalfNormal, LogNormal, Normal, Param, ParamSpace, Uniform
 
 __all__ = ["DiagonalPreisach", "PreisachDensityRate", "PreisachRate"]
 
@@ -229,9 +230,12 @@ class DiagonalPreisach(LinearInParams, HysteresisModel):
     lies on the element's own diagonal: a relay grid's output is then continuous
     (piecewise linear in the input; a point weight per cell gives steps), which is the
     improvement named, and its Everett function is exact where bilinear interpolation
-    of a table is not. Tying one weight to each whole diagonal of the triangle (weights
-    depending on ``alpha - beta`` only) would not change the continuity and is the
-    play-operator Prandtl–Ishlinskii model (``pi_play``), so it is not this model.
+    of a table is not. The sentence can also be read as one weight per whole diagonal
+    line ``alpha - beta = d h`` of the triangle: ``weights="diagonal"`` ties the cells
+    of each such line to one weight, ``L`` parameters instead of ``L (L + 1) / 2``. That
+    adds no continuity of its own, and inside the plane it is a play-operator
+    Prandtl–Ishlinskii model with thresholds ``d h / 2`` (saturating at the plane's
+    bounds), so it is offered as the reduced parameterisation, not as the default.
 
     Evaluation: the cells with ``i - j = d`` lie on the line ``alpha - beta = d h``;
     a relay on it is on exactly when the play operator of half-width ``d h / 2`` is at
@@ -242,16 +246,23 @@ class DiagonalPreisach(LinearInParams, HysteresisModel):
     ----------
     n_levels : int
         Number ``L`` of cells along each side of the plane.
+    weights : {"cell", "diagonal"}
+        One weight per cell, or one per diagonal line ``i - j = d`` (shared by its
+        ``L - d`` cells).
 
     Notes
     -----
     Parameters: ``offset`` ``c_0`` (output unit), the output at negative saturation;
     ``mu`` (L(L+1)/2,) cell weights (output unit), cell ``(i, j)`` at flat index
-    ``i (i + 1) / 2 + j`` as in ``preisach``, with the same priors; the fixed ``bounds``
+    ``i (i + 1) / 2 + j`` as in ``preisach``, with the same priors (with
+    ``weights="diagonal"``: ``mu`` (L,), entry ``d`` the weight of each cell with
+    ``i - j = d``; prior mean ``y_span / n_cells`` as for a cell, standard deviation
+    ``y_span / sqrt(sum_d (L - d)^2)``, a spread of one data span in the stroke);
+    the fixed ``bounds``
     ``(lo, hi)`` (V), the data's input range, so that the cell centres are the
     ``levels`` of ``preisach`` and the two models agree whenever the input stands on a
     cell edge ``e_m`` (every relay of a cell is then on or off together). Outside
-    ``[lo, hi]`` the output saturates. Stroke: ``sum(mu)``. Initial state: negative
+    ``[lo, hi]`` the output saturates. Stroke: the sum of the cell weights. Initial state: negative
     saturation then a rise to ``u0`` (plays at ``u0 - d h / 2``), as in ``preisach``.
     Rate-independent. Linear in ``(offset, mu)`` for fixed bounds.
     """
@@ -262,9 +273,12 @@ class DiagonalPreisach(LinearInParams, HysteresisModel):
     equation: ClassVar[str] = ("review Eq. 1-4, ref. [42] "
                                "(each cell's weight spread along its diagonal)")
     n_levels: int = 12
+    weights: str = "cell"
 
     def __post_init__(self) -> None:
         check_count(self.n_levels, "n_levels")
+        if self.weights not in ("cell", "diagonal"):
+            raise ModelError(f"weights must be 'cell' or 'diagonal', got {self.weights!r}")
 
     @property
     def n_cells(self) -> int:
@@ -278,8 +292,15 @@ class DiagonalPreisach(LinearInParams, HysteresisModel):
         """
         sc = data_scales(data)
         grid = Preisach(n_levels=self.n_levels).param_space(data)
+        mu = grid["mu"]
+        if self.weights == "diagonal":
+            cells_per_line = self.n_levels - np.arange(self.n_levels)
+            mu = Param("mu", Normal(sc.y_span / self.n_cells,
+                                    sc.y_span / math.sqrt(float(np.sum(cells_per_line**2)))),
+                       shape=(self.n_levels,), unit=sc.y_unit,
+                       description="relay weight of every cell on diagonal i - j = d")
         return ParamSpace(
-            (grid["offset"], grid["mu"]),
+            (grid["offset"], mu),
             fixed={"bounds": np.array([sc.u_min, sc.u_max])},
             fixed_params=(
                 Param("bounds", Uniform(sc.u_min - sc.u_span, sc.u_max + sc.u_span),
@@ -300,7 +321,7 @@ class DiagonalPreisach(LinearInParams, HysteresisModel):
             raise ParameterError(f"{self.name} state must have shape ({width}, "
                                  f"{self.n_levels}), got {state0.shape}")
         bounds = np.array(theta["bounds"], dtype=float)
-        mu, offset = theta["mu"], theta["offset"]
+        mu, offset = self.cell_weights(theta["mu"]), theta["offset"]
         skip = ~(np.all(np.isfinite(bounds), axis=1) & (bounds[:, 1] > bounds[:, 0])
                  & np.all(np.isfinite(mu), axis=1) & np.isfinite(offset)
                  & np.all(np.isfinite(state0), axis=1))
@@ -308,6 +329,18 @@ class DiagonalPreisach(LinearInParams, HysteresisModel):
         y, state, failed = kernel_buffers(state0, u.shape[0])
         diagonal_preisach_batch(u, offset, mu, bounds, skip, state, y, failed)
         return y, state, failed | ~np.all(np.isfinite(state), axis=1)
+
+    def cell_weights(self, mu: Any) -> np.ndarray:
+        """Weights of the cells (..., n_cells) in ``preisach`` order, from ``mu``.
+
+        With ``weights="diagonal"`` entry ``d`` of ``mu`` is copied to every cell
+        ``(i, j)`` with ``i - j = d``; otherwise ``mu`` is returned as an array.
+        """
+        mu = np.asarray(mu, dtype=float)
+        if self.weights == "cell":
+            return mu
+        i, j = np.tril_indices(self.n_levels)
+        return np.ascontiguousarray(mu[..., i - j])
 
     def cell_segments(self, theta: Mapping[str, Any]) -> tuple[np.ndarray, np.ndarray]:
         """Start ``(alpha, beta)`` of every cell's diagonal, each (n_cells,), in ``mu`` order.
