@@ -22,6 +22,7 @@ from bayeshyst.models import (  # noqa: F401  (importing registers the models)
     pi_weighted,
     preisach,
     preisach_clockwise,
+    preisach_variants,
 )
 from bayeshyst.models._kernels import kernel_parallelism, serial_kernels_in_this_thread
 from bayeshyst.models.base import DataScales, HysteresisModel, Trajectory, data_scales
@@ -58,6 +59,11 @@ from bayeshyst.models.pi_variants import (
 from bayeshyst.models.pi_weighted import CovariatePI, PolynomialInputPI, RateWeightedPI
 from bayeshyst.models.preisach import Preisach, PreisachDensity
 from bayeshyst.models.preisach_clockwise import PreisachClockwise
+from bayeshyst.models.preisach_variants import (
+    DiagonalPreisach,
+    PreisachDensityRate,
+    PreisachRate,
+)
 from bayeshyst.models.registry import get, model_class, names, register
 
 __all__ = [
@@ -73,6 +79,7 @@ __all__ = [
     "CreepVibration",
     "DataScales",
     "DeadZonePrandtlIshlinskii",
+    "DiagonalPreisach",
     "Duhem",
     "FractionalHammerstein",
     "FrequencyFactorBoucWen",
@@ -90,6 +97,8 @@ __all__ = [
     "Preisach",
     "PreisachClockwise",
     "PreisachDensity",
+    "PreisachDensityRate",
+    "PreisachRate",
     "RateDependentOneSidePlayPI",
     "RateDependentPrandtlIshlinskii",
     "RateWeightedPI",
