@@ -12,6 +12,7 @@ from bayeshyst.models import (  # noqa: F401  (importing registers the models)
     compose,
     duhem,
     maxwell,
+    maxwell_variants,
     mrc,
     pi,
     pi_variants,
@@ -28,6 +29,7 @@ from bayeshyst.models.bouc_wen import (
 from bayeshyst.models.compose import Composite, model_spec
 from bayeshyst.models.duhem import Duhem, ImprovedDuhem
 from bayeshyst.models.maxwell import MaxwellSlip
+from bayeshyst.models.maxwell_variants import AsymmetricMaxwellSlip, DistributedMaxwellSlip
 from bayeshyst.models.mrc import MRCElectromechanical
 from bayeshyst.models.pi import (
     PIInverse,
@@ -45,11 +47,13 @@ from bayeshyst.models.registry import get, model_class, names, register
 
 __all__ = [
     "AsymmetricBoucWen",
+    "AsymmetricMaxwellSlip",
     "AsymmetricPrandtlIshlinskii",
     "BoucWen",
     "BoucWenOscillator",
     "Composite",
     "DataScales",
+    "DistributedMaxwellSlip",
     "Duhem",
     "GeneralizedPrandtlIshlinskii",
     "HysteresisModel",
