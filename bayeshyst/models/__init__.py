@@ -11,6 +11,7 @@ from bayeshyst.models import (  # noqa: F401  (importing registers the models)
     bouc_wen,
     compose,
     duhem,
+    fractional,
     maxwell,
     maxwell_variants,
     mrc,
@@ -28,6 +29,7 @@ from bayeshyst.models.bouc_wen import (
 )
 from bayeshyst.models.compose import Composite, model_spec
 from bayeshyst.models.duhem import Duhem, ImprovedDuhem
+from bayeshyst.models.fractional import FractionalDuhem
 from bayeshyst.models.maxwell import MaxwellSlip
 from bayeshyst.models.maxwell_variants import AsymmetricMaxwellSlip, DistributedMaxwellSlip
 from bayeshyst.models.mrc import MRCElectromechanical
@@ -55,6 +57,7 @@ __all__ = [
     "DataScales",
     "DistributedMaxwellSlip",
     "Duhem",
+    "FractionalDuhem",
     "GeneralizedPrandtlIshlinskii",
     "HysteresisModel",
     "ImprovedDuhem",
