@@ -68,17 +68,19 @@ def _fractional_one(u, t, k_lin, p_rate, a, b, c, uc, uh, rates, cw, c_inf, stat
             h = poly_forced_step(h, sa, sb, b, pp, 1, J)
         dt = t[k] - t_prev
         # t_prev = -inf (relaxed start): at rest before, nothing to propagate, slope 0
-        slope = 0.0
         if math.isfinite(dt):
             slope = (u[k] - u_prev) / dt
             if not abs(dt - href) <= DT_RTOL * href:
                 href = dt
                 _mode_steps(rates, href, dec, gain)
+            frac = c_inf * slope
             for i in range(n):
                 z[i] = dec[i] * z[i] + slope * gain[i]
-        frac = c_inf * slope
-        for i in range(n):
-            frac += cw[i] * z[i]
+                frac += cw[i] * z[i]
+        else:
+            frac = 0.0
+            for i in range(n):
+                frac += cw[i] * z[i]
         yk = k_lin * u[k] + p_rate * frac - h
         if not math.isfinite(yk):
             return True
