@@ -18,10 +18,15 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from bayeshyst.data import Record
 from bayeshyst.errors import ModelError, ParameterError, SimulationError
+from bayeshyst.inference.posterior import Posterior
+from bayeshyst.inference.sampling import sample_posterior
+from bayeshyst.inference.settings import SamplerSettings
 from bayeshyst.models.base import DataScales
 from bayeshyst.models.duhem import ImprovedDuhem
 from bayeshyst.models.fractional import FractionalDuhem, derivative_modes
+from tests.test_recovery import _check_calibration, _check_coverage, _fit_stats
 
 MODEL = FractionalDuhem()
 SCALES = DataScales(0.0, 150.0, 0.0, 40.0)
@@ -232,6 +237,16 @@ def test_prior_draws_never_give_nan(scaled):
     assert np.all(np.isfinite(batch.y))
 
 
+def test_regressors_reproduce_the_output():
+    u, t = _sine(5.0)
+    theta = _theta(14)
+    lin = MODEL.linear_params
+    phi = MODEL.regressors(u, t, {k: v for k, v in theta.items() if k not in lin})
+    y = MODEL.simulate(u, t, theta)
+    beta = np.array([float(theta[k]) for k in lin])
+    np.testing.assert_allclose(phi @ beta, y, rtol=0, atol=1e-11 * np.abs(y).max())
+
+
 def test_bad_settings_and_inputs_are_refused():
     with pytest.raises(ModelError):
         FractionalDuhem(n_modes=2)
@@ -244,3 +259,44 @@ def test_bad_settings_and_inputs_are_refused():
     traj = MODEL.run([0.0, 1.0], [0.0, 1.0], theta)
     with pytest.raises(ParameterError, match="not after"):
         MODEL.run([2.0], [1.0], theta, state0=traj.state)
+
+
+# ------------------------------------------------------------------ posterior recovery
+
+TRUTH = {"k": 0.3, "p": 0.01, "alpha": 4.0, "beta": 2.0, "gamma": 1.0, "lam": 0.5}
+NOISE = 0.05
+
+
+def _recovery_record(seed, n=1200):
+    # two frequencies a decade and a half apart (2 and 40 Hz at 1 kHz) around 1 / (2 pi
+    # t_ref): the rate term's gain at both pins its order and size apart
+    t = np.arange(n) * 1e-3
+    u = 75 - 60 * np.cos(2 * np.pi * 2 * t) + 10 * np.sin(2 * np.pi * 40 * t)
+    fixed = dict(MODEL.param_space(Record(t=t, u=u, y=u, name="scales")).fixed)
+    y = MODEL.simulate(u, t, TRUTH | fixed) + np.random.default_rng(seed).normal(0, NOISE, n)
+    return Record(t=t, u=u, y=y, name=f"frac{seed}", warmup=100)
+
+
+def _recovery_stats(seeds):
+    fits = []
+    for seed in seeds:
+        post = Posterior(_recovery_record(seed), "duhem_fractional")
+        res = sample_posterior(post, SamplerSettings(seed=seed, max_steps=8000,
+                                                     n_walkers=16))
+        fits.append(_fit_stats(post, TRUTH | {"obs.offset": 0.0, "noise.sigma": NOISE},
+                               seed, res))
+    return fits, post.ndim
+
+
+def test_posterior_is_calibrated_on_one_fit():
+    # one fit (~5 s): the truth's squared Mahalanobis distance ~ chi2(d), two-sided 0.1 %
+    _check_calibration(*_recovery_stats([0]))
+
+
+@pytest.mark.slow
+def test_90_percent_intervals_cover_at_the_nominal_rate():
+    # 20 independent fits: summed Mahalanobis distance of the truth ~ chi2(20 d), and per
+    # parameter the 90 % HDI hits ~ Binomial(20, 0.9) (Bonferroni over parameters at 0.1 %)
+    fits, ndim = _recovery_stats(range(1, 21))
+    _check_calibration(fits, ndim)
+    _check_coverage(fits)

@@ -17,7 +17,13 @@ import numpy as np
 
 from bayeshyst.errors import ModelError
 from bayeshyst.models._kernels.fractional import fractional_duhem_batch
-from bayeshyst.models.base import HysteresisModel, check_count, kernel_buffers, sample_period
+from bayeshyst.models.base import (
+    HysteresisModel,
+    LinearInParams,
+    check_count,
+    kernel_buffers,
+    sample_period,
+)
 from bayeshyst.models.duhem import ImprovedDuhem, _check_time
 from bayeshyst.models.registry import register
 from bayeshyst.params import LogNormal, Param, ParamSpace, Uniform
@@ -88,7 +94,7 @@ def derivative_modes(lam: Any, t_ref: Any, n_modes: int,
 
 @register
 @dataclass(frozen=True)
-class FractionalDuhem(HysteresisModel):
+class FractionalDuhem(LinearInParams, HysteresisModel):
     r"""Fractional-order Duhem model: Eq. 46 with a fractional rate term (ref. [87]).
 
     .. math::  y = k u + p\, t_{ref}^{1-\lambda} D^\lambda u - h, \qquad
@@ -136,9 +142,14 @@ class FractionalDuhem(HysteresisModel):
     ``[h, u_prev, t_prev, h_ref, z_1 .. z_n]``. Relaxed initial state: at rest at
     ``u_0`` since forever (``h = 0``, ``z = 0``), ``t_prev = -inf`` (the first sample's
     derivative is 0). ``beta < 0`` or ``lam`` outside ``(0, 1]`` is flagged as failed.
+    For fixed ``beta`` and ``lam`` the output is linear in ``(k, p, alpha, gamma)``
+    (from the relaxed state ``h = 0``), which the sampler uses.
     """
 
     name: ClassVar[str] = "duhem_fractional"
+    # for fixed beta and lam, h is linear in (alpha, gamma) from h0 = 0 and the rate term
+    # in p: the sampler draws these four exactly and explores (beta, lam) alone
+    linear_params: ClassVar[tuple[str, ...]] = ("k", "p", "alpha", "gamma")
     equation: ClassVar[str] = "review Eq. 46, rate term p D^lam u, ref. [87]"
     rate_dependent: ClassVar[bool] = True
     n_modes: int = 41
