@@ -38,11 +38,15 @@ def derivative_modes(lam: Any, t_ref: Any, n_modes: int,
     For ``0 < lam < 1`` and ``b = 1 - lam``,
     ``s^lam = s s^-b = sin(b pi) / pi int_0^inf r^-b s / (s + r) dr``, so
     ``D^lam u = int mu(r) z_r dr`` with ``mu(r) = sin(b pi) / pi r^-b`` and ``z_r`` the
-    high-pass ``s / (s + r)`` of ``u``. The rates ``r_i = 10^(i / per_decade) / t_ref``,
-    ``i = -(n - 1)/2 .. (n - 1)/2``, get the exact mass of ``mu`` in their cell,
-    ``sin(b pi) / (pi lam) (r_hi^lam - r_lo^lam)`` (the lowest cell from ``r = 0``); above
-    the grid ``z_r = du/dt / r``, whose mass is ``c_inf du/dt`` with
-    ``c_inf = sinc(b) r_top^-b``. At ``lam = 1`` the weights vanish and ``c_inf = 1``.
+    high-pass ``s / (s + r)`` of ``u``. The cells have edges
+    ``10^((i +- 1/2) / per_decade) / t_ref``, ``i = -(n - 1)/2 .. (n - 1)/2``; each mode
+    gets the exact mass of ``mu`` in its cell, ``sin(b pi) / (pi lam) (r_hi^lam -
+    r_lo^lam)`` (the lowest cell from ``r = 0``), at the rate ``r_i = int mu / int mu / r``
+    over the cell, which makes the cell exact both where ``z_r`` is flat in ``r`` (slow
+    modes) and where ``z_r = du/dt / r`` (fast ones); the lowest cell keeps its grid
+    point ``10^(i / per_decade) / t_ref``. Above the grid ``z_r = du/dt / r``, whose mass
+    is ``c_inf du/dt`` with ``c_inf = sinc(b) r_top^-b``. At ``lam = 1`` the weights
+    vanish and ``c_inf = 1``.
 
     Parameters
     ----------
