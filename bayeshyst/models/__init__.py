@@ -13,8 +13,10 @@ from bayeshyst.models import (  # noqa: F401  (importing registers the models)
     bouc_wen_variants,
     compose,
     duhem,
+    fractional,
     hammerstein,
     maxwell,
+    maxwell_variants,
     mrc,
     pi,
     pi_operators,
@@ -36,8 +38,10 @@ from bayeshyst.models.bouc_wen import (
 from bayeshyst.models.bouc_wen_variants import AsymmetricBoucWenSgn, FrequencyFactorBoucWen
 from bayeshyst.models.compose import Composite, model_spec
 from bayeshyst.models.duhem import Duhem, ImprovedDuhem
+from bayeshyst.models.fractional import FractionalDuhem
 from bayeshyst.models.hammerstein import CreepVibration, FractionalHammerstein
 from bayeshyst.models.maxwell import MaxwellSlip
+from bayeshyst.models.maxwell_variants import AsymmetricMaxwellSlip, DistributedMaxwellSlip
 from bayeshyst.models.mrc import MRCElectromechanical
 from bayeshyst.models.pi import (
     PIInverse,
@@ -69,6 +73,7 @@ from bayeshyst.models.registry import get, model_class, names, register
 __all__ = [
     "AsymmetricBoucWen",
     "AsymmetricBoucWenSgn",
+    "AsymmetricMaxwellSlip",
     "AsymmetricPrandtlIshlinskii",
     "BoucWen",
     "BoucWenOscillator",
@@ -80,7 +85,9 @@ __all__ = [
     "DataScales",
     "DeadZonePrandtlIshlinskii",
     "DiagonalPreisach",
+    "DistributedMaxwellSlip",
     "Duhem",
+    "FractionalDuhem",
     "FractionalHammerstein",
     "FrequencyFactorBoucWen",
     "GeneralizedPrandtlIshlinskii",
