@@ -218,7 +218,7 @@ class Duhem(LinearInParams, HysteresisModel):
 
 @register
 @dataclass(frozen=True)
-class ImprovedDuhem(HysteresisModel):
+class ImprovedDuhem(LinearInParams, HysteresisModel):
     r"""Improved Duhem model, review Eq. 46 (ref. [85]), MODELS.md §5.
 
     .. math::  y = k u + p \dot u - h, \qquad
@@ -246,6 +246,9 @@ class ImprovedDuhem(HysteresisModel):
     """
 
     name: ClassVar[str] = "duhem_improved"
+    # for fixed beta, h is linear in (alpha, gamma) from h0 = 0 and the rate term in p:
+    # the sampler draws these four exactly and explores beta alone
+    linear_params: ClassVar[tuple[str, ...]] = ("k", "p", "alpha", "gamma")
     equation: ClassVar[str] = "review Eq. 46"
     rate_dependent: ClassVar[bool] = True
 
