@@ -68,7 +68,9 @@ DYNAMIC = ("mrc", "bouc_wen_oscillator", "bouc_wen_freq")
 # their one-step map is not monotone and the sample-by-sample inverse does not apply
 # (test_rate_weighted_preisach_one_step_map_is_not_monotone below)
 NOT_ONE_STEP_MONOTONE = ("preisach_rate", "preisach_density_rate")
-NOT_GENERIC = ("butterfly", "butterfly_bw", "pi_osp_rate", "pi_rate_weights",
+# pi_rate widens its thresholds with the current step's rate, so its one-step map in u_k
+# is not monotone either (test_rate_threshold_pi_inverse_is_not_unique below)
+NOT_GENERIC = ("butterfly", "butterfly_bw", "pi_osp_rate", "pi_rate_weights", "pi_rate",
                *NOT_ONE_STEP_MONOTONE)
 STATIC = [n for n in registry.names()
           if n not in DYNAMIC + NOT_GENERIC and registry.model_class(n).monotone_in_input]
@@ -86,6 +88,23 @@ def test_numerical_inverse_every_model(name):
     assert np.max(np.abs(y - y_d)) <= 1e-6 * stroke
     assert inv.max_error <= 1e-6 * stroke
     assert inv.n_saturated == 0 and inv.n_failed_draws == 0
+    # meeting the reference is not enough: a non-monotone one-step map can be met by a
+    # command on the wrong branch, which the inverter must have seen nowhere here
+    assert inv.n_nonmonotone == 0
+
+
+def test_rate_threshold_pi_inverse_is_not_unique():
+    # oracle: the true input. pi_rate meets the reference (its output reproduces y_d) but
+    # the threshold of sample k depends on u_k itself through the rate, so several
+    # commands meet it; the inverter must report the non-monotone samples, and the
+    # command it found differs from the input that made y_d by more than rounding
+    model = get("pi_rate")
+    t, u_true = smooth_input()
+    theta, y_d = invertible_theta(model, t, u_true)
+    inv = invert(model, y_d, t, theta, u_limits=(-100.0, 250.0))
+    assert inv.max_error <= 1e-6 * np.ptp(y_d)
+    assert inv.n_nonmonotone > 0
+    assert np.max(np.abs(inv.u - u_true)) > 1e-3 * np.ptp(u_true)
 
 
 @pytest.mark.parametrize("name", NOT_ONE_STEP_MONOTONE)
