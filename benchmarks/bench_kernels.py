@@ -134,6 +134,7 @@ def main(argv: list[str] | None = None) -> int:
     from benchmarks._results import write_section
 
     names = [n for n in args.models.split(",") if n] or models.names()
+    load_start = os.getloadavg()[0]
     sizes = [1_000, 10_000] if args.quick else [10_000, 100_000]
     repeats = 1 if args.quick else 5
     n_interp = 300 if args.quick else 2_000
@@ -157,7 +158,8 @@ def main(argv: list[str] | None = None) -> int:
 
         meta = (f"Measured {time.strftime('%Y-%m-%d')} on {platform.machine()}, "
                 f"{os.cpu_count()} cores, Python {platform.python_version()}, "
-                f"numpy {np.__version__}, numba {numba.__version__}. "
+                f"numpy {np.__version__}, numba {numba.__version__}; load average "
+                f"{load_start:.1f} at the start, {os.getloadavg()[0]:.1f} at the end. "
                 "Interpreted = the same kernels with NUMBA_DISABLE_JIT=1, "
                 f"N = {n_interp}.")
         write_section("kernels", "Kernel simulation speed", f"{meta}\n\n{text}")
