@@ -80,7 +80,10 @@ class Conditioned(LinearInParams, HysteresisModel):
     ``x`` from ``u_c`` drives the base through ``x / s`` and its output excursion is
     multiplied by ``s`` -- so a purely linear base is left unchanged (slope ``dy/du``
     kept) while the loop's width along ``u`` scales by ``s``; ``f`` then scales the
-    whole output (the slope). ``a`` changes the slope, ``b`` the width.
+    whole output (the slope). ``a`` changes the slope, ``b`` the width. The centre
+    ``y_c`` matters: ``f s H[v]`` alone differs from it by ``f (s - 1) y_c``, an offset
+    that follows the column (for a PI ``(s - 1)(p0 + sum w) u_c``), which is not a
+    width change and would break the equality with ``pi_covariate`` below.
 
     * For positively homogeneous operators with thresholds measured from ``u_c``
       (play/stop PI, Maxwell-slip, Preisach) the magnification is exactly a
@@ -256,11 +259,13 @@ class Conditioned(LinearInParams, HysteresisModel):
         with np.errstate(invalid="ignore", over="ignore"):
             f = 1.0 + a * dc
             s = 1.0 + b * dc
-            ok = np.all(f > 0, axis=1) & np.all(s > 0, axis=1)
-        ok &= np.all(np.isfinite(f), axis=1) & np.all(np.isfinite(s), axis=1)
-        # a failed walker's input is not divided by a factor <= 0: it runs unscaled
-        s = np.where(ok[:, None], s, 1.0)
-        return f, s, ok
+            f_ok = np.all(f > 0, axis=1) & np.all(np.isfinite(f), axis=1)
+            s_ok = np.all(s > 0, axis=1) & np.all(np.isfinite(s), axis=1)
+        # an input is never divided by a width factor <= 0: such a walker runs unscaled
+        # (and is failed). Only s's own validity decides, so walkers with equal (b, c0)
+        # keep equal rows of s, whatever their a
+        s = np.where(s_ok[:, None], s, 1.0)
+        return f, s, f_ok & s_ok
 
     def _initial_state(self, theta: Mapping[str, np.ndarray], u0: float) -> np.ndarray:
         return self.base._initial_state(self._base_theta(theta), u0)
@@ -334,11 +339,17 @@ class Conditioned(LinearInParams, HysteresisModel):
 
 
 def _groups(values: np.ndarray) -> list[tuple[Any, np.ndarray]]:
-    """Distinct rows of ``values`` (W,) or (W, K) with the walker indices holding each."""
+    """Distinct rows of ``values`` (W,) or (W, K) with the walker indices holding each.
+
+    One sort, not a pass per group: a sampler's walkers are usually all distinct.
+    NaN rows are never equal, so each is its own group.
+    """
     arr = np.asarray(values, dtype=np.float64)
-    uniq, inverse = np.unique(arr, axis=0, return_inverse=True)
-    inverse = inverse.reshape(-1)
-    return [(uniq[g], np.flatnonzero(inverse == g)) for g in range(uniq.shape[0])]
+    flat = arr.reshape(arr.shape[0], -1)
+    order = np.lexsort(flat.T[::-1])
+    ranked = flat[order]
+    breaks = np.flatnonzero(np.any(ranked[1:] != ranked[:-1], axis=1)) + 1
+    return [(arr[part[0]], np.sort(part)) for part in np.split(order, breaks)]
 
 
 def _rows(theta: Mapping[str, np.ndarray], rows: np.ndarray) -> dict[str, np.ndarray]:
