@@ -161,6 +161,25 @@ def test_constant_column_is_the_base_loop_magnified_about_its_centre(base):
     np.testing.assert_allclose(y, ref, rtol=0, atol=1e-12 * np.abs(ref).max())
 
 
+def test_constant_column_on_preisach_is_a_threshold_scaling_about_the_centre():
+    # analytic: a relay of thresholds L driven by u_c + (u - u_c)/s is the relay of
+    # thresholds u_c + s (L - u_c) driven by u, so the wrapper is preisach with scaled
+    # levels, weights x f s and offset f (s offset + (1 - s) y_c)
+    t, u, _ = _irregular()
+    model = get(f"conditioned(preisach(n_levels=6), column='{COL}')")
+    theta = _theta(model, 16, SCALES) | {"cond.a": 0.01, "cond.b": 0.03, "cond.c0": 20.0}
+    dc, u_c = 8.0, float(theta["cond.u_c"])
+    f, s = 1 + 0.01 * dc, 1 + 0.03 * dc
+    plain = {k: v for k, v in theta.items() if not k.startswith("cond.")}
+    base = get("preisach(n_levels=6)")
+    y_c = float(base.run(np.array([u_c]), np.zeros(1), plain).y[0])
+    ref = base.simulate(u, t, {"levels": u_c + s * (theta["levels"] - u_c),
+                               "mu": f * s * theta["mu"],
+                               "offset": f * (s * theta["offset"] + (1 - s) * y_c)})
+    y = model.simulate(u, t, theta, covariates={COL: np.full(u.size, 20.0 + dc)})
+    np.testing.assert_allclose(y, ref, rtol=0, atol=1e-12 * np.abs(ref).max())
+
+
 def test_constant_column_on_bouc_wen_rescales_its_saturation():
     # analytic: with h_phys = s h(v), dh_phys/du = alpha - (beta .. + gamma) s^-n |h_phys|^n,
     # and f y = f k u - f h: Bouc-Wen with k, alpha x f and beta, gamma x f^(1-n) s^-n --
@@ -249,15 +268,19 @@ def test_prior_draws_never_give_nan_and_bad_factors_are_flagged():
 # ------------------------------------------------------------------ linear design, inverse
 
 
-@pytest.mark.parametrize("base", ["pi_play", "bouc_wen", "preisach"])
-def test_the_base_linear_group_stays_linear_under_the_column(base):
-    model = get(f"conditioned({base}, column='{COL}')")
-    assert model.linear_params == get(base).linear_params
+@pytest.mark.parametrize("spec", ["conditioned(pi_play)", "conditioned(bouc_wen)",
+                                  "conditioned(preisach)", "conditioned(pi_play)+creep"])
+def test_the_base_linear_group_stays_linear_under_the_column(spec):
+    # oracle: the model's own simulation at the parameters' values
+    model = get(spec)
+    base = model.base.base if "+" in spec else model.base
+    prefix = "static." if "+" in spec else ""
+    assert model.linear_params == tuple(prefix + n for n in base.linear_params)
     t, u, c = _irregular(150)
     data = _record(t, u, c)
     space = model.param_space(data)
     thetas = space.unpack(space.sample_prior(np.random.default_rng(10), 3))
-    thetas["cond.b"] = np.abs(thetas["cond.b"])  # keep s > 0 on this column
+    thetas[f"{prefix}cond.b"] = np.abs(thetas[f"{prefix}cond.b"])  # keep s > 0 here
     design = model.linear_design(u, t, thetas, covariates={COL: c})
     beta = np.concatenate([thetas[n].reshape(3, -1) for n in model.linear_params], axis=1)
     y = model.run_batch(u, t, thetas, covariates={COL: c}).y
@@ -311,7 +334,8 @@ def test_spec_forms_name_the_same_model():
 
 
 @pytest.mark.parametrize(("spec", "match"), [
-    ("conditioned(bouc_wen+creep, column='t')", "cannot read"),
+    ("conditioned(bouc_wen+creep, column='t')", r"composite.*conditioned\(bouc_wen, col"),
+    ("conditioned(bouc_wen, column='t'", "cannot read"),
     ("conditioned(bouc_wen, preisach)", "one base model"),
     ("conditioned(bouc_wen, base='preisach')", "one base model"),
     ("conditioned(3, column='t')", "only a wrapper's base model"),

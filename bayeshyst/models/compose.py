@@ -418,7 +418,7 @@ def _split_part(part: str, spec: str) -> tuple[str, dict[str, Any], list[str]]:
     for arg in call.args:
         if isinstance(arg, ast.Constant) and isinstance(arg.value, str):
             positional.append(arg.value)
-        elif isinstance(arg, ast.Name | ast.Call):
+        elif isinstance(arg, ast.Name | ast.Call | ast.BinOp):  # BinOp: 'model+block'
             positional.append(ast.get_source_segment(source, arg) or ast.unparse(arg))
         else:
             raise ModelError(f"model spec {spec!r}: settings of {name!r} must be given by "
@@ -435,6 +435,17 @@ def _split_part(part: str, spec: str) -> tuple[str, dict[str, Any], list[str]]:
                              f"literal (number, string, tuple), got "
                              f"{ast.unparse(kw.value)!r}") from None
     return name, settings, positional
+
+
+def _top_level_parts(spec: str) -> list[str]:
+    """``spec`` split at the ``+`` outside parentheses (a wrapper's base is one part)."""
+    parts, depth, start = [], 0, 0
+    for i, ch in enumerate(spec):
+        depth += (ch == "(") - (ch == ")")
+        if ch == "+" and depth == 0:
+            parts.append(spec[start:i])
+            start = i + 1
+    return [*parts, spec[start:]]
 
 
 def _takes_base(name: str) -> bool:
@@ -465,7 +476,7 @@ def parse_spec(spec: str) -> HysteresisModel:
         message lists the valid names), or settings that are not ``key=literal`` or
         that the model does not have.
     """
-    parts = [p.strip() for p in str(spec).split("+")]
+    parts = [p.strip() for p in _top_level_parts(str(spec))]
     if any(not p for p in parts):
         raise ModelError(f"model spec {spec!r} has an empty part; write e.g. 'pi_play+arx'")
     (head, head_settings, head_base), *rest = [_split_part(p, spec) for p in parts]
