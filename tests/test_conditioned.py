@@ -484,3 +484,25 @@ def test_bouc_wen_on_a_temperature_ramp_recovers_slope_and_width_laws():
     assert 1e-3 / 2 < p < 1 - 1e-3 / 2, (d2, p)
     for k, v in hits.items():
         assert stats.binomtest(sum(v), len(v), 0.9).pvalue > 1e-3 / len(hits), (k, v)
+
+
+def test_bad_settings_are_refused_in_words():
+    with pytest.raises(ModelError, match="base must be a hysteresis model"):
+        Conditioned(base=3)
+    with pytest.raises(ModelError, match="column must name a data column"):
+        Conditioned(column=5)
+    with pytest.raises(ModelError, match=r"already reads the measured column.*load_n"):
+        Conditioned(CovariatePI(3, column="load_n"))
+    with pytest.raises(ModelError, match="already reads"):
+        Conditioned(Conditioned())  # one column per wrapper: its names are cond.*
+
+
+def test_flags_follow_the_base_and_the_class_reads_as_registered():
+    assert Conditioned.name == "conditioned" and isinstance(Conditioned.equation, str)
+    assert Conditioned.monotone_in_input is True
+    relay = Conditioned(get("preisach_clockwise"))
+    assert relay.monotone_in_input is False  # a compensator's relay grid stays one
+    assert Conditioned(get("preisach")).has_output_offset is True
+    assert Conditioned(get("bouc_wen")).has_output_offset is False
+    assert get("conditioned").equation == "review Eq. 47-48 (the base's), slope and width " \
+                                          "of a measured column (§3)"

@@ -39,18 +39,19 @@ COND = "cond"
 
 
 class _PerInstance:
-    """A class attribute that an instance computes from its settings.
+    """A class attribute that an instance takes from its settings (its base).
 
-    The registry reads ``cls.name`` (``"conditioned"``); an instance answers with what
-    it wraps (``"conditioned(bouc_wen, column='temperature_c')"``), so composites and
-    messages say which base and which column.
+    The registry and the registry-wide code read flags on the class (``cls.name`` is
+    ``"conditioned"``, ``cls.monotone_in_input`` the default base's); an instance
+    answers from what it wraps (``"conditioned(bouc_wen, column='temperature_c')"``),
+    so composites and messages say which base and which column.
     """
 
-    def __init__(self, on_class: str, attribute: str) -> None:
+    def __init__(self, on_class: Any, attribute: str) -> None:
         self.on_class = on_class
         self.attribute = attribute
 
-    def __get__(self, obj: Any, owner: type) -> str:
+    def __get__(self, obj: Any, owner: type) -> Any:
         if obj is None:
             return self.on_class
         return getattr(obj, self.attribute)
@@ -182,20 +183,26 @@ class Conditioned(LinearInParams, HysteresisModel):
     def _instance_equation(self) -> str:
         return f"{self.base.equation} (the base's), slope and width of a measured column (§3)"
 
-    @property
-    def monotone_in_input(self) -> bool:  # type: ignore[override]
-        """The base's: ``v`` rises with ``u`` and both factors are positive."""
-        return self.base.monotone_in_input
+    # the base's flags: v rises with u and both factors are positive (monotone), and
+    # its offset enters y_c and H alike, so it stays an offset
+    monotone_in_input: ClassVar[bool] = _PerInstance(  # type: ignore[assignment]
+        True, "_base_monotone")
+    multimodal_posterior: ClassVar[bool] = _PerInstance(  # type: ignore[assignment]
+        False, "_base_multimodal")
+    has_output_offset: ClassVar[bool] = _PerInstance(  # type: ignore[assignment]
+        False, "_base_offset")
 
     @property
-    def multimodal_posterior(self) -> bool:  # type: ignore[override]
-        """The base's."""
-        return self.base.multimodal_posterior
+    def _base_monotone(self) -> bool:
+        return bool(self.base.monotone_in_input)
 
     @property
-    def has_output_offset(self) -> bool:  # type: ignore[override]
-        """The base's: its offset enters ``y_c`` and ``H`` alike, so it stays an offset."""
-        return self.base.has_output_offset
+    def _base_multimodal(self) -> bool:
+        return bool(self.base.multimodal_posterior)
+
+    @property
+    def _base_offset(self) -> bool:
+        return bool(self.base.has_output_offset)
 
     @property
     def covariates(self) -> tuple[str, ...]:
