@@ -91,11 +91,13 @@ class Conditioned(LinearInParams, HysteresisModel):
       threshold scaling by ``s``: a play ``F_r`` obeys
       ``u_c + s (F_r[u_c + (u - u_c) / s] - u_c) = F_{s r}[u]``, so with a constant
       column ``conditioned(pi_play)`` is ``pi_covariate`` at the same ``a``, ``b``
-      (tested to 1e-12).
+      (tested to 1e-12); Maxwell-slip gets slip deflections ``x s``, a Preisach grid
+      levels ``u_c + s (L - u_c)`` with relay weights ``x s`` (slope kept; tested).
     * For Bouc–Wen, Duhem and other non-homogeneous families it is still a
       well-defined change of width, not a threshold scaling: the loop is the base's
       loop at amplitude ``x / s``, magnified by ``s``. For Bouc–Wen (``y = k u - h``)
-      it is exactly Bouc–Wen with ``beta, gamma`` divided by ``s^n`` (tested): the
+      it is exactly Bouc–Wen with ``beta, gamma`` divided by ``s^n`` (and ``k, alpha``
+      times ``f``, ``beta, gamma`` times ``f^(1-n)``; tested): the
       saturation level ``(alpha / (beta + gamma))^(1/n)`` of ``h``, the width of a
       saturated loop, scales by ``s``. Below saturation a larger ``s`` means *less*
       saturation, so there a loop's area can shrink as ``b Δc`` grows: ``b`` is the
@@ -136,6 +138,10 @@ class Conditioned(LinearInParams, HysteresisModel):
     and ``H[v]`` and ``y_c`` are both linear (affine) in the base's linear parameters,
     so the wrapper is too: ``linear_params`` are the base's, the design is computed by
     simulation (:meth:`LinearInParams.linear_design`).
+
+    Cost: the input ``v`` depends on a walker's ``b``, so with the column the base's
+    kernel runs once per distinct ``(b, c0, u_c)`` (once per walker while sampling; a
+    linear design's signals share their walker's call); without it, one batched call.
 
     Without the column (``covariates=None``: a feedforward command for a future run,
     the numerical inverse) the wrapper runs at nominal conditions ``c = c0``, where it
