@@ -12,6 +12,7 @@ from bayeshyst.models import (  # noqa: F401  (importing registers the models)
     bouc_wen,
     bouc_wen_variants,
     compose,
+    conditioned,
     duhem,
     fractional,
     hammerstein,
@@ -37,6 +38,7 @@ from bayeshyst.models.bouc_wen import (
 )
 from bayeshyst.models.bouc_wen_variants import AsymmetricBoucWenSgn, FrequencyFactorBoucWen
 from bayeshyst.models.compose import Composite, model_spec
+from bayeshyst.models.conditioned import Conditioned
 from bayeshyst.models.duhem import Duhem, ImprovedDuhem
 from bayeshyst.models.fractional import FractionalDuhem
 from bayeshyst.models.hammerstein import CreepVibration, FractionalHammerstein
@@ -80,6 +82,7 @@ __all__ = [
     "Butterfly",
     "ButterflyBoucWen",
     "Composite",
+    "Conditioned",
     "CovariatePI",
     "CreepVibration",
     "DataScales",

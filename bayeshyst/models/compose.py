@@ -307,7 +307,7 @@ class Composite(LinearInParams, HysteresisModel):
     def _initial_state_with(self, theta: Mapping[str, np.ndarray], u0: float,
                             covariates: Mapping[str, np.ndarray] | None) -> np.ndarray:
         base_theta, block_thetas = self._split(theta)
-        s_base = self.base._initial_state(base_theta, u0)
+        s_base = self.base._initial_state_with(base_theta, u0, covariates)
         # the measured columns at the first sample: the blocks rest at the output the
         # parts give there (what the linear design's signals start from too)
         first = None if covariates is None else {k: v[:1] for k, v in covariates.items()}
@@ -390,23 +390,40 @@ def WithCreep(model: HysteresisModel, n_terms: int = 3, *,
 _PART = re.compile(r"^([A-Za-z_][A-Za-z0-9_]*)\s*(?:\((.*)\))?$", re.DOTALL)
 
 
-def _split_part(part: str, spec: str) -> tuple[str, dict[str, Any]]:
-    """``"pi_play(n_operators=4)"`` -> ``("pi_play", {"n_operators": 4})``."""
+def _split_part(part: str, spec: str) -> tuple[str, dict[str, Any], list[str]]:
+    """``"pi_play(n_operators=4)"`` -> ``("pi_play", {"n_operators": 4}, [])``.
+
+    Positional arguments are model specs (a name, a name with settings, or a quoted
+    spec) and come back as their text, for a wrapper model that takes one as its
+    ``base``: ``"conditioned(preisach(n_levels=8), column='t')"`` ->
+    ``("conditioned", {"column": "t"}, ["preisach(n_levels=8)"])``.
+    """
     m = _PART.match(part)
     if m is None:
         raise ModelError(f"model spec {spec!r}: cannot read {part!r}; write a name, optionally "
                          f"with settings: 'pi_play(n_operators=6)+second_order'")
     name, args = m.group(1), m.group(2)
     if args is None or not args.strip():
-        return name, {}
+        return name, {}, []
+    source = f"f({args})"
     try:
-        call = ast.parse(f"f({args})", mode="eval").body
+        call = ast.parse(source, mode="eval").body
     except SyntaxError as exc:
         raise ModelError(f"model spec {spec!r}: settings of {name!r} are not "
                          f"'key=value, ...': {exc.msg}") from None
-    if not isinstance(call, ast.Call) or call.args:
+    if not isinstance(call, ast.Call):
         raise ModelError(f"model spec {spec!r}: settings of {name!r} must be given by name "
                          f"(key=value), got {args!r}")
+    positional = []
+    for arg in call.args:
+        if isinstance(arg, ast.Constant) and isinstance(arg.value, str):
+            positional.append(arg.value)
+        elif isinstance(arg, ast.Name | ast.Call | ast.BinOp):  # BinOp: 'model+block'
+            positional.append(ast.get_source_segment(source, arg) or ast.unparse(arg))
+        else:
+            raise ModelError(f"model spec {spec!r}: settings of {name!r} must be given by "
+                             f"name (key=value); only a wrapper's base model may come first, "
+                             f"got {ast.unparse(arg)!r}")
     settings = {}
     for kw in call.keywords:
         if kw.arg is None:
@@ -417,7 +434,27 @@ def _split_part(part: str, spec: str) -> tuple[str, dict[str, Any]]:
             raise ModelError(f"model spec {spec!r}: setting {kw.arg!r} of {name!r} must be a "
                              f"literal (number, string, tuple), got "
                              f"{ast.unparse(kw.value)!r}") from None
-    return name, settings
+    return name, settings, positional
+
+
+def _top_level_parts(spec: str) -> list[str]:
+    """``spec`` split at the ``+`` outside parentheses (a wrapper's base is one part)."""
+    parts, depth, start = [], 0, 0
+    for i, ch in enumerate(spec):
+        depth += (ch == "(") - (ch == ")")
+        if ch == "+" and depth == 0:
+            parts.append(spec[start:i])
+            start = i + 1
+    return [*parts, spec[start:]]
+
+
+def _takes_base(name: str) -> bool:
+    """Whether the registered model ``name`` wraps another model (has a ``base`` setting)."""
+    try:
+        cls = registry.model_class(name)
+    except ModelError:
+        return False
+    return any(f.name == "base" for f in dataclasses.fields(cls) if f.init)
 
 
 def parse_spec(spec: str) -> HysteresisModel:
@@ -427,7 +464,10 @@ def parse_spec(spec: str) -> HysteresisModel:
     the others are effect-block names (:func:`block_names`). Each part may carry
     structural settings in parentheses, as literals given by name:
     ``"pi_play(n_operators=6)+second_order"``, ``"preisach(n_levels=8)"``. Without
-    them a part has its default settings. A spec without ``+`` is just the model.
+    them a part has its default settings. A spec without ``+`` is just the model. A
+    wrapper model (one with a ``base`` setting, ``conditioned``) takes its base model
+    as the one positional argument, itself a spec part:
+    ``"conditioned(preisach(n_levels=8), column='load_n')+creep"``.
 
     Raises
     ------
@@ -436,18 +476,31 @@ def parse_spec(spec: str) -> HysteresisModel:
         message lists the valid names), or settings that are not ``key=literal`` or
         that the model does not have.
     """
-    parts = [p.strip() for p in str(spec).split("+")]
+    parts = [p.strip() for p in _top_level_parts(str(spec))]
     if any(not p for p in parts):
         raise ModelError(f"model spec {spec!r} has an empty part; write e.g. 'pi_play+arx'")
-    (head, head_settings), *rest = [_split_part(p, spec) for p in parts]
+    (head, head_settings, head_base), *rest = [_split_part(p, spec) for p in parts]
     if head in block_names():
         raise ModelError(f"model spec {spec!r} must start with a hysteresis model "
                          f"({', '.join(registry.names())}), not the effect block {head!r}")
+    for name, _, positional in rest:
+        if positional:
+            raise ModelError(f"model spec {spec!r}: settings of block {name!r} must be given "
+                             f"by name (key=value), got {positional[0]!r} first")
+    if head_base:
+        if not _takes_base(head):
+            raise ModelError(f"model spec {spec!r}: settings of {head!r} must be given by "
+                             f"name (key=value); only a wrapper such as 'conditioned' takes "
+                             f"a model first, got {head_base[0]!r}")
+        if len(head_base) > 1 or "base" in head_settings:
+            raise ModelError(f"model spec {spec!r}: {head!r} takes one base model, given "
+                             f"first or as base=..., not both or several")
+        head_settings["base"] = head_base[0]
     base = registry.get(head, **head_settings)
     if not rest:
         return base
     return Composite(base, tuple(registry.build(block_class(n), kw, f"model spec {spec!r}: "
-                                                f"block {n!r}") for n, kw in rest))
+                                                f"block {n!r}") for n, kw, _ in rest))
 
 
 def _literal(value: Any) -> bool:
@@ -463,6 +516,10 @@ def _part_spec(part: Any) -> str:
         if not f.init:
             continue
         value = getattr(part, f.name)
+        if f.name == "base" and isinstance(value, HysteresisModel):
+            # a wrapper's base model comes first, as its own spec (settings included)
+            settings.insert(0, _part_spec(value))
+            continue
         if f.default is not dataclasses.MISSING:
             default = f.default
         elif f.default_factory is not dataclasses.MISSING:
@@ -475,7 +532,9 @@ def _part_spec(part: Any) -> str:
             raise ModelError(f"{part.name}: setting {f.name}={value!r} cannot be written in a "
                              "spec string (numbers, strings and tuples of them can)")
         settings.append(f"{f.name}={value!r}")
-    return f"{part.name}({', '.join(settings)})" if settings else part.name
+    # the registry name (a wrapper's instance name also says what it wraps)
+    name = type(part).name
+    return f"{name}({', '.join(settings)})" if settings else name
 
 
 def leading_part(model: HysteresisModel, n_blocks: int, theta: Mapping[str, Any]
