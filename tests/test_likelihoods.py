@@ -119,6 +119,12 @@ def test_offset_added_only_when_the_model_has_none():
     model, rec, _ = pi_data()
     assert "obs.offset" in Posterior(rec, model).space.names
     assert "obs.offset" not in Posterior(rec, model, offset=False).space.names
+    # a composite whose base has an offset of its own: the blocks pass a constant on, so
+    # a second (observation) offset would be an exact ridge
+    for spec in ("preisach+creep", "duhem+second_order", "preisach_density+drift"):
+        assert "obs.offset" not in Posterior(rec, spec).space.names, spec
+    assert "static.offset" in Posterior(rec, "preisach+creep").space.names
+    assert "obs.offset" in Posterior(rec, "pi_play+creep").space.names
 
 
 def test_posterior_accepts_dataset_and_spec_string_and_pickles():

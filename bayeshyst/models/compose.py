@@ -113,6 +113,16 @@ class Composite(LinearInParams, HysteresisModel):
         return self.base.rate_dependent or any(b.rate_dependent for b in self.blocks)
 
     @property
+    def has_output_offset(self) -> bool:  # type: ignore[override]
+        """Whether the base has an output offset of its own (the blocks pass it on).
+
+        Every block maps a constant input to a constant output, so an offset of the
+        base is still one after them; a second, observation offset would be an exact
+        non-identifiability (a ridge the sampler cannot converge along).
+        """
+        return self.base.has_output_offset
+
+    @property
     def multimodal_posterior(self) -> bool:  # type: ignore[override]
         """Whether the base is known to give a minor posterior mode."""
         return self.base.multimodal_posterior
