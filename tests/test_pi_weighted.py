@@ -296,6 +296,41 @@ def test_covariate_inverse_designs_for_nominal_conditions():
     assert np.abs(hot - y_d).max() > 0.05 * np.ptp(y_d)  # off-nominal: the command misses
 
 
+@pytest.mark.parametrize("spec", ["cov", "conditioned", "aux_creep"])
+def test_inverse_at_the_measured_column_recovers_the_input(spec):
+    # oracle: the input that made the reference. Given the temperature the command will
+    # run at (a 20 K ramp), the inverse of a column-reading model -- the PI itself, any
+    # model conditioned on the column, an aux block before a creep block -- returns that
+    # input and meets the reference at that temperature; at nominal it does not
+    from bayeshyst.models import get as get_model
+
+    u, t = _sine(10.0, n_per=200, periods=1.5)
+    ramp = np.linspace(15.0, 35.0, u.size)
+    model = {"cov": MODELS["cov"],
+             "conditioned": get_model(f"conditioned(pi_play(n_operators={N_OP}), "
+                                      f"column='{COL}')"),
+             "aux_creep": get_model(f"pi_play(n_operators={N_OP})+aux(column='{COL}')+creep"),
+             }[spec]
+    space = model.param_space(_data(t, u, ramp))
+    theta = space.unpack(space.sample_prior(np.random.default_rng(3), 1))
+    linear = {"p0": 0.2, "w": np.full(N_OP, 0.05)}
+    for name, value in linear.items():  # a monotone loop: positive weights
+        for key in (name, f"static.{name}"):
+            if key in theta:
+                theta[key] = np.asarray(value, dtype=float)[None, ...]
+    cov = {COL: ramp}
+    y_d = model.run_batch(u, t, theta, covariates=cov).y[0]
+    inv = invert(model, y_d, t, theta, u_limits=(-100.0, 250.0), covariates=cov)
+    assert inv.n_nonmonotone == 0 and inv.n_saturated == 0
+    np.testing.assert_allclose(inv.u, u, atol=1e-5 * 150)
+    met = model.run_batch(inv.u, t, theta, covariates=cov).y[0]
+    assert np.abs(met - y_d).max() <= 1e-6 * np.ptp(y_d)
+    nominal = invert(model, y_d, t, theta, u_limits=(-100.0, 250.0))
+    assert np.abs(nominal.u - u).max() > 1e-2 * np.ptp(u)  # the column mattered
+    with pytest.raises(ModelError, match=COL):
+        invert(model, y_d, t, theta, covariates={"other": ramp})
+
+
 # ------------------------------------------------------------------ state and batches
 
 

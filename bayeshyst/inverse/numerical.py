@@ -27,6 +27,11 @@ the first stage for slightly different intermediate signals, and for the posteri
 the command is refined by correcting the reference with the remaining mean error until
 it is below the tolerance (a fixed-point iteration that contracts as fast as the draws'
 dynamics agree).
+
+**Measured columns.** A model that reads a column (``pi_covariate``, ``conditioned(...)``,
+an ``aux`` block) is inverted at the conditions given by ``covariates`` (the column
+along the reference, e.g. the temperature the command will run at); without them it
+runs at its nominal conditions, as its forward simulation does.
 """
 
 from __future__ import annotations
@@ -41,7 +46,7 @@ import numpy as np
 from bayeshyst.errors import ParameterError, SimulationError
 from bayeshyst.inverse.lti import deconvolve
 from bayeshyst.inverse.rootfind import solve_increasing
-from bayeshyst.models.base import HysteresisModel
+from bayeshyst.models.base import HysteresisModel, check_covariates
 from bayeshyst.models.blocks import EffectBlock
 from bayeshyst.models.compose import Composite, block_namespaces, leading_part
 from bayeshyst.params import ParamSpace
@@ -136,18 +141,26 @@ class Member:
 # ------------------------------------------------------------------------------ stages
 
 
+def _at(covariates: dict[str, np.ndarray] | None, k: int) -> dict[str, np.ndarray] | None:
+    """The measured columns at sample ``k`` (arrays of one sample), or None."""
+    return None if covariates is None else {c: v[k:k + 1] for c, v in covariates.items()}
+
+
 class _FirstStage:
     """The base model (with the blocks right after it) driven by the shared command."""
 
-    def __init__(self, model: HysteresisModel, theta: Mapping[str, np.ndarray]) -> None:
+    def __init__(self, model: HysteresisModel, theta: Mapping[str, np.ndarray],
+                 covariates: dict[str, np.ndarray] | None = None) -> None:
         self.model = model
         self.theta = theta
+        self.covariates = covariates
 
     def rest(self, x: float) -> np.ndarray:
-        return self.model._initial_state(self.theta, float(x))
+        return self.model._initial_state_with(self.theta, float(x), _at(self.covariates, 0))
 
-    def step(self, x: float, t_k: np.ndarray, states: np.ndarray):
-        y, s, failed = self.model._run(np.array([float(x)]), t_k, self.theta, states)
+    def step(self, x: float, t_k: np.ndarray, states: np.ndarray, k: int):
+        y, s, failed = self.model._run_with(np.array([float(x)]), t_k, self.theta, states,
+                                            _at(self.covariates, k))
         return y[:, 0], s, failed
 
 
@@ -160,6 +173,7 @@ class _Part(NamedTuple):
     first: _FirstStage
     later: list
     first_name: str
+    covariates: dict | None  # the measured columns (N,) the member reads, or None
 
 
 class _PooledFirstStage:
@@ -172,8 +186,8 @@ class _PooledFirstStage:
     def rest(self, x: float) -> list[np.ndarray]:
         return [st.rest(x) for st in self.stages]
 
-    def step(self, x: float, t_k: np.ndarray, states: list[np.ndarray]):
-        out = [st.step(x, t_k, s) for st, s in zip(self.stages, states, strict=True)]
+    def step(self, x: float, t_k: np.ndarray, states: list[np.ndarray], k: int):
+        out = [st.step(x, t_k, s, k) for st, s in zip(self.stages, states, strict=True)]
         return (np.concatenate([o[0] for o in out]), [o[1] for o in out],
                 np.concatenate([o[2] for o in out]))
 
@@ -181,9 +195,11 @@ class _PooledFirstStage:
 class _BlockStage:
     """A run of blocks with per-draw inputs, inverted sample by sample."""
 
-    def __init__(self, blocks: list[EffectBlock], thetas: list[dict]) -> None:
+    def __init__(self, blocks: list[EffectBlock], thetas: list[dict],
+                 covariates: dict[str, np.ndarray] | None = None) -> None:
         self.blocks = blocks
         self.thetas = thetas
+        self.covariates = covariates
 
     @property
     def label(self) -> str:
@@ -191,19 +207,22 @@ class _BlockStage:
 
     def rest(self, x: np.ndarray) -> list[np.ndarray]:
         states, w = [], np.ascontiguousarray(x, dtype=float)
+        first = _at(self.covariates, 0)
         for i, (block, th) in enumerate(zip(self.blocks, self.thetas, strict=True)):
             s = block._initial_state(th, w, math.nan)
             states.append(s)
             if i + 1 < len(self.blocks):
-                out, _, _ = block._apply(np.ascontiguousarray(w[:, None]), np.zeros(1), th, s)
+                out, _, _ = block._apply_with(np.ascontiguousarray(w[:, None]), np.zeros(1),
+                                              th, s, first)
                 w = np.ascontiguousarray(out[:, 0])
         return states
 
-    def step(self, x: np.ndarray, t_k: np.ndarray, states: list[np.ndarray]):
+    def step(self, x: np.ndarray, t_k: np.ndarray, states: list[np.ndarray], k: int):
         w = np.ascontiguousarray(np.asarray(x, dtype=float)[:, None])
         new, failed = [], np.zeros(w.shape[0], dtype=bool)
+        cov_k = _at(self.covariates, k)
         for block, th, s in zip(self.blocks, self.thetas, states, strict=True):
-            w, s2, f = block._apply(w, t_k, th, s)
+            w, s2, f = block._apply_with(w, t_k, th, s, cov_k)
             new.append(s2)
             failed |= f
         return w[:, 0], new, failed
@@ -219,14 +238,14 @@ class _BlockStage:
             t_k = t[k:k + 1]
             if states is None:
                 def fun(z, k=k, t_k=t_k):
-                    return self.step(z, t_k, self.rest(z))[0] - v[:, k]
+                    return self.step(z, t_k, self.rest(z), k)[0] - v[:, k]
             else:
                 def fun(z, k=k, t_k=t_k, states=states):
-                    return self.step(z, t_k, states)[0] - v[:, k]
+                    return self.step(z, t_k, states, k)[0] - v[:, k]
             res = solve_increasing(fun, x, 1e-3 * scale, ftol=ftol, xtol=xtol * scale)
             x = res.x
             base = self.rest(x) if states is None else states
-            _, states, failed = self.step(x, t_k, base)
+            _, states, failed = self.step(x, t_k, base, k)
             if failed.any():
                 raise SimulationError(f"{self.label}: draw {int(np.flatnonzero(failed)[0])} "
                                       f"failed at sample {k}")
@@ -234,10 +253,11 @@ class _BlockStage:
         return out
 
 
-def _stages(model: HysteresisModel, theta: Mapping[str, np.ndarray]):
+def _stages(model: HysteresisModel, theta: Mapping[str, np.ndarray],
+            covariates: dict[str, np.ndarray] | None = None):
     """Split ``model`` into the first stage and the later stages, in signal order."""
     if not isinstance(model, Composite):
-        return _FirstStage(model, theta), [], model.name
+        return _FirstStage(model, theta, covariates), [], model.name
     blocks = list(model.blocks)
     names = block_namespaces(blocks)
     thetas = [ParamSpace.sub_theta(theta, ns) for ns in names]
@@ -255,9 +275,9 @@ def _stages(model: HysteresisModel, theta: Mapping[str, np.ndarray]):
         j = i
         while j < len(blocks) and not blocks[j].needs_preview:
             j += 1
-        later.append(_BlockStage(blocks[i:j], thetas[i:j]))
+        later.append(_BlockStage(blocks[i:j], thetas[i:j], covariates))
         i = j
-    return _FirstStage(first_model, first_theta), later, first_model.name
+    return _FirstStage(first_model, first_theta, covariates), later, first_model.name
 
 
 # ------------------------------------------------------------------------------ driver
@@ -275,12 +295,13 @@ class _Sample:
     """The first stage at one sample: residuals ``y_s(z) - v_s,k`` of the draws in play."""
 
     def __init__(self, stage: _PooledFirstStage, v_k: np.ndarray, t_k: np.ndarray, states: Any,
-                 active: np.ndarray) -> None:
+                 active: np.ndarray, k: int) -> None:
         self.stage, self.v_k, self.t_k, self.states, self.active = stage, v_k, t_k, states, active
+        self.k = k
 
     def residuals(self, z: float) -> np.ndarray:
         s0 = self.stage.rest(z) if self.states is None else self.states
-        y, _, failed = self.stage.step(z, self.t_k, s0)
+        y, _, failed = self.stage.step(z, self.t_k, s0, self.k)
         e = (np.where(failed, np.nan, y) - self.v_k)[self.active]
         # a draw that fails at this candidate is dropped for good once the sample is
         # committed; meanwhile the objective over the others stays defined
@@ -330,7 +351,7 @@ def _invert_first(stage: _PooledFirstStage, v: np.ndarray, t: np.ndarray, object
     n_sat = n_mono = n_eval = 0
     for k in range(n):
         t_k = t[k:k + 1]
-        sample = _Sample(stage, v[:, k], t_k, states, active.copy())
+        sample = _Sample(stage, v[:, k], t_k, states, active.copy(), k)
         guess, first = np.array([x]), np.array([step])
         if objective == "mean" or active.sum() == 1:
             res = solve_increasing(sample.reduced("mean"), guess, first, lo=lo, hi=hi,
@@ -352,7 +373,7 @@ def _invert_first(stage: _PooledFirstStage, v: np.ndarray, t: np.ndarray, object
             a, b = sorted((float(r_lo.x[0]), float(r_hi.x[0])))
             xk = _golden(sample.quantile_loss(q), a, b, xtol)
         s0 = stage.rest(xk) if states is None else states
-        y, states, failed = stage.step(xk, t_k, s0)
+        y, states, failed = stage.step(xk, t_k, s0, k)
         active &= ~(failed | ~np.isfinite(y))
         if not active.any():
             raise SimulationError(f"{stage.name}: every draw failed by sample {k}")
@@ -386,7 +407,8 @@ def _golden(loss, a: float, b: float, xtol: float) -> float:
 def invert(model: HysteresisModel, y_d: Any, t: Any, thetas: Mapping[str, Any], *,
            objective: str = "mean", quantile: float = 0.9,
            u_limits: tuple[float, float] = (-math.inf, math.inf),
-           offset: Any = None, periodic: bool = False, scored: Any = None) -> Inversion:
+           offset: Any = None, periodic: bool = False, scored: Any = None,
+           covariates: Mapping[str, Any] | None = None) -> Inversion:
     """Command ``u`` that makes ``model`` follow ``y_d``, for ``S`` parameter vectors at once.
 
     Parameters
@@ -420,6 +442,9 @@ def invert(model: HysteresisModel, y_d: Any, t: Any, thetas: Mapping[str, Any], 
         corrections use only these); default all. Leave out a warm-up whose transient no
         command can remove: the model starts at rest, a periodic inverse assumes the
         steady state.
+    covariates : mapping of str to array_like (N,), optional
+        Measured columns along the reference (e.g. ``{"temperature_c": T}``) for a model
+        that reads them; None runs such a model at its nominal conditions.
 
     Returns
     -------
@@ -438,12 +463,13 @@ def invert(model: HysteresisModel, y_d: Any, t: Any, thetas: Mapping[str, Any], 
     """
     return invert_pooled([Member(model, thetas, offset)], y_d, t, objective=objective,
                          quantile=quantile, u_limits=u_limits, periodic=periodic,
-                         scored=scored)
+                         scored=scored, covariates=covariates)
 
 
 def invert_pooled(members: Any, y_d: Any, t: Any, *, objective: str = "mean",
                   quantile: float = 0.9, u_limits: tuple[float, float] = (-math.inf, math.inf),
-                  periodic: bool = False, scored: Any = None) -> Inversion:
+                  periodic: bool = False, scored: Any = None,
+                  covariates: Mapping[str, Any] | None = None) -> Inversion:
     """One command for the draws of several models pooled (a model-averaged design).
 
     Every member's draws are carried together through the shared command, exactly as
@@ -458,7 +484,7 @@ def invert_pooled(members: Any, y_d: Any, t: Any, *, objective: str = "mean",
     ----------
     members : sequence of Member
         At least one.
-    y_d, t, objective, quantile, u_limits, periodic, scored
+    y_d, t, objective, quantile, u_limits, periodic, scored, covariates
         As :func:`invert`.
 
     Returns
@@ -485,6 +511,9 @@ def invert_pooled(members: Any, y_d: Any, t: Any, *, objective: str = "mean",
         raise ParameterError("y_d and t must be finite")
     parts = []
     for m in members:
+        # only the columns the member reads; refused by name when one is missing
+        cov = (check_covariates(covariates, m.model.covariates, y_d.size, m.model.name)
+               if covariates is not None else None)
         theta_b, n_m = m.model._batch_theta(m.thetas, batched=True)
         # a model non-monotone in its input (a butterfly) is invertible on part of its
         # range only: it refuses u_limits reaching beyond, with the reason
@@ -498,7 +527,7 @@ def invert_pooled(members: Any, y_d: Any, t: Any, *, objective: str = "mean",
             raise ParameterError(f"{m.model.name}: offset must have shape ({n_m},) or ({n_m}, "
                                  f"{y_d.size}), got {np.shape(m.offset)}")
         parts.append(_Part(m.model, theta_b, np.broadcast_to(off, (n_m, off.shape[1])),
-                           *_stages(m.model, theta_b)))
+                           *_stages(m.model, theta_b, cov), cov))
     pooled = _PooledFirstStage([p.first for p in parts])
     several = len(parts) > 1
     labels = [f"{' | '.join(p.first_name for p in parts)}: per sample"] + [
@@ -534,7 +563,8 @@ def invert_pooled(members: Any, y_d: Any, t: Any, *, objective: str = "mean",
         u, n_sat, n_mono, n_eval = _invert_first(pooled, np.concatenate(vs), t, objective,
                                                  quantile, lo, hi, u_scale, ftol, xtol, active)
         total_eval += n_eval
-        runs = [(p.model.run_batch(u, t, p.theta), p.offset) for p in parts]
+        runs = [(p.model.run_batch(u, t, p.theta, covariates=p.covariates), p.offset)
+                for p in parts]
         y = np.concatenate([traj.y + off for traj, off in runs])
         active &= ~np.concatenate([traj.failed for traj, _ in runs])
         stat = _objective_value(y, y_d[None, :], active, "mean", quantile)
