@@ -214,3 +214,56 @@ def test_invert_cli_bad_input_exits_2_and_writes_nothing(saved, tmp_path, capsys
         err = capsys.readouterr().err
         assert message in err and "Traceback" not in err
         assert not target.exists()
+
+
+def test_invert_cli_designs_at_the_reference_files_temperature(tmp_path):
+    # oracle: the library inverse of the saved MAP at the temperature the reference file
+    # gives; the same file without that column is designed at nominal conditions, said
+    # in a warning, and a text column in the file is ignored
+    import json
+
+    import pandas as pd
+
+    from bayeshyst.cli import main
+    from bayeshyst.data import Record
+    from bayeshyst.inverse.numerical import invert
+    from bayeshyst.models import get
+
+    model = get("pi_covariate(n_operators=3)")
+    t = np.arange(900) * 1e-3
+    u = 75.0 - 60.0 * np.cos(2 * np.pi * 3.0 * t)
+    temp = np.linspace(20.0, 30.0, t.size)
+    truth = {"p0": 0.15, "w": np.array([0.08, 0.05, 0.03]), "a": 0.01, "b": 0.02,
+             "r": np.array([15.0, 45.0, 75.0]), "c0": 25.0}
+    y = model.simulate(u, t, truth, covariates={"temperature_c": temp})
+    y = y + np.random.default_rng(0).normal(0.0, 0.02, t.size)
+    rec = Record(t=t, u=u, y=y, name="warm", warmup=100,
+                 covariates={"temperature_c": temp})
+    post = Posterior(Dataset((rec,), name="warm"), model)
+    out = tmp_path / "fit"
+    out.mkdir()
+    _save(post, out / "posterior.nc")
+    t_ref = np.arange(600) * 1e-3
+    y_ref = 10.0 + 12.0 * 0.5 * (1 - np.cos(2 * np.pi * 3.0 * t_ref))
+    hot = np.full(t_ref.size, 32.0)
+    rows = "".join(f"{float(a)!r},{float(b)!r},{float(c)!r},x\n"
+                   for a, b, c in zip(t_ref, y_ref, hot, strict=True))
+    (tmp_path / "hot.csv").write_text("t,y,temperature_c,note\n" + rows)
+    (tmp_path / "plain.csv").write_text(
+        "t,y\n" + "".join(f"{float(a)!r},{float(b)!r}\n"
+                           for a, b in zip(t_ref, y_ref, strict=True)))
+    for name in ("hot", "plain"):
+        assert main(["invert", str(out), "--reference", str(tmp_path / f"{name}.csv"),
+                     "--objective", "nominal", "--out", str(tmp_path / name), "--quiet"]) == 0
+    fit = load_fit(out)
+    theta, offset = fit.posterior.model_draws(fit.map_z[None, :])
+    at_hot = invert(fit.model, y_ref, t_ref, theta, offset=offset, u_limits=(-1e9, 1e9),
+                    covariates={"temperature_c": hot})
+    u_hot = pd.read_csv(tmp_path / "hot" / "command.csv")["u"].to_numpy()
+    np.testing.assert_allclose(u_hot, at_hot.u, rtol=0, atol=1e-6 * np.ptp(at_hot.u))
+    u_plain = pd.read_csv(tmp_path / "plain" / "command.csv")["u"].to_numpy()
+    assert np.max(np.abs(u_plain - u_hot)) > 1e-2 * np.ptp(u_hot)  # 7 K off nominal
+    warned = json.loads((tmp_path / "plain" / "summary.json").read_text())["warnings"]
+    assert any("temperature_c" in w and "mean conditions" in w for w in warned)
+    assert not any("temperature_c" in w for w in json.loads(
+        (tmp_path / "hot" / "summary.json").read_text())["warnings"])

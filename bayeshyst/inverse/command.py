@@ -174,14 +174,26 @@ def design_command(fit: SavedFit, reference: Reference, *, objective: str = "mea
     residual = ResidualBlocks.of(post, z[n_design:][: RESIDUAL_DRAWS])
     resid = residual.sample(predict.size, t.size, reference.frequency_hz,
                             np.random.default_rng([seed, 1]))
+    # a model that reads a measured column is designed at the reference's values of it
+    # (the conditions the command will run at); without them, at nominal conditions
+    needed = tuple(post.model.covariates)
+    given = reference.covariates or {}
+    missing = [c for c in needed if c not in given]
+    covariates = None if missing or not needed else {c: given[c] for c in needed}
     ff = design_feedforward(post.model, y_d, t, design, predict, label=objective,
                             objective="quantile" if objective == "robust" else "mean",
                             quantile=quantile, u_limits=limits, periodic=reference.periodic,
-                            scored=mask, frequency_hz=reference.frequency_hz, residual=resid)
+                            scored=mask, frequency_hz=reference.frequency_hz, residual=resid,
+                            covariates=covariates)
     lo, hi = ff.band()
     ok = np.all(np.isfinite(ff.predicted), axis=1)
     band = np.quantile(ff.error_distribution(y_d, stroke, mask), [(1 - BAND) / 2, (1 + BAND) / 2])
     warnings = list(fit.warnings)
+    if missing:
+        warnings.append(f"the model reads the measured column(s) {missing}, which the "
+                        f"reference {reference.kind} does not give (its columns: "
+                        f"{sorted(given) or 'none'}): the command is designed for the "
+                        "fitted data's mean conditions")
     y_all = np.concatenate([r.y for r in post.data])
     outside = (y_d < y_all.min()) | (y_d > y_all.max())
     if outside.any():

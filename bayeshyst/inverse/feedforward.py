@@ -15,12 +15,14 @@ would show.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
 from bayeshyst.errors import DataError, ParameterError
+from bayeshyst.inference.posterior import record_covariates
 from bayeshyst.inverse.numerical import Inversion, invert
 from bayeshyst.models.base import HysteresisModel
 
@@ -85,22 +87,26 @@ class Draws:
 
 
 def predict_outputs(model: HysteresisModel, u: np.ndarray, t: np.ndarray,
-                    draws: Draws, frequency_hz: float | None = None) -> np.ndarray:
+                    draws: Draws, frequency_hz: float | None = None,
+                    covariates: Mapping[str, Any] | None = None) -> np.ndarray:
     """Noise-free outputs ``(S, N)`` of every draw driven by ``u`` from rest (failed: NaN).
 
     With a discrepancy in ``draws`` it is added, evaluated along ``u`` at
-    ``frequency_hz`` (the reference's).
+    ``frequency_hz`` (the reference's). ``covariates`` (``column -> (N,)``) are the
+    measured columns a column-reading model runs at (None: nominal conditions).
     """
-    return (model.run_batch(u, t, draws.theta).y + draws.offset[:, None]
-            + draws.delta_on(u, frequency_hz))
+    return (model.run_batch(u, t, draws.theta, covariates=covariates).y
+            + draws.offset[:, None] + draws.delta_on(u, frequency_hz))
 
 
 def predict_record(model: HysteresisModel, rec: Any, draws: Draws) -> np.ndarray:
     """Outputs ``(S_ok, N)`` of the draws that simulate record ``rec`` from its own input.
 
-    Failed draws are left out; DataError naming the record when none simulates it.
+    Failed draws are left out; DataError naming the record when none simulates it. A
+    model that reads a measured column runs at the record's own column.
     """
-    pred = predict_outputs(model, rec.u, rec.t, draws, rec.frequency_hz)
+    pred = predict_outputs(model, rec.u, rec.t, draws, rec.frequency_hz,
+                           record_covariates(model, rec))
     ok = np.all(np.isfinite(pred), axis=1)
     if not ok.any():
         raise DataError(f"{rec.name}: no posterior draw simulates this record")
@@ -199,7 +205,8 @@ def design_feedforward(model: HysteresisModel, y_d: Any, t: Any, design: Draws,
                        u_limits: tuple[float, float] = (-np.inf, np.inf),
                        periodic: bool = False, scored: Any = None,
                        frequency_hz: float | None = None,
-                       residual: np.ndarray | None = None) -> Feedforward:
+                       residual: np.ndarray | None = None,
+                       covariates: Mapping[str, Any] | None = None) -> Feedforward:
     """Design a command on ``design`` draws and predict it on ``predict`` draws.
 
     Parameters
@@ -221,6 +228,9 @@ def design_feedforward(model: HysteresisModel, y_d: Any, t: Any, design: Draws,
         The residual each prediction draw's measurement adds
         (:meth:`~bayeshyst.inference.residual.ResidualBlocks.sample`); see
         :class:`Feedforward`.
+    covariates : mapping of str to array_like (N,), optional
+        Measured columns along the reference for a model that reads them (designed and
+        predicted at those conditions); None: nominal conditions.
 
     Returns
     -------
@@ -228,7 +238,8 @@ def design_feedforward(model: HysteresisModel, y_d: Any, t: Any, design: Draws,
     """
     t = np.asarray(t, float)
     inv = invert(model, y_d, t, design.theta, objective=objective, quantile=quantile,
-                 u_limits=u_limits, offset=design.offset, periodic=periodic, scored=scored)
+                 u_limits=u_limits, offset=design.offset, periodic=periodic, scored=scored,
+                 covariates=covariates)
     if design.discrepancy is not None and design.delta is not None:
         # the discrepancy depends on the command: a fixed-point iteration, each
         # round inverting the model with the discrepancy along the current command as a
@@ -242,7 +253,7 @@ def design_feedforward(model: HysteresisModel, y_d: Any, t: Any, design: Draws,
                 else np.asarray(scored, dtype=bool))
 
         def forward_error(u: np.ndarray) -> float:
-            y = predict_outputs(model, u, t, design, frequency_hz)
+            y = predict_outputs(model, u, t, design, frequency_hz, covariates)
             ok = np.all(np.isfinite(y), axis=1)
             if not ok.any():
                 return np.inf
@@ -256,7 +267,7 @@ def design_feedforward(model: HysteresisModel, y_d: Any, t: Any, design: Draws,
             extra = design.offset[:, None] + design.delta_on(u, frequency_hz)
             new = invert(model, y_d, t, design.theta, objective=objective,
                          quantile=quantile, u_limits=u_limits, offset=extra,
-                         periodic=periodic, scored=scored)
+                         periodic=periodic, scored=scored, covariates=covariates)
             err = forward_error(new.u)
             if err < best_err:
                 best_err, best = err, new
@@ -265,6 +276,7 @@ def design_feedforward(model: HysteresisModel, y_d: Any, t: Any, design: Draws,
             if step <= 1e-6 * (float(np.ptp(u)) or 1.0):
                 break
         inv = best
-    return Feedforward(label, inv.u, predict_outputs(model, inv.u, t, predict, frequency_hz),
+    return Feedforward(label, inv.u,
+                       predict_outputs(model, inv.u, t, predict, frequency_hz, covariates),
                        inv, residual)
 

@@ -60,6 +60,9 @@ class Reference:
     periodic : bool
         Whether ``y_d`` holds whole periods (the inverse dynamics is then the periodic
         steady state).
+    covariates : dict of str to ndarray (N,) or None
+        Measured columns along the reference (a reference file's other numeric columns,
+        e.g. the temperature the command will run at), for a model that reads them.
     """
 
     t: np.ndarray
@@ -68,6 +71,7 @@ class Reference:
     kind: str
     frequency_hz: float | None
     periodic: bool
+    covariates: dict[str, np.ndarray] | None = None
 
     @property
     def stroke(self) -> float:
@@ -114,8 +118,10 @@ def load_reference(path: str | Path) -> Reference:
     :data:`bayeshyst.data.units.ROLE_NAMES`), their units converted to s and µm.
 
     Every sample is scored; the file should start at rest (the inverse of dynamics
-    needs its pre-actuation before the motion starts). Raises DataError naming the file,
-    column and row of a problem.
+    needs its pre-actuation before the motion starts). Every other column is a measured
+    column along the reference (``Reference.covariates``, named as in the header: e.g.
+    ``temperature_c``, the conditions the command will run at, for a model that reads
+    that column). Raises DataError naming the file, column and row of a problem.
     """
     path = Path(path)
     try:
@@ -139,6 +145,22 @@ def load_reference(path: str | Path) -> Reference:
                             f"{header}")
         index[role] = fits[0]
     it, iy = index["t"], index["y"]
+    first = lines[1].split(",") if len(lines) > 1 else []
+
+    def numeric(cell: str) -> bool:
+        try:
+            float(cell)
+        except ValueError:
+            return False
+        return True
+
+    # the other columns that hold numbers are measured columns; text columns (a note,
+    # a label) are ignored, as the data reader does
+    extra = [j for j in range(len(header)) if j not in (it, iy)
+             and j < len(first) and numeric(first[j])]
+    if len({header[j] for j in extra}) != len(extra) or any(not header[j] for j in extra):
+        raise DataError(f"{path}: the other columns must have distinct, non-empty names, "
+                        f"got {[header[j] for j in extra]}")
     scale = {}
     for role, j in index.items():
         conv = conversion(role, split_header(header[j])[1])
@@ -146,11 +168,17 @@ def load_reference(path: str | Path) -> Reference:
     rows = []
     for row, line in enumerate(lines[1:], start=2):
         cells = line.split(",")
-        try:
-            rows.append((float(cells[it]), float(cells[iy])))
-        except (ValueError, IndexError):
-            raise DataError(f"{path}: row {row}: expected numbers in columns 't' and 'y', "
-                            f"got {line!r}") from None
+        values = []
+        for j in (it, iy, *extra):
+            try:
+                values.append(float(cells[j]))
+            except IndexError:
+                raise DataError(f"{path}: row {row}: no cell in column {header[j]!r} "
+                                f"(the row has {len(cells)} cells)") from None
+            except ValueError:
+                raise DataError(f"{path}: row {row}, column {header[j]!r}: expected a "
+                                f"number, got {cells[j].strip()!r}") from None
+        rows.append(values)
     arr = np.array(rows)
     if arr.shape[0] < 8:
         raise DataError(f"{path}: expected at least 8 samples, got {arr.shape[0]}")
@@ -162,11 +190,13 @@ def load_reference(path: str | Path) -> Reference:
         i = int(np.flatnonzero(steps <= 0)[0])
         raise DataError(f"{path}: column 't', row {i + 3}: time must increase, "
                         f"{arr[i + 1, 0]!r} follows {arr[i, 0]!r}")
-    arr = arr * np.array([scale["t"], scale["y"]])
+    arr[:, :2] = arr[:, :2] * np.array([scale["t"], scale["y"]])
     t = arr[:, 0] - arr[0, 0]
     if np.ptp(arr[:, 1]) <= 0:
         raise DataError(f"{path}: column 'y' is constant: nothing to track")
-    return Reference(t, arr[:, 1].copy(), np.ones(t.size, dtype=bool), path.name, None, False)
+    covariates = {header[j]: arr[:, 2 + i].copy() for i, j in enumerate(extra)} or None
+    return Reference(t, arr[:, 1].copy(), np.ones(t.size, dtype=bool), path.name, None, False,
+                     covariates)
 
 
 #: how far beyond the data's input range a command may go, as a fraction of that range
