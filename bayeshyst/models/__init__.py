@@ -18,6 +18,7 @@ from bayeshyst.models import (  # noqa: F401  (importing registers the models)
     maxwell,
     maxwell_variants,
     mrc,
+    mrc_fractional,
     pi,
     pi_operators,
     pi_variants,
@@ -43,6 +44,7 @@ from bayeshyst.models.hammerstein import CreepVibration, FractionalHammerstein
 from bayeshyst.models.maxwell import MaxwellSlip
 from bayeshyst.models.maxwell_variants import AsymmetricMaxwellSlip, DistributedMaxwellSlip
 from bayeshyst.models.mrc import MRCElectromechanical
+from bayeshyst.models.mrc_fractional import FractionalMRC
 from bayeshyst.models.pi import (
     PIInverse,
     PrandtlIshlinskii,
@@ -89,6 +91,7 @@ __all__ = [
     "Duhem",
     "FractionalDuhem",
     "FractionalHammerstein",
+    "FractionalMRC",
     "FrequencyFactorBoucWen",
     "GeneralizedPrandtlIshlinskii",
     "HysteresisModel",
