@@ -16,7 +16,8 @@ from bayeshyst.models import _kernels as kernels
 
 # the model families whose kernels go through batch_kernel (effect blocks: test_blocks)
 FAMILIES = ("pi_play", "pi_stop", "maxwell_slip", "pi_generalized", "pi_asymmetric",
-            "pi_rate", "preisach", "preisach_density", "duhem", "duhem_improved", "mrc")
+            "pi_rate", "preisach", "preisach_density", "duhem", "duhem_improved", "mrc",
+            "mrc_fractional")
 
 
 def _record(n: int = 300, fs: float = 5e3) -> SimpleNamespace:

@@ -300,6 +300,21 @@ def test_relaxed_state_is_static_and_loops_widen_with_frequency():
     assert abs(areas[0]) < abs(areas[1]) < abs(areas[2])
 
 
+def test_loop_is_solved_at_every_step_and_diagnose_reports_it():
+    model = FractionalMRC(4)
+    rng = np.random.default_rng(5)
+    u = 40.0 + np.cumsum(rng.normal(0, 3.0, 1500))
+    theta = _theta(rho=np.array([0.4, 0.3, 0.2, 0.6]), delta=np.array([1.0, 3.0, 7.0, 12.0]),
+                   coupling=1.3, lam=0.35)
+    d = model.diagnose(u, T, theta)
+    assert np.max(np.abs(d["residual"])) <= 1e-10
+    np.testing.assert_allclose(d["u_h"] + d["u_p"], u, atol=1e-12)
+    np.testing.assert_allclose(d["Q"], d["u_p"] + theta["coupling"] / theta["gain"] * d["y"],
+                               atol=1e-10)
+    np.testing.assert_array_equal(d["y"], model.simulate(u, T, theta))
+    assert np.ptp(d["u_h"]) > 5.0  # elements slip: the hysteresis is active
+
+
 def test_failures_are_flagged_not_returned():
     model = FractionalMRC(3, max_substeps=50)
     thetas = {k: np.stack([np.asarray(v, float)] * 5) for k, v in _theta().items()}

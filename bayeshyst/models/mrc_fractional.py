@@ -76,7 +76,13 @@ class FractionalMRC(MRCElectromechanical):
     about the fixed ``t_ref`` (only the grid's placement: the model does not depend on it
     beyond the quadrature error); the modes are updated exactly inside ``mrc``'s RK4
     sub-steps (exponential integration, see the kernel module), so the fast modes do not
-    make the integration stiff. Parameters: ``mrc``'s (``f_n``, ``zeta``, ``gain``,
+    make the integration stiff. Accuracy: for ``lam < 1`` the modes see the velocity
+    linear over a sub-step, so the scheme is second order in the sub-step (``mrc``'s RK4
+    is fourth): against the exact mode system, 2e-4 of the stroke after a step with the
+    default ``step = 0.1`` (tested); the quadrature of ``D^lam`` adds up to ~3e-3 of the
+    fractional term with 4 modes per decade, falling as ``per_decade^-2`` (tested on the
+    frequency response and the creep tail). Cost: about three times ``mrc``'s per
+    sample with the default 41 modes. Parameters: ``mrc``'s (``f_n``, ``zeta``, ``gain``,
     ``coupling``, ``rho``, fixed ``delta``), ``lam`` (uniform on ``(0, 1)``) and the fixed
     ``t_ref = 100 dt / (2 pi)`` (s) as in ``duhem_fractional``. State ``[xi, xi', Qb_1..Qb_n,
     u_prev, t_prev, h_ref, z_1..z_m]``; relaxed initial state as in ``mrc``, at rest since
