@@ -70,13 +70,15 @@ def test_order_one_is_mrc_bit_for_bit_also_from_a_moved_state():
 # ------------------------------------------------------------------ exact mode system
 
 
-def _exact_linear(theta, u, t, n_modes=41, per_decade=4.0):
+def _exact_linear(theta, u, t, state=None, n_modes=41, per_decade=4.0):
     """Exact response of the mode system with every element sticking (``H`` linear).
 
-    With ``R = sum rho`` and the sliders at the relaxed ``(1 + c) u_0``, the loop gives
-    ``u_p = (u + R Qb) / (1 + R) - c R / (1 + R) xi``; the state ``[xi, xi', z, u, u', 1]``
-    is then linear with a constant matrix (the input a straight line between samples),
-    advanced by one matrix exponential per sample interval (uniform ``t``).
+    With ``R = sum rho`` and sliders ``Qb`` that never move, the loop gives
+    ``u_p = (u + sum rho Qb) / (1 + R) - c R / (1 + R) xi``; the state
+    ``[xi, xi', z, u, u', 1]`` is then linear with a constant matrix (the input a straight
+    line between samples), advanced by one matrix exponential per sample interval
+    (uniform ``t``). From the relaxed state, or from a model state (``[xi, xi', Qb,
+    u_prev, t_prev, h_ref, z]``) taken just before ``t[0]``, one interval earlier.
     """
     lam, c, zeta = theta["lam"], theta["coupling"], theta["zeta"]
     w = 2 * np.pi * theta["f_n"]
@@ -84,7 +86,8 @@ def _exact_linear(theta, u, t, n_modes=41, per_decade=4.0):
     rates, weights = rates[0], weights[0]
     kdamp = 2 * zeta * w ** (2 - lam) * theta["t_ref"] ** (lam - 1)
     big_r = np.sum(theta["rho"])
-    qb = (1 + c) * u[0]
+    n = theta["rho"].size
+    qb = (1 + c) * u[0] * np.ones(n) if state is None else state[2:2 + n]
     m = rates.size
     a = np.zeros((m + 5, m + 5))
     a[0, 1] = 1.0
@@ -92,19 +95,22 @@ def _exact_linear(theta, u, t, n_modes=41, per_decade=4.0):
     a[1, 1] = -kdamp * c_inf[0]
     a[1, 2:2 + m] = -kdamp * weights
     a[1, m + 2] = w**2 / (1 + big_r)
-    a[1, m + 4] = w**2 * big_r * qb / (1 + big_r)
+    a[1, m + 4] = w**2 * np.sum(theta["rho"] * qb) / (1 + big_r)
     a[2:2 + m, 1] = 1.0
     a[2:2 + m, 2:2 + m] = -np.diag(rates)
     a[m + 2, m + 3] = 1.0  # u' = slope, constant over the interval
     step = expm(a * (t[1] - t[0]))
     x = np.zeros(m + 5)
     x[0], x[m + 4] = u[0], 1.0
+    if state is not None:
+        x[:2], x[2:2 + m] = state[:2], state[n + 5:]
+        u, t = np.r_[state[n + 2], u], np.r_[state[n + 3], t]
     out = [x[0]]
     for k in range(1, u.size):
         x[m + 2], x[m + 3] = u[k - 1], (u[k] - u[k - 1]) / (t[k] - t[k - 1])
         x = step @ x
         out.append(x[0])
-    return theta["gain"] * np.array(out)
+    return theta["gain"] * np.array(out if state is None else out[1:])
 
 
 @pytest.mark.parametrize("lam", [0.4, 0.8])
@@ -118,6 +124,13 @@ def test_linear_case_matches_the_exact_mode_system(lam):
     # the modes see the velocity linear over a sub-step: second order in the sub-step
     assert errs[0] < 5e-4
     assert errs[0] / errs[1] > 3.0
+    # from a moved state (mass moving, modes loaded): continue the model and the oracle
+    model = FractionalMRC(3)
+    first = model.run(u[:250], t[:250], theta)
+    rest = model.run(u[250:], t[250:], theta, state0=first.state).y
+    ref_rest = _exact_linear(theta, u[250:], t[250:], state=first.state)
+    assert np.max(np.abs(rest - ref_rest)) < 5e-4 * np.ptp(ref)
+    assert np.max(np.abs(first.state[8:])) > 1e-3  # the modes carry memory there
 
 
 # ------------------------------------------------------------------ frequency response
