@@ -70,7 +70,11 @@ class FractionalMRC(MRCElectromechanical):
     when ``f_n`` is far above the data's band. The linear part's frequency response is
     ``1 / (1 - (omega / w)^2 + 2 zeta (j omega / w)^lam)`` (with ``rho = 0``; tested).
     ``zeta`` is the damping ratio at ``lam = 1``; below 1 it is the fractional term's
-    coefficient at ``omega = w``.
+    coefficient at ``omega = w``. After a step the remaining gap falls as
+    ``2 zeta (w t)^-lam / Gamma(1 - lam)`` (tested). The pure low-frequency form of [68]
+    is the limit ``f_n -> inf`` at fixed ``2 zeta w^-lam`` (``zeta`` grows with it), not a
+    point of this parametrisation; in practice a large ``f_n`` gives it. Ref. [68] itself
+    was not available: the form rests on the review's words only.
 
     **Discretisation.** ``D^lam`` by :func:`bayeshyst.models.fractional.derivative_modes`
     about the fixed ``t_ref`` (only the grid's placement: the model does not depend on it
