@@ -53,7 +53,7 @@ def invertible_theta(model, t, u, seeds=range(400), positive=(), fixed=None):
     pytest.fail(f"no invertible prior draw of {model.name} in {len(seeds)} seeds")
 
 
-DYNAMIC = ("mrc", "bouc_wen_oscillator", "bouc_wen_freq")
+DYNAMIC = ("mrc", "mrc_fractional", "bouc_wen_oscillator", "bouc_wen_freq")
 # models of a compensator (monotone_in_input False: a clockwise relay grid) are not
 # invertible; tests/test_direct_inverses.py checks that their inversion says so.
 # Butterfly models are non-monotone in the input below -E_c and refuse the wide

@@ -19,6 +19,7 @@ from bayeshyst.models import (  # noqa: F401  (importing registers the models)
     maxwell,
     maxwell_variants,
     mrc,
+    mrc_fractional,
     pi,
     pi_operators,
     pi_variants,
@@ -45,6 +46,7 @@ from bayeshyst.models.hammerstein import CreepVibration, FractionalHammerstein
 from bayeshyst.models.maxwell import MaxwellSlip
 from bayeshyst.models.maxwell_variants import AsymmetricMaxwellSlip, DistributedMaxwellSlip
 from bayeshyst.models.mrc import MRCElectromechanical
+from bayeshyst.models.mrc_fractional import FractionalMRC
 from bayeshyst.models.pi import (
     PIInverse,
     PrandtlIshlinskii,
@@ -92,6 +94,7 @@ __all__ = [
     "Duhem",
     "FractionalDuhem",
     "FractionalHammerstein",
+    "FractionalMRC",
     "FrequencyFactorBoucWen",
     "GeneralizedPrandtlIshlinskii",
     "HysteresisModel",
