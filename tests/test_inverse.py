@@ -53,27 +53,17 @@ def invertible_theta(model, t, u, seeds=range(400), positive=(), fixed=None):
     pytest.fail(f"no invertible prior draw of {model.name} in {len(seeds)} seeds")
 
 
-DYNAMIC = ("mrc", "mrc_fractional", "bouc_wen_oscillator", "bouc_wen_freq")
-# models of a compensator (monotone_in_input False: a clockwise relay grid) are not
-# invertible; tests/test_direct_inverses.py checks that their inversion says so.
-# Butterfly models are non-monotone in the input below -E_c and refuse the wide
-# u_limits used here (check_invertible); tests/test_bipolar.py inverts them on one wing.
-# pi_osp_rate: its rate envelopes make each branch non-minimum-phase; its causal inverse
-# is exact only for tau below ~ the sample period (tests/test_pi_operators.py).
-# pi_rate_weights: its weights follow the signed input rate (review Eq. 31-32), so near
-# every reversal away from u = 0 the output moves against the input (tests/
-# test_pi_weighted.py shows it and inverts its rate-independent case)
-# The rate-weighted Preisach models scale every relay weight by the current input rate:
-# on a fall the weight grows as u_k moves away from u_{k-1} while the relays hold, so
-# their one-step map is not monotone and the sample-by-sample inverse does not apply
-# (test_rate_weighted_preisach_one_step_map_is_not_monotone below)
+DYNAMIC = ("mrc", "bouc_wen_oscillator", "bouc_wen_freq")
+# Models whose one-step map can fall declare monotone_in_input = False: a compensator's
+# clockwise relay grid (tests/test_direct_inverses.py), the rate-driven pi_rate,
+# pi_rate_weights and rate-weighted Preisach models (tests below and in
+# tests/test_pi_weighted.py), the butterflies (inverted on one wing in
+# tests/test_bipolar.py). pi_osp_rate's one-step map is monotone, but its rate envelopes
+# make each branch non-minimum-phase: its causal inverse is exact only for tau below
+# ~ the sample period (tests/test_pi_operators.py)
 NOT_ONE_STEP_MONOTONE = ("preisach_rate", "preisach_density_rate")
-# pi_rate widens its thresholds with the current step's rate, so its one-step map in u_k
-# is not monotone either (test_rate_threshold_pi_inverse_is_not_unique below)
-NOT_GENERIC = ("butterfly", "butterfly_bw", "pi_osp_rate", "pi_rate_weights", "pi_rate",
-               *NOT_ONE_STEP_MONOTONE)
 STATIC = [n for n in registry.names()
-          if n not in DYNAMIC + NOT_GENERIC and registry.model_class(n).monotone_in_input]
+          if n not in (*DYNAMIC, "pi_osp_rate") and registry.model_class(n).monotone_in_input]
 
 
 @pytest.mark.parametrize("name", STATIC)

@@ -323,9 +323,13 @@ class HysteresisModel(ABC):
         The review equation(s) the model implements, for docs and ``bayeshyst models``.
     monotone_in_input : bool
         Whether the output rises with the input on every branch for valid parameters
-        (what a numerical inverse needs). False for models of a compensator (a clockwise
-        relay grid, whose output steps down where a relay switches): their numerical
-        inversion reports the non-monotone steps (``Inversion.n_nonmonotone``).
+        (what a numerical inverse needs). False where the one-step map can fall: a
+        compensator's clockwise relay grid (its output steps down where a relay
+        switches), a model whose output at a sample depends on the rate into it
+        (``pi_rate``, ``pi_rate_weights``, the rate-weighted Preisach models), a
+        butterfly below ``-E_c``. Their numerical inversion reports the non-monotone
+        steps (``Inversion.n_nonmonotone``) or refuses the range
+        (:meth:`check_invertible`).
     multimodal_posterior : bool
         Whether the family is known to give posteriors with a minor mode that local
         searches from prior draws can agree on (a bilinear model): the MAP search then

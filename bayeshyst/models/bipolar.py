@@ -186,6 +186,8 @@ class Butterfly(LinearInParams, HysteresisModel):
     """
 
     name: ClassVar[str] = "butterfly"
+    # non-monotone below -E_c (switching): invertible on one wing (check_invertible)
+    monotone_in_input: ClassVar[bool] = False
     equation: ClassVar[str] = "review Eq. 11 (play), §10 ref. [110]; MODELS.md §9"
     linear_params: ClassVar[tuple[str, ...]] = ("q", "d_lin")
     start: str = "poled"
@@ -324,6 +326,8 @@ class ButterflyBoucWen(HysteresisModel):
     """
 
     name: ClassVar[str] = "butterfly_bw"
+    # non-monotone below -E_c (switching): invertible on one wing (check_invertible)
+    monotone_in_input: ClassVar[bool] = False
     equation: ClassVar[str] = "review Eq. 49 + butterfly operator, §10 ref. [110]"
     start: str = "poled"
     step_scale: float = C_L

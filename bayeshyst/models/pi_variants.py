@@ -399,6 +399,8 @@ class RateDependentPrandtlIshlinskii(LinearInWeights, HysteresisModel):
     name: ClassVar[str] = "pi_rate"
     equation: ClassVar[str] = "review Eq. 28-30, 20"
     rate_dependent: ClassVar[bool] = True
+    # the thresholds follow the rate into the sample: the one-step map is not monotone
+    monotone_in_input: ClassVar[bool] = False
     n_operators: int = 10
 
     def __post_init__(self) -> None:

@@ -218,6 +218,8 @@ class RateWeightedPI(LinearInWeights, HysteresisModel):
     name: ClassVar[str] = "pi_rate_weights"
     equation: ClassVar[str] = "review Eq. 30-32, 28-29, 20"
     rate_dependent: ClassVar[bool] = True
+    # the weights follow the signed rate into the sample: the one-step map is not monotone
+    monotone_in_input: ClassVar[bool] = False
     n_operators: int = 10
     rate_thresholds: bool = False
 

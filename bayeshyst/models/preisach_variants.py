@@ -88,6 +88,8 @@ class _RateWeighted:
     """Rate weight on top of a staircase model: subclasses also derive from the parent."""
 
     rate_dependent: ClassVar[bool] = True
+    # the relay weights follow the rate into the sample: the one-step map is not monotone
+    monotone_in_input: ClassVar[bool] = False
     name: ClassVar[str]
     max_memory: int
 
