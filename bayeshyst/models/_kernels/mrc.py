@@ -120,6 +120,35 @@ def _accel(xi, v, ut, w2, zw2, c, rho, delta, qb, guess, hmax):
 
 
 @njit(cache=True)
+def commit_sliders(q, rho, delta, qb, x1, y1):
+    """Move the sliders ``qb`` to the loop's solved charge ``q``; ``y1[0]`` = ``G(q)``."""
+    x1[0] = q
+    _maxwell_one(x1, 1.0, rho, delta, qb, y1)
+
+
+@njit(cache=True)
+def commit_loop(r, rho, delta, qb, q, hmax, x1, y1):
+    """Solve the loop at drive ``r`` from ``q`` and commit the sliders to it.
+
+    Returns ``(Q, ok)``: the relaxed start of the MRC kernels, where the mechanics cannot
+    move in no time and only the electrical side adjusts.
+    """
+    q, ok = loop_solve(r, rho, delta, qb, q, hmax)
+    if ok:
+        commit_sliders(q, rho, delta, qb, x1, y1)
+    return q, ok
+
+
+@njit(cache=True)
+def record_loop(rec, k, q, c, xi, g, u_k):
+    """Write sample ``k``'s ``u_p``, ``Q`` and loop residual ``G(Q) - (u + c xi)`` (V)."""
+    if rec.shape[1] > 0:
+        rec[0, k] = q - c * xi
+        rec[1, k] = q
+        rec[2, k] = g - (u_k + c * xi)
+
+
+@njit(cache=True)
 def _mrc_one(u, t, f_n, zeta, gain, c, rho, delta, state, y, step, max_sub, rec):
     """One walker of :func:`mrc_batch`; returns True if it failed."""
     ok = f_n > 0.0 and zeta >= 0.0 and c >= 0.0 and math.isfinite(f_n + zeta + gain + c)
@@ -178,21 +207,15 @@ def _mrc_one(u, t, f_n, zeta, gain, c, rho, delta, state, y, step, max_sub, rec)
                 a1, q, ok = _accel(xi, v, ub, w2, zw2, c, rho, delta, qb, q, hmax)
                 if not ok:
                     return True
-                x1[0] = q
-                _maxwell_one(x1, 1.0, rho, delta, qb, y1)
+                commit_sliders(q, rho, delta, qb, x1, y1)
         else:
             # relaxed start (t_prev = -inf): the mechanics cannot move in no time, only
             # the electrical side adjusts to u[k]
-            q, ok = loop_solve(u[k] + c * xi, rho, delta, qb, q, hmax)
+            q, ok = commit_loop(u[k] + c * xi, rho, delta, qb, q, hmax, x1, y1)
             if not ok:
                 return True
-            x1[0] = q
-            _maxwell_one(x1, 1.0, rho, delta, qb, y1)
         y[k] = gain * xi
-        if rec.shape[1] > 0:
-            rec[0, k] = q - c * xi
-            rec[1, k] = q
-            rec[2, k] = y1[0] - (u[k] + c * xi)
+        record_loop(rec, k, q, c, xi, y1[0], u[k])
         u_prev = u[k]
         t_prev = t[k]
     state[0] = xi

@@ -48,8 +48,13 @@ from numba import njit, prange
 
 from bayeshyst.models._kernels import batch_kernel
 from bayeshyst.models._kernels.blocks import DT_RTOL
-from bayeshyst.models._kernels.mrc import _accel, loop_solve
-from bayeshyst.models._kernels.operators import _maxwell_one
+from bayeshyst.models._kernels.mrc import (
+    _accel,
+    commit_loop,
+    commit_sliders,
+    loop_solve,
+    record_loop,
+)
 
 __all__ = ["fractional_mrc_batch", "mode_coefficients"]
 
@@ -206,21 +211,15 @@ def _fractional_mrc_one(u, t, f_n, zeta, gain, c, lam, t_ref, rho, delta, rates,
                                    hmax)
                 if not ok:
                     return True
-                x1[0] = q
-                _maxwell_one(x1, 1.0, rho, delta, qb, y1)
+                commit_sliders(q, rho, delta, qb, x1, y1)
         else:
             # relaxed start (t_prev = -inf): the mechanics cannot move in no time, only
             # the electrical side adjusts to u[k]
-            q, ok = loop_solve(u[k] + c * xi, rho, delta, qb, q, hmax)
+            q, ok = commit_loop(u[k] + c * xi, rho, delta, qb, q, hmax, x1, y1)
             if not ok:
                 return True
-            x1[0] = q
-            _maxwell_one(x1, 1.0, rho, delta, qb, y1)
         y[k] = gain * xi
-        if rec.shape[1] > 0:
-            rec[0, k] = q - c * xi
-            rec[1, k] = q
-            rec[2, k] = y1[0] - (u[k] + c * xi)
+        record_loop(rec, k, q, c, xi, y1[0], u[k])
         u_prev = u[k]
         t_prev = t[k]
     state[0] = xi
