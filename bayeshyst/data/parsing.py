@@ -32,6 +32,7 @@ __all__ = [
     "Table",
     "check_file",
     "encode_sidecar",
+    "is_number",
     "read_sidecar",
     "read_table",
     "resolve_roles",
@@ -91,7 +92,8 @@ def _detect(line: str) -> str | None:
     return _WHITESPACE if len(line.split()) > 1 else None
 
 
-def _is_number(text: str) -> bool:
+def is_number(text: str) -> bool:
+    """Whether ``text`` parses as a float (a data cell rather than a name or a note)."""
     try:
         float(text)
     except ValueError:
@@ -240,7 +242,7 @@ def read_table(
                 f"{p}: line {first_no}: header {first.strip()!r} splits into one column "
                 f"with {how}; expected at least 3 columns t,u,y{hint}"
             )
-        if all(_is_number(name) for name in names):
+        if all(is_number(name) for name in names):
             # the commonest mistake with instrument exports: no header line at all
             raise DataError(
                 f"{p}: line {first_no} (header), column {names[0]!r}: expected a header naming "

@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
+from bayeshyst.data.parsing import is_number
 from bayeshyst.data.record import Dataset
 from bayeshyst.data.units import ROLE_NAMES, conversion, split_header
 from bayeshyst.data.virtual import VirtualActuator
@@ -146,18 +147,10 @@ def load_reference(path: str | Path) -> Reference:
         index[role] = fits[0]
     it, iy = index["t"], index["y"]
     first = lines[1].split(",") if len(lines) > 1 else []
-
-    def numeric(cell: str) -> bool:
-        try:
-            float(cell)
-        except ValueError:
-            return False
-        return True
-
     # the other columns that hold numbers are measured columns; text columns (a note,
     # a label) are ignored, as the data reader does
     extra = [j for j in range(len(header)) if j not in (it, iy)
-             and j < len(first) and numeric(first[j])]
+             and j < len(first) and is_number(first[j])]
     if len({header[j] for j in extra}) != len(extra) or any(not header[j] for j in extra):
         raise DataError(f"{path}: the other columns must have distinct, non-empty names, "
                         f"got {[header[j] for j in extra]}")
