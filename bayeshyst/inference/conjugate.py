@@ -127,10 +127,9 @@ def conjugate_posterior(
     rows, ys = [], []
     for rec in post.data:
         s0_idx = rec.scored.start or 0
-        cov = record_covariates(model, rec)
-        # a model that reads a measured column gets it; the others keep their signature
-        phi = (model.regressors(rec.u, rec.t, theta) if cov is None
-               else model.regressors(rec.u, rec.t, theta, covariates=cov))[s0_idx:]
+        # a model that reads a measured column gets the record's (None for the others)
+        phi = model.regressors(rec.u, rec.t, theta,
+                               covariates=record_covariates(model, rec))[s0_idx:]
         if post.offset:
             phi = np.column_stack([phi, np.ones(phi.shape[0])])
         rows.append(phi)

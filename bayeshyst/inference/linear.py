@@ -397,11 +397,9 @@ class LinearStructure:
                 if self._base_designs is not None:
                     d = model.apply_blocks_to_design(self._base_designs[i], rec["t"], theta,
                                                      self.model_names, covariates=cov)
-                elif cov is not None:  # a model (or a block) that reads a measured column
+                else:  # cov: the columns a model (or a block) reads, else None
                     d = model.linear_design(rec["u"], rec["t"], theta, self.model_names,
                                             covariates=cov)
-                else:
-                    d = model.linear_design(rec["u"], rec["t"], theta, self.model_names)
                 phi, const = d.phi, d.const
                 failed |= np.broadcast_to(d.failed, (w,))
             else:

@@ -224,11 +224,12 @@ class BoucWen(LinearInParams, HysteresisModel):
         return s
 
     def linear_design(self, u: Any, t: Any, thetas: Mapping[str, Any],
-                      names: tuple[str, ...] | None = None) -> LinearDesign:
+                      names: tuple[str, ...] | None = None, *,
+                      covariates: Mapping[str, Any] | None = None) -> LinearDesign:
         """``y = k u + c`` with ``c = -/+ h``: one simulation per walker (at ``k = 0``).
 
-        See :meth:`LinearInParams.linear_design`; ``h`` does not depend on ``k``, so
-        the column is the input itself.
+        See :meth:`LinearInParams.linear_design` (``covariates`` as there);
+        ``h`` does not depend on ``k``, so the column is the input itself.
         """
         names = ("k",) if names is None else tuple(names)
         if names not in ((), ("k",)):
@@ -237,7 +238,7 @@ class BoucWen(LinearInParams, HysteresisModel):
         width = int(np.shape(batch["alpha"])[0])
         if names:
             batch["k"] = np.zeros(width)
-        traj = self.run_batch(u, t, batch)
+        traj = self.run_batch(u, t, batch, covariates=covariates)
         phi = np.asarray(u, dtype=float)[None, :, None] if names else np.zeros(
             (1, traj.y.shape[1], 0))
         return LinearDesign(names, phi, traj.y, traj.failed)

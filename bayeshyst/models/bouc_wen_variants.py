@@ -304,11 +304,12 @@ class FrequencyFactorBoucWen(LinearInParams, HysteresisModel):
         return x, np.ascontiguousarray(np.concatenate([s_h, s_v, s_x], axis=1)), failed
 
     def linear_design(self, u: Any, t: Any, thetas: Mapping[str, Any],
-                      names: tuple[str, ...] | None = None) -> LinearDesign:
+                      names: tuple[str, ...] | None = None, *,
+                      covariates: Mapping[str, Any] | None = None) -> LinearDesign:
         """``x = gain G2[v] + G2[sign h̃]``: two simulations per walker (gain 0 and 1).
 
-        See :meth:`LinearInParams.linear_design`; the stage is linear, so the column is
-        the difference of the two runs.
+        See :meth:`LinearInParams.linear_design` (``covariates`` as there);
+        the stage is linear, so the column is the difference of the two runs.
         """
         names = ("gain",) if names is None else tuple(names)
         if names not in ((), ("gain",)):
@@ -316,11 +317,11 @@ class FrequencyFactorBoucWen(LinearInParams, HysteresisModel):
         batch = {k: np.asarray(v, dtype=float) for k, v in thetas.items()}
         width = int(np.shape(batch["alpha"])[0])
         batch["gain"] = np.zeros(width)
-        const = self.run_batch(u, t, batch)
+        const = self.run_batch(u, t, batch, covariates=covariates)
         if not names:
             return LinearDesign(names, np.zeros((1, const.y.shape[1], 0)), const.y,
                                 const.failed)
         batch["gain"] = np.ones(width)
-        one = self.run_batch(u, t, batch)
+        one = self.run_batch(u, t, batch, covariates=covariates)
         phi = (one.y - const.y)[:, :, None]
         return LinearDesign(names, phi, const.y, const.failed | one.failed)

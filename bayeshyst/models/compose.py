@@ -200,10 +200,8 @@ class Composite(LinearInParams, HysteresisModel):
             base_theta, _ = self._split(thetas)
             base_names = tuple(n[len(STATIC) + 1:] for n in names)
             # a base that reads a measured column (pi_covariate) gets it
-            base = (self.base.linear_design(u, t, base_theta, base_names,
-                                            covariates=covariates)
-                    if self.base.covariates else
-                    self.base.linear_design(u, t, base_theta, base_names))
+            base = self.base.linear_design(u, t, base_theta, base_names,
+                                           covariates=covariates)
             return self.apply_blocks_to_design(base, t, thetas, names, covariates=covariates)
         return self._block_design(where, u, t, thetas, names, covariates)
 

@@ -228,11 +228,12 @@ class FractionalHammerstein(LinearInParams, HysteresisModel):
         return y, np.ascontiguousarray(np.concatenate([s_bw, s_lag], axis=1)), failed
 
     def linear_design(self, u: Any, t: Any, thetas: Mapping[str, Any],
-                      names: tuple[str, ...] | None = None) -> LinearDesign:
+                      names: tuple[str, ...] | None = None, *,
+                      covariates: Mapping[str, Any] | None = None) -> LinearDesign:
         """``y = k G[u] - G[h]``: two simulations per walker (``k`` 0 and 1).
 
-        See :meth:`LinearInParams.linear_design`; ``G`` is linear, so the column is the
-        difference of the two runs.
+        See :meth:`LinearInParams.linear_design` (``covariates`` as there);
+        ``G`` is linear, so the column is the difference of the two runs.
         """
         names = ("k",) if names is None else tuple(names)
         if names not in ((), ("k",)):
@@ -240,11 +241,11 @@ class FractionalHammerstein(LinearInParams, HysteresisModel):
         batch = {k: np.asarray(v, dtype=float) for k, v in thetas.items()}
         width = int(np.shape(batch["alpha"])[0])
         batch["k"] = np.zeros(width)
-        const = self.run_batch(u, t, batch)
+        const = self.run_batch(u, t, batch, covariates=covariates)
         if not names:
             return LinearDesign(names, np.zeros((1, const.y.shape[1], 0)), const.y,
                                 const.failed)
         batch["k"] = np.ones(width)
-        one = self.run_batch(u, t, batch)
+        one = self.run_batch(u, t, batch, covariates=covariates)
         return LinearDesign(names, (one.y - const.y)[:, :, None], const.y,
                             const.failed | one.failed)
