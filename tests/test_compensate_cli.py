@@ -156,6 +156,8 @@ def test_missing_data_file_exit_2(tmp_path, capsys):
     (["--quantile", "0"], "(0, 1)"),
     (["--design-draws", "0"], "positive integer"),
     (["--plant", "virtual"], "invalid choice"),
+    (["--discrepancy-transfer", "1.2"], "[0, 1]"),
+    (["--discrepancy-transfer", "half"], "[0, 1]"),
 ])
 def test_bad_numbers_are_usage_errors(tmp_path, capsys, argv, message):
     out = tmp_path / "out"

@@ -333,6 +333,6 @@ def test_design_with_the_discrepancy_tracks_a_misspecified_plant_better(seed):
         row = res.rows[0]
         # the band's budget: without a discrepancy the model's band is the parameters'
         assert (row.model_band_percent == row.parameter_band_percent) == (kind == "none")
-        assert any(s.startswith("With a discrepancy the bands assume")
+        assert any(s.startswith("With a discrepancy the bands mix")
                    for s in res.statements) == (kind == "hsgp")
     assert realised["hsgp"] < 0.8 * realised["none"]

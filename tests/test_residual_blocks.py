@@ -8,7 +8,7 @@ import pytest
 from bayeshyst.data import Record
 from bayeshyst.errors import ParameterError
 from bayeshyst.inference.residual import ResidualBlocks, _block_length
-from bayeshyst.inverse.feedforward import Feedforward
+from bayeshyst.inverse.feedforward import Draws, Feedforward, PredictionError
 
 
 def ar1(n, phi, rng):
@@ -21,14 +21,22 @@ def ar1(n, phi, rng):
 
 
 class StubPosterior:
-    """Records and predictions known exactly: every draw predicts ``clean`` (+ a shift)."""
+    """Records and predictions known exactly: every draw predicts ``clean`` (+ a shift).
 
-    def __init__(self, records, clean):
-        self.data, self._clean = records, clean
+    With ``delta`` (one array per record) the prediction adds it when asked for the
+    discrepancy, as :meth:`Posterior.predict` does.
+    """
 
-    def predict(self, z):
+    def __init__(self, records, clean, delta=None):
+        self.data, self._clean, self._delta = records, clean, delta
+        self.discrepancy = None if delta is None else "stub"
+
+    def predict(self, z, *, discrepancy=True):
         shifts = np.asarray(z, float)[:, 0]
-        return [c[None, :] + shifts[:, None] for c in self._clean]
+        extra = (self._delta if discrepancy and self._delta is not None
+                 else [0.0] * len(self._clean))
+        return [c[None, :] + d + shifts[:, None]
+                for c, d in zip(self._clean, extra, strict=True)]
 
 
 def record(f, n_cycles, per_cycle, resid, name):
@@ -153,3 +161,61 @@ def test_a_new_condition_widens_the_rms_band_by_the_level_spread():
     # log RMS = log level / 2: its sd grows to about tau / 2
     assert np.std(np.log(wide)) == pytest.approx(tau / 2, rel=0.2)
     assert np.std(np.log(same)) < 0.1
+
+
+# ------------------------------------------------ does the discrepancy hold on a new input
+def test_the_model_alone_residual_keeps_what_the_discrepancy_took():
+    # oracle: y = clean + delta + white; the residual about model + delta is the white
+    # part, the one about the model alone is delta + white
+    rng = np.random.default_rng(6)
+    per = 100
+    white = rng.normal(0.0, 0.05, 3 * per)
+    delta = 0.4 * np.sin(2 * np.pi * np.arange(3 * per) / per)
+    rec, clean = record(1.0, 3, per, white + delta, "a")
+    post = StubPosterior((rec,), (clean,), (delta,))
+    z = np.array([[-0.1], [0.1]])
+    np.testing.assert_allclose(ResidualBlocks.of(post, z).series[0], white[per:], atol=1e-12)
+    np.testing.assert_allclose(ResidualBlocks.of(post, z, discrepancy=False).series[0],
+                               (white + delta)[per:], atol=1e-12)
+
+
+def _draws(n, m=3):
+    return Draws({"k": np.arange(float(n))}, np.zeros(n), "basis",
+                 np.arange(float(n * m)).reshape(n, m) + 1.0)
+
+
+@pytest.mark.parametrize("transfer, kept", [(0.5, 5), (0.25, 2), (1.0, 10), (0.0, 0)])
+def test_a_share_of_the_draws_drops_the_discrepancy_and_takes_the_model_residual(transfer,
+                                                                                kept):
+    # constant residual series: a bootstrap of them returns the constant, so each row
+    # says which residual it came from (+1: model + delta, -5: the model alone)
+    with_delta = ResidualBlocks((np.ones(40),), (None,), (4,))
+    alone = ResidualBlocks((-5.0 * np.ones(40),), (None,), (4,))
+    errors = PredictionError(with_delta, alone, transfer)
+    draws = _draws(10)
+    out, res = errors.apply(draws, 25, None, np.random.default_rng(0))
+    assert res.shape == (10, 25)
+    np.testing.assert_array_equal(res[:kept], 1.0)
+    np.testing.assert_array_equal(res[kept:], -5.0)
+    # the parameters and offsets are untouched, in order; only the coefficients go
+    np.testing.assert_array_equal(out.theta["k"], draws.theta["k"])
+    np.testing.assert_array_equal(out.delta[:kept], draws.delta[:kept])
+    np.testing.assert_array_equal(out.delta[kept:], 0.0)
+    parts = errors.split(draws)
+    assert [d.size for d, _ in parts] == [n for n in (kept, 10 - kept) if n]
+    assert errors.mixed == (transfer < 1.0)
+
+
+def test_without_a_discrepancy_or_with_a_measured_residual_nothing_is_mixed():
+    rb = ResidualBlocks((np.ones(40),), (None,), (4,))
+    rec, clean = record(1.0, 2, 50, np.zeros(100), "a")
+    plain = PredictionError.of(StubPosterior((rec,), (clean,)), np.zeros((2, 1)))
+    assert plain.without is None and not plain.mixed
+    assert not PredictionError.measured(rb).mixed
+    draws = _draws(6)
+    out, res = PredictionError.measured(rb).apply(draws, 10, None, np.random.default_rng(1))
+    assert out is draws and np.all(res == 1.0)
+    assert PredictionError.measured(rb).to_dict()["discrepancy_transfer"] is None
+    for bad in (-0.1, 1.5, float("nan")):
+        with pytest.raises(ParameterError, match="discrepancy transfer"):
+            PredictionError(rb, rb, bad)

@@ -302,7 +302,8 @@ def cmd_compensate(args: argparse.Namespace) -> int:
                             plant=None if args.plant == "auto" else args.plant,
                             n_design_draws=args.design_draws, robust_quantile=args.quantile,
                             sampler=sampler, validation=validation,
-                            nominal_inverse=args.nominal_inverse)
+                            nominal_inverse=args.nominal_inverse,
+                            discrepancy_transfer=args.discrepancy_transfer)
         idata = diagnostics.to_inference_data(fit.posterior, fit.sampling,
                                               seed=int(result.settings.get("seed", 0)))
         figures = None if args.no_figures else compensation_figures(result, fit=fit)
@@ -337,7 +338,8 @@ def cmd_invert(args: argparse.Namespace) -> int:
         design = design_command(fit, reference, objective=args.objective,
                                 n_design_draws=args.design_draws,
                                 n_predict_draws=args.predict_draws, quantile=args.quantile,
-                                seed=args.seed)
+                                seed=args.seed,
+                                discrepancy_transfer=args.discrepancy_transfer)
         summary = write_invert_outputs(design, out, fit_path=str(fit.path),
                                        reference_path=str(args.reference),
                                        units=dict(fit.data[0].units))

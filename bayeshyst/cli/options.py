@@ -83,6 +83,17 @@ def probability(text: str) -> float:
     return value
 
 
+def closed_probability(text: str) -> float:
+    """An argparse type: a number in [0, 1] (0 and 1 allowed)."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number in [0, 1], got {text!r}") from None
+    if not 0.0 <= value <= 1.0:
+        raise argparse.ArgumentTypeError(f"expected a number in [0, 1], got {value:g}")
+    return value
+
+
 def column_mapping(text: str) -> dict[str, str]:
     """An argparse type: ``t=Time [s],u=Voltage [V],y=Displacement`` -> role -> column.
 

@@ -18,6 +18,7 @@ from bayeshyst.cli.commands import (
     cmd_study,
 )
 from bayeshyst.cli.options import (
+    closed_probability,
     column_mapping,
     non_negative_float,
     non_negative_int,
@@ -174,6 +175,12 @@ def build_parser() -> argparse.ArgumentParser:
                              "commands' (minor loops, another amplitude): the bands carry "
                              "their residual instead of the training residual (same columns "
                              "and units as DATA)")
+    p_comp.add_argument("--discrepancy-transfer", type=closed_probability, default=0.5,
+                        metavar="P",
+                        help="with --discrepancy hsgp and no --validation: probability that "
+                             "the discrepancy learned on the identification loops holds "
+                             "along the commands' paths; the bands mix both cases (default "
+                             "0.5; 1 = trust it everywhere)")
     p_comp.add_argument("--nominal-inverse", choices=("numerical", "closed_form"),
                         default="numerical",
                         help="the nominal command: the MAP inverted numerically (default) "
@@ -199,6 +206,10 @@ def build_parser() -> argparse.ArgumentParser:
                             "(default 100)")
     p_inv.add_argument("--quantile", type=probability, default=0.9, metavar="Q",
                        help="quantile of |error| the robust command minimises (default 0.9)")
+    p_inv.add_argument("--discrepancy-transfer", type=closed_probability, default=0.5,
+                       metavar="P",
+                       help="for a fit with a discrepancy: probability that it holds along "
+                            "the reference's paths; the band mixes both cases (default 0.5)")
     p_inv.add_argument("--seed", type=int, default=0,
                        help="seeds the choice of draws (default 0): same seed, same command")
     p_inv.set_defaults(func=cmd_invert)

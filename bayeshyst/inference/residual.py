@@ -97,7 +97,7 @@ class ResidualBlocks(TableRecord):
                                      f"got {ell!r}")
 
     @classmethod
-    def of(cls, post: Any, z: np.ndarray) -> ResidualBlocks:
+    def of(cls, post: Any, z: np.ndarray, *, discrepancy: bool = True) -> ResidualBlocks:
         """The residual of ``post``'s data about the mean prediction of draws ``z``.
 
         Parameters
@@ -106,9 +106,13 @@ class ResidualBlocks(TableRecord):
             Its records (scored samples) and predictions (model, offset, discrepancy).
         z : ndarray, shape (S, ndim)
             Posterior draws; the residual is taken about their mean prediction.
+        discrepancy : bool
+            Whether that prediction includes the discrepancy (default; without one it
+            makes no difference). False: the residual of the model alone -- what a
+            discrepancy that does not hold on a new input leaves there.
         """
         series, freqs, lengths = [], [], []
-        for rec, pred in zip(post.data, post.predict(z), strict=True):
+        for rec, pred in zip(post.data, post.predict(z, discrepancy=discrepancy), strict=True):
             ok = np.all(np.isfinite(pred), axis=1)
             if not ok.any():
                 raise ParameterError(f"{rec.name}: no posterior draw simulates the record; "

@@ -22,9 +22,15 @@ from typing import Any
 import numpy as np
 
 from bayeshyst.errors import ParameterError
-from bayeshyst.inference.residual import RESIDUAL_DRAWS, ResidualBlocks
+from bayeshyst.inference.residual import RESIDUAL_DRAWS
 from bayeshyst.inference.saved import SavedFit
-from bayeshyst.inverse.feedforward import BAND, Draws, design_feedforward
+from bayeshyst.inverse.feedforward import (
+    BAND,
+    DISCREPANCY_TRANSFER,
+    Draws,
+    PredictionError,
+    design_feedforward,
+)
 from bayeshyst.inverse.references import U_MARGIN, Reference, command_limits
 from bayeshyst.models.compose import model_spec
 from bayeshyst.tables import TableRecord
@@ -121,7 +127,8 @@ class CommandDesign(TableRecord):
 def design_command(fit: SavedFit, reference: Reference, *, objective: str = "mean",
                    n_design_draws: int = 24, n_predict_draws: int = 100,
                    quantile: float = 0.9, u_margin: float = U_MARGIN,
-                   seed: int = 0) -> CommandDesign:
+                   seed: int = 0,
+                   discrepancy_transfer: float = DISCREPANCY_TRANSFER) -> CommandDesign:
     """The command that makes the saved fit's model follow ``reference``.
 
     Parameters
@@ -141,6 +148,9 @@ def design_command(fit: SavedFit, reference: Reference, *, objective: str = "mea
         Command limits: the fit's input range widened by this fraction of its span.
     seed : int
         Seeds the choice of draws: same seed, same command.
+    discrepancy_transfer : float
+        With a discrepancy: the probability that it holds along the reference's paths,
+        in [0, 1] (default 0.5; :class:`~bayeshyst.inverse.feedforward.PredictionError`).
 
     Returns
     -------
@@ -171,9 +181,10 @@ def design_command(fit: SavedFit, reference: Reference, *, objective: str = "mea
     limits = command_limits(post.data, u_margin)
     # the band predicts a measured error: the fit's unexplained residual, resampled in
     # whole cycles, is added to every prediction draw (see inference.residual)
-    residual = ResidualBlocks.of(post, z[n_design:][: RESIDUAL_DRAWS])
-    resid = residual.sample(predict.size, t.size, reference.frequency_hz,
-                            np.random.default_rng([seed, 1]))
+    errors = PredictionError.of(post, z[n_design:][: RESIDUAL_DRAWS],
+                                transfer=discrepancy_transfer)
+    predict, resid = errors.apply(predict, t.size, reference.frequency_hz,
+                                  np.random.default_rng([seed, 1]))
     # a model that reads a measured column is designed at the reference's values of it
     # (the conditions the command will run at); without them, at nominal conditions
     needed = tuple(post.model.covariates)

@@ -20,7 +20,10 @@ with its sensor noise, and the predicted bands add to every prediction draw the 
 own unexplained residual, resampled in whole cycles
 (:class:`~bayeshyst.inference.residual.ResidualBlocks`) -- parameters, discrepancy and
 residual, the tracking band's budget (``parameter_band_percent``,
-``model_band_percent``, ``predicted_band_percent``).
+``model_band_percent``, ``predicted_band_percent``). With a discrepancy, whether it
+holds along the commands' paths is part of the band: a share of the prediction draws
+drops it and takes the model's own residual
+(:class:`~bayeshyst.inverse.feedforward.PredictionError`, ``discrepancy_transfer``).
 """
 
 from __future__ import annotations
@@ -51,8 +54,10 @@ from bayeshyst.inverse.closed_form import (
 )
 from bayeshyst.inverse.feedforward import (
     BAND,
+    DISCREPANCY_TRANSFER,
     Draws,
     Feedforward,
+    PredictionError,
     design_feedforward,
     predict_outputs,
     predict_record,
@@ -276,14 +281,21 @@ def _scaled_input(records: Dataset) -> tuple[float, float]:
 
 
 def _trend_statements(rows: list[CompensationRow], model: str,
-                      rate_dependent: bool, discrepancy: bool = False) -> list[str]:
+                      rate_dependent: bool, errors: PredictionError | None = None
+                      ) -> list[str]:
     out = []
-    if discrepancy:
-        out.append("With a discrepancy the bands assume that what it learned on the "
-                   "identification loops holds along the command; a command that drives "
-                   "paths those loops never showed (minor loops of a narrower reference) can "
-                   "err by more. A validation record with such paths tests it "
-                   "(bayeshyst.inverse.validation.check_transfer).")
+    if errors is not None and errors.mixed:
+        out.append(f"With a discrepancy the bands mix two cases: that what it learned on the "
+                   f"identification loops holds along the command (probability "
+                   f"{errors.transfer:g}), and that it does not (the command's misfit is then "
+                   "the model's own). Nothing in the identification data tells them apart "
+                   "on paths those loops never showed (minor loops of a narrower reference); "
+                   "a validation record with such paths (--validation) measures it and "
+                   "narrows the bands.")
+    elif errors is not None and errors.without is not None:
+        out.append("With a discrepancy and discrepancy_transfer=1 the bands assume that what "
+                   "it learned on the identification loops holds along the command; a "
+                   "command that drives paths those loops never showed can err by more.")
     freq = [r for r in rows if r.frequency_hz is not None]
     if len(freq) >= 2:
         first, last = freq[0], freq[-1]
@@ -336,6 +348,7 @@ def compensate(
     discrepancy: str | None = None,
     validation: Dataset | Record | None = None,
     nominal_inverse: str = "numerical",
+    discrepancy_transfer: float = DISCREPANCY_TRANSFER,
 ) -> CompensationResult:
     """Design feedforward from the posterior of ``model`` and evaluate it per frequency.
 
@@ -392,6 +405,13 @@ def compensate(
         the model's closed-form inverse where it has one (``has_inverse``: ``pi_play``,
         ``mbw``, ``bouc_wen``, ``bouc_wen_asym``, ``duhem``;
         :mod:`~bayeshyst.inverse.closed_form`), not with a discrepancy.
+    discrepancy_transfer : float
+        With a discrepancy and no ``validation``: the probability that the discrepancy
+        learned on the identification loops holds along the commands' paths (default
+        0.5, even odds); the bands mix the two cases
+        (:class:`~bayeshyst.inverse.feedforward.PredictionError`). 1 trusts it
+        everywhere -- right only when the commands run the identification data's
+        paths. Ignored without a discrepancy and with ``validation`` (which measures it).
 
     Returns
     -------
@@ -415,6 +435,10 @@ def compensate(
         raise ParameterError(f"u_margin must be >= 0, got {u_margin}")
     if not 0.0 < robust_quantile < 1.0:
         raise ParameterError(f"robust_quantile must be in (0, 1), got {robust_quantile}")
+    if not (isinstance(discrepancy_transfer, (int, float)) and not
+            isinstance(discrepancy_transfer, bool) and 0.0 <= discrepancy_transfer <= 1.0):
+        raise ParameterError(f"discrepancy_transfer must be a probability in [0, 1], got "
+                             f"{discrepancy_transfer!r}")
     if nominal_inverse not in NOMINAL_INVERSES:
         raise ParameterError(f"nominal_inverse must be one of {NOMINAL_INVERSES}, "
                              f"got {nominal_inverse!r}")
@@ -442,10 +466,12 @@ def compensate(
     if nominal_inverse == "closed_form":
         check_closed_form(model, nominal)
     # what the fit leaves unexplained: the training residual about the posterior mean,
-    # resampled onto every command so that the bands predict a measured error
+    # resampled onto every command so that the bands predict a measured error (and,
+    # with a discrepancy, whether it holds along the commands: see PredictionError)
     z_mean = fit.sampling.draws(RESIDUAL_DRAWS, seed=seed)
-    residual = (ResidualBlocks.of(post, z_mean) if validation is None
-                else _validation_residual(post, z_mean, validation))
+    errors = (PredictionError.of(post, z_mean, transfer=discrepancy_transfer)
+              if validation is None
+              else PredictionError.measured(_validation_residual(post, z_mean, validation)))
     if virtual:
         plant_text = (f"virtual actuator ({', '.join(plant.effects)}), the simulator that "
                       "generated the data, measured with its sensor noise")
@@ -460,20 +486,19 @@ def compensate(
                       "it fits the actuator)")
         def run_plant(t: np.ndarray, u: np.ndarray, f: float | None,
                       rng: np.random.Generator) -> np.ndarray:
-            return (predict_outputs(model, u, t, plants, f)
-                    + residual.sample(plants.size, t.size, f, rng))
+            drawn, resid = errors.apply(plants, t.size, f, rng)
+            return predict_outputs(model, u, t, drawn, f) + resid
     u_limits = command_limits(data, u_margin)
     refs = design_references(data, reference, cycles=cycles, warmup_cycles=warmup_cycles)
     rows = []
     for k, (ref, group) in enumerate(refs):
         rows.append(_evaluate(model, ref, group, nominal, design, predict, run_plant,
-                              u_limits, robust_quantile, virtual, residual, (seed, k),
+                              u_limits, robust_quantile, virtual, errors, (seed, k),
                               nominal_inverse))
         _log.info("%s: realised tracking NRMSE %.3g %% (posterior command), band "
                   "[%.3g, %.3g] %%", rows[-1].label, rows[-1].posterior_nrmse_percent,
                   *rows[-1].predicted_band_percent)
-    statements = _trend_statements(rows, model.name, model.rate_dependent,
-                                   post.discrepancy is not None)
+    statements = _trend_statements(rows, model.name, model.rate_dependent, errors)
     settings = {"reference": reference.kind if isinstance(reference, Reference) else reference,
                 "cycles": cycles, "warmup_cycles": warmup_cycles,
                 "n_design_draws": n_design_draws, "n_predict_draws": n_predict_draws,
@@ -483,7 +508,8 @@ def compensate(
                                   "validation records: "
                                   + ", ".join(r.name for r in validation)),
                 "percent_of": "peak-to-peak of the reference",
-                "nominal_inverse": nominal_inverse}
+                "nominal_inverse": nominal_inverse,
+                "discrepancy_transfer": errors.transfer if errors.without is not None else None}
     return CompensationResult(model.name, plant_text,
                               "virtual actuator" if virtual else "posterior draw",
                               tuple(rows), tuple(statements), bool(fit.converged), settings)
@@ -491,7 +517,7 @@ def compensate(
 
 def _evaluate(model: HysteresisModel, ref: Reference, group: Dataset, nominal: Draws,
               design: Draws, predict: Draws, run_plant: Any, u_limits: tuple[float, float],
-              q: float, virtual: bool, residual: ResidualBlocks,
+              q: float, virtual: bool, errors: PredictionError,
               key: tuple[int, int], nominal_inverse: str = "numerical") -> CompensationRow:
     t, y_d, mask, stroke = ref.t, ref.y_d, ref.scored, ref.stroke
     a, b = _scaled_input(group)
@@ -499,7 +525,8 @@ def _evaluate(model: HysteresisModel, ref: Reference, group: Dataset, nominal: D
     f = ref.frequency_hz
     # one residual series per prediction draw, shared by the four commands (and one
     # plant noise stream, below), so their errors differ by the commands alone
-    resid = residual.sample(predict.size, t.size, f, np.random.default_rng([*key, 0]))
+    # (with a discrepancy, a share of the prediction draws drops it: PredictionError)
+    predict, resid = errors.apply(predict, t.size, f, np.random.default_rng([*key, 0]))
     commands: dict[str, Feedforward] = {
         "uncompensated": Feedforward("uncompensated", u_scaled,
                                      predict_outputs(model, u_scaled, t, predict, f),

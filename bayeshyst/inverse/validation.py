@@ -9,7 +9,10 @@ whether the measurement lies in the predicted bands.
 
 The prediction of a sample is what a measurement would show: every posterior draw's
 output (model, offset, discrepancy along the new input) plus the fit's own residual
-resampled onto the new record (:class:`~bayeshyst.inference.residual.ResidualBlocks`).
+resampled onto the new record (:class:`~bayeshyst.inference.residual.ResidualBlocks`);
+with a discrepancy, a share of the draws drops it and takes the model's own residual
+instead -- whether it holds along new paths is what is being checked
+(:class:`~bayeshyst.inverse.feedforward.PredictionError`).
 Per window (a record, or each of its segments) the result gives the coverage of the
 central 50 % and 90 % bands with the range a calibrated predictive gives 95 % of the
 time (binomial on the effective number of independent samples, from the PIT series'
@@ -35,7 +38,13 @@ from bayeshyst.inference.calibration import (
     pit_values,
 )
 from bayeshyst.inference.residual import RESIDUAL_DRAWS, ResidualBlocks, cycle_samples
-from bayeshyst.inverse.feedforward import BAND, Draws, predict_record
+from bayeshyst.inverse.feedforward import (
+    BAND,
+    DISCREPANCY_TRANSFER,
+    Draws,
+    PredictionError,
+    predict_record,
+)
 from bayeshyst.tables import TableRecord, frame
 
 __all__ = ["TransferCheck", "TransferWindow", "check_transfer"]
@@ -132,7 +141,8 @@ class TransferCheck(TableRecord):
     model : str
     windows : tuple of TransferWindow
     residual : dict
-        The resampled residual (:meth:`ResidualBlocks.to_dict`).
+        The resampled residual(s) and, with a discrepancy, the probability that it holds
+        (:meth:`~bayeshyst.inverse.feedforward.PredictionError.to_dict`).
     """
 
     model: str
@@ -171,7 +181,8 @@ def check_transfer(post: Any, z: np.ndarray, data: Dataset | Record, *,
                    reference: dict[str, np.ndarray] | None = None,
                    by_segment: bool = True, rezero: dict[str, np.ndarray] | None = None,
                    residual_from: dict[str, np.ndarray] | None = None,
-                   n_draws: int = 400, seed: int = 0) -> TransferCheck:
+                   n_draws: int = 400, seed: int = 0,
+                   discrepancy_transfer: float = DISCREPANCY_TRANSFER) -> TransferCheck:
     """Predict ``data`` from its input with posterior ``post`` and check the bands.
 
     Parameters
@@ -208,6 +219,10 @@ def check_transfer(post: Any, z: np.ndarray, data: Dataset | Record, *,
         Predictive draws.
     seed : int
         Seeds the residual series and the PIT's tie-breaking: same seed, same result.
+    discrepancy_transfer : float
+        With a discrepancy: the probability that it holds along the new records' paths
+        (default 0.5; :class:`~bayeshyst.inverse.feedforward.PredictionError`). Records
+        with ``residual_from`` measure it: their draws all keep it.
 
     Returns
     -------
@@ -219,7 +234,8 @@ def check_transfer(post: Any, z: np.ndarray, data: Dataset | Record, *,
     if z.shape[0] < 2:
         raise ParameterError(f"z: need at least 2 posterior draws, got {z.shape[0]}")
     z = _thinned(z, n_draws)
-    residual = ResidualBlocks.of(post, _thinned(z, RESIDUAL_DRAWS))
+    errors = PredictionError.of(post, _thinned(z, RESIDUAL_DRAWS),
+                                transfer=discrepancy_transfer)
     draws = Draws.of(post, z)
     reference = {} if reference is None else dict(reference)
     rezero = {} if rezero is None else dict(rezero)
@@ -233,7 +249,12 @@ def check_transfer(post: Any, z: np.ndarray, data: Dataset | Record, *,
     span = float(np.ptp(np.concatenate([r.y[r.scored] for r in post.data]))) or 1.0
     windows = []
     for rec in data:
-        pred = predict_record(post.model, rec, draws)
+        learn = residual_from.get(rec.name)
+        # with a discrepancy some draws drop it (PredictionError) -- unless this record
+        # measures its transfer (residual_from), where every draw keeps it
+        parts = [(draws, errors.residual)] if learn is not None else errors.split(draws)
+        preds = [predict_record(post.model, rec, d) for d, _ in parts]
+        pred = np.concatenate(preds)
         scored = rec.scored_mask.copy()
         zero = rezero.get(rec.name)
         if zero is not None:
@@ -242,8 +263,6 @@ def check_transfer(post: Any, z: np.ndarray, data: Dataset | Record, *,
             se = float(np.std(gap) / np.sqrt(effective_size(gap)))
             pred = pred + float(np.mean(gap)) + rng.normal(0.0, se, (pred.shape[0], 1))
             scored &= ~zero
-        learn = residual_from.get(rec.name)
-        source = residual
         if learn is not None:
             learn = _mask(learn, rec.n, f"residual_from[{rec.name!r}]")
             gap = rec.y - np.mean(pred, axis=0)
@@ -255,7 +274,10 @@ def check_transfer(post: Any, z: np.ndarray, data: Dataset | Record, *,
             source = ResidualBlocks.from_series(runs, [rec.frequency_hz] * len(runs),
                                                 [cycle_samples(rec)] * len(runs))
             scored &= ~learn
-        y_rep = pred + source.sample(pred.shape[0], rec.n, rec.frequency_hz, rng)
+            y_rep = pred + source.sample(pred.shape[0], rec.n, rec.frequency_hz, rng)
+        else:
+            y_rep = pred + np.concatenate([r.sample(p.shape[0], rec.n, rec.frequency_hz, rng)
+                                           for (_, r), p in zip(parts, preds, strict=True)])
         y_d = reference.get(rec.name)
         if y_d is not None and np.shape(y_d) != (rec.n,):
             raise ParameterError(f"reference[{rec.name!r}]: expected {rec.n} samples, got "
@@ -271,7 +293,7 @@ def check_transfer(post: Any, z: np.ndarray, data: Dataset | Record, *,
             windows.append(_window(label, rec.y, pred, y_rep, mask, y_d, span, rng))
     if not windows:
         raise DataError(f"{data.name}: no window of 10 scored samples to check")
-    return TransferCheck(post.model.name, tuple(windows), residual.to_dict())
+    return TransferCheck(post.model.name, tuple(windows), errors.to_dict())
 
 
 def _thinned(z: np.ndarray, n: int) -> np.ndarray:
