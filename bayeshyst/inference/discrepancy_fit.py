@@ -164,7 +164,7 @@ def attach_discrepancy(post0: Posterior, start: MAPResult,
     best = None
     for _ in range(2):
         res = optimize.minimize(neg, x_best, method="Nelder-Mead",
-                                options={"xatol": 1e-3, "fatol": 1e-3, "maxiter": 1500})
+                                options={"xatol": 1e-2, "fatol": 1e-2, "maxiter": 1500})
         if best is not None and not res.fun < best.fun - 1e-2:
             break
         best, x_best = res, res.x
