@@ -105,6 +105,13 @@ class Conditional:
         return self.mean + np.where(self.ok[:, None], step, 0.0)
 
 
+def _one_for_all(st: LinearStats) -> bool:
+    """Whether ``st`` is one walker's Grams broadcast to all (zero stride, same status)."""
+    arrays = [a for a in (st.first, st.lag0, st.cross, st.prev) if a is not None]
+    return (all(a.strides[0] == 0 for a in arrays)
+            and bool(np.all(st.failed == st.failed[0])))
+
+
 def _stacked(phi: np.ndarray, r: np.ndarray) -> np.ndarray:
     """``X = [Phi, r]`` per walker, shape (W, N, P + 1), non-finite entries zeroed.
 
@@ -521,8 +528,7 @@ class LinearStructure:
         if self.design_idx.size == 0:
             if self._constant is None:
                 self._constant = self._compute(z[:1])
-            idx = np.zeros(z.shape[0], dtype=int)
-            return self._scaled(self._constant.take(idx), z)
+            return self._constant_for(z)
         keys = [z[j, self.design_idx].tobytes() for j in range(z.shape[0])]
         todo = [j for j, k in enumerate(keys) if k not in self._cache]
         # one entry per distinct key (DE proposals can repeat a point)
@@ -551,6 +557,29 @@ class LinearStructure:
             None if not self.lagged else np.stack([e[2] for e in entries]),
             None if not self.lagged else np.stack([e[3] for e in entries]),
             entries[0][5], entries[0][6], np.array([e[4] for e in entries])), z)
+
+    def _constant_for(self, z: np.ndarray) -> LinearStats:
+        """The design-free Grams of the walkers ``z``, read-only.
+
+        When every walker's columns have the same scale (no basis, or its scales held
+        fixed, as a fitted discrepancy's are) the Grams are one matrix for all of them:
+        it is scaled once and broadcast, not copied and scaled per walker (copying and
+        scaling ~100 x 100 Grams for every walker was a quarter of a play-PI fit with a
+        discrepancy).
+        """
+        w = z.shape[0]
+        c = self._constant
+        scale = self.column_scale(z) if self.has_basis else None
+        if scale is None or np.all(scale == scale[:1]):
+            one = self._scaled(c, z[:1])
+
+            def wide(a: np.ndarray | None) -> np.ndarray | None:
+                return None if a is None else np.broadcast_to(a[:1], (w, *a.shape[1:]))
+
+            return LinearStats(wide(one.first), wide(one.lag0), wide(one.cross),
+                               wide(one.prev), one.n, one.n_first,
+                               np.broadcast_to(one.failed[:1], (w,)).copy())
+        return self._scaled(c.take(np.zeros(w, dtype=int)), z)
 
     # ------------------------------------------------------------------ discrepancy basis
     def column_scale(self, z: np.ndarray) -> np.ndarray:
@@ -755,6 +784,13 @@ class LinearStructure:
         of the discrepancy's held-out scale search.
         """
         sigma, phi = self.noise(z)
+        w = z.shape[0]
+        if w > 1 and _one_for_all(st) and np.all(sigma == sigma[0]) and np.all(phi == phi[0]):
+            # every walker has the same Grams (broadcast by _constant_for) and noise: one
+            # factorisation serves them all
+            chol, half, ok = self._factor(st.take(np.zeros(1, dtype=int)), z[:1])
+            return (np.broadcast_to(chol, (w, *chol.shape[1:])),
+                    np.broadcast_to(half, (w, half.shape[1])), np.repeat(ok, w))
         ok = ~st.failed & self._noise_ok(sigma, phi)
         m = self.whitened(st, np.where(ok, phi, 0.0))
         s2 = np.where(ok, sigma, 1.0) ** 2
