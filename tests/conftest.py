@@ -7,6 +7,7 @@ from pathlib import Path
 
 import numba
 import pytest
+from threadpoolctl import threadpool_limits
 
 from bayeshyst.errors import DataError
 
@@ -15,6 +16,9 @@ if os.environ.get("PYTEST_XDIST_WORKER"):
     # four threads on two cores, and a parallel kernel then waits for descheduled
     # threads (a second-order block measured 20x slower than its serial loop that way)
     numba.set_num_threads(1)
+    # the same for OpenBLAS: its team of two per worker spins on a core the other worker
+    # holds (a discrepancy's Gram measured 2-3x slower with the second core busy)
+    threadpool_limits(1, user_api="blas")
 
 #: Files that take far longer than the rest, run first: with ``--dist loadfile`` a file
 #: runs whole on one worker, and the simulation-based calibration (20 replicates of each
