@@ -204,6 +204,10 @@ def test_a_share_of_the_draws_drops_the_discrepancy_and_takes_the_model_residual
     parts = errors.split(draws)
     assert [d.size for d, _ in parts] == [n for n in (kept, 10 - kept) if n]
     assert errors.mixed == (transfer < 1.0)
+    table = errors.to_dataframe()
+    assert list(table["hypothesis"]) == ["model + discrepancy", "model alone"]
+    assert list(table["probability"]) == pytest.approx([transfer, 1.0 - transfer])
+    assert list(table["rms"]) == [1.0, 5.0]
 
 
 def test_without_a_discrepancy_or_with_a_measured_residual_nothing_is_mixed():

@@ -26,6 +26,7 @@ from bayeshyst.inference.posterior import record_covariates
 from bayeshyst.inference.residual import ResidualBlocks
 from bayeshyst.inverse.numerical import Inversion, invert
 from bayeshyst.models.base import HysteresisModel
+from bayeshyst.tables import TableRecord, frame
 
 __all__ = [
     "BAND",
@@ -93,7 +94,7 @@ class Draws:
 
 
 @dataclass(frozen=True)
-class PredictionError:
+class PredictionError(TableRecord):
     """What a measurement adds to a prediction draw's output on a new input.
 
     Two things: the residual the fit leaves unexplained, resampled onto the input
@@ -195,6 +196,15 @@ class PredictionError:
         if self.without is not None:
             out["residual_without_discrepancy"] = self.without.to_dict()
         return out
+
+    def to_dataframe(self) -> Any:
+        """One row per hypothesis and frequency: its probability and the residual's RMS."""
+        parts = [("model + discrepancy", self.transfer if self.without is not None else 1.0,
+                  self.residual)]
+        if self.without is not None:
+            parts.append(("model alone", 1.0 - self.transfer, self.without))
+        return frame([{"hypothesis": name, "probability": p, **row}
+                      for name, p, blocks in parts for row in blocks.to_dict()["rows"]])
 
     def __str__(self) -> str:
         if self.without is None:
