@@ -111,14 +111,19 @@ def _tasks(models: tuple[str, ...], keys: list[float | None], lofo: bool) -> lis
 
 
 def _worker_init() -> None:
-    """Serial kernels in the workers.
+    """Serial kernels and single-threaded BLAS in the workers.
 
     The pool already uses every core, and a forked child must never enter the parent's
-    numba thread pool (it does not exist there).
+    numba thread pool (it does not exist there). A BLAS team per worker would spin on
+    the cores the other workers hold (a discrepancy's Gram measured 2-3x slower with
+    the second core busy).
     """
+    from threadpoolctl import threadpool_limits
+
     from bayeshyst.models import serial_kernels_in_this_thread
 
     serial_kernels_in_this_thread()
+    threadpool_limits(1, user_api="blas")
 
 
 def _pool_context() -> Any:
