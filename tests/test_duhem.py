@@ -24,6 +24,11 @@ from bayeshyst.errors import ModelError, ParameterError, SimulationError
 from bayeshyst.models import get
 from bayeshyst.models._kernels.duhem import exp_moments
 from bayeshyst.models.duhem import Duhem, ImprovedDuhem
+from tests.contracts import (
+    assert_batch_equals_single,
+    assert_pieces_match,
+    assert_prior_draws_simulate,
+)
 
 TOL = 1e-6  # of the stroke, vs solve_ivp at rtol 1e-10
 
@@ -218,49 +223,25 @@ MODELS = [Duhem(3, 1), Duhem(2, 2), ImprovedDuhem()]
 @given(cuts=st.lists(st.integers(1, 80), min_size=1, max_size=6, unique=True))
 def test_state_continuation(model, cuts):
     u, t = INPUTS["random_walk"]
-    u, t = u[:81], t[:81]
-    theta = _prior_theta(model)
-    whole = model.simulate(u, t, theta)
-    edges = [0, *sorted(cuts), 81]
-    state, pieces = None, []
-    for a, b in itertools.pairwise(edges):
-        traj = model.run(u[a:b], t[a:b], theta, state0=state)
-        pieces.append(traj.y)
-        state = traj.state
-    np.testing.assert_allclose(np.concatenate(pieces), whole, rtol=0, atol=1e-12)
+    assert_pieces_match(model, u[:81], t[:81], _prior_theta(model), [0, *sorted(cuts), 81])
 
 
 @pytest.mark.parametrize("model", MODELS, ids=lambda m: m.name)
 def test_length_one_pieces(model):
     u, t = INPUTS["sine"]
-    theta = _prior_theta(model)
-    whole = model.simulate(u, t, theta)
-    state, out = None, []
-    for k in range(u.size):
-        traj = model.run(u[k:k + 1], t[k:k + 1], theta, state0=state)
-        out.append(traj.y[0])
-        state = traj.state
-    np.testing.assert_allclose(out, whole, rtol=0, atol=1e-12)
+    assert_pieces_match(model, u, t, _prior_theta(model), range(u.size + 1))
 
 
 @pytest.mark.parametrize("model", MODELS, ids=lambda m: m.name)
 def test_batched_equals_one_by_one(model):
-    space = model.param_space(DATA)
-    z = space.sample_prior(np.random.default_rng(3), 5)
     u, t = INPUTS["decaying"]
-    batch = model.simulate_batch(u, t, space.unpack(z))
-    for j in range(5):
-        np.testing.assert_array_equal(batch[j], model.simulate(u, t, space.unpack(z[j])))
+    assert_batch_equals_single(model, u, t, model.param_space(DATA), seed=3)
 
 
 @pytest.mark.parametrize("model", MODELS, ids=lambda m: m.name)
 def test_prior_draws_never_nan(model):
-    space = model.param_space(DATA)
-    z = space.sample_prior(np.random.default_rng(11), 200)
     u, t = INPUTS["sine"]
-    traj = model.run_batch(u, t, space.unpack(z))
-    assert traj.n_failed == 0
-    assert np.all(np.isfinite(traj.y))
+    assert_prior_draws_simulate(model, u, t, model.param_space(DATA), seed=11)
 
 
 def test_failures_are_flagged():

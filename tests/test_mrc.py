@@ -8,7 +8,6 @@ when the mechanics is quasi-static; ``brentq`` for the algebraic loop. Then prop
 
 from __future__ import annotations
 
-import itertools
 from types import SimpleNamespace
 
 import numpy as np
@@ -23,6 +22,11 @@ from bayeshyst.models import get
 from bayeshyst.models._kernels.mrc import loop_solve
 from bayeshyst.models.mrc import MRCElectromechanical
 from bayeshyst.models.pi import PrandtlIshlinskii, play_pi_inverse
+from tests.contracts import (
+    assert_batch_equals_single,
+    assert_pieces_match,
+    assert_prior_draws_simulate,
+)
 
 FS = 5000.0
 T = np.arange(1500) / FS
@@ -144,47 +148,22 @@ def test_loop_widens_with_frequency():
 @settings(max_examples=20, deadline=None)
 @given(cuts=st.lists(st.integers(1, 119), min_size=1, max_size=6, unique=True))
 def test_state_continuation(cuts):
-    model = MRCElectromechanical(3)
-    theta = _theta()
-    u, t = U[:120], T[:120]
-    whole = model.simulate(u, t, theta)
-    edges = [0, *sorted(cuts), 120]
-    state, pieces = None, []
-    for a, b in itertools.pairwise(edges):
-        traj = model.run(u[a:b], t[a:b], theta, state0=state)
-        pieces.append(traj.y)
-        state = traj.state
-    np.testing.assert_allclose(np.concatenate(pieces), whole, rtol=0, atol=1e-12)
+    assert_pieces_match(MRCElectromechanical(3), U[:120], T[:120], _theta(),
+                        [0, *sorted(cuts), 120])
 
 
 def test_length_one_pieces():
-    model = MRCElectromechanical(3)
-    theta = _theta()
-    whole = model.simulate(U[:300], T[:300], theta)
-    state, out = None, []
-    for k in range(300):
-        traj = model.run(U[k:k + 1], T[k:k + 1], theta, state0=state)
-        out.append(traj.y[0])
-        state = traj.state
-    np.testing.assert_allclose(out, whole, rtol=0, atol=1e-12)
+    assert_pieces_match(MRCElectromechanical(3), U[:300], T[:300], _theta(), range(301))
 
 
 def test_batched_equals_one_by_one():
     model = MRCElectromechanical(4)
-    space = model.param_space(DATA)
-    z = space.sample_prior(np.random.default_rng(3), 5)
-    batch = model.simulate_batch(U, T, space.unpack(z))
-    for j in range(5):
-        np.testing.assert_array_equal(batch[j], model.simulate(U, T, space.unpack(z[j])))
+    assert_batch_equals_single(model, U, T, model.param_space(DATA), seed=3)
 
 
 def test_prior_draws_never_nan():
     model = MRCElectromechanical(5)
-    space = model.param_space(DATA)
-    z = space.sample_prior(np.random.default_rng(17), 200)
-    traj = model.run_batch(U[:500], T[:500], space.unpack(z))
-    assert traj.n_failed == 0
-    assert np.all(np.isfinite(traj.y))
+    assert_prior_draws_simulate(model, U[:500], T[:500], model.param_space(DATA), seed=17)
 
 
 def test_failures_are_flagged_not_returned():

@@ -11,7 +11,6 @@ and posterior recovery.
 
 from __future__ import annotations
 
-import itertools
 from types import SimpleNamespace
 
 import numpy as np
@@ -31,6 +30,11 @@ from bayeshyst.models import get
 from bayeshyst.models.fractional import derivative_modes
 from bayeshyst.models.mrc import MRCElectromechanical
 from bayeshyst.models.mrc_fractional import FractionalMRC
+from tests.contracts import (
+    assert_batch_equals_single,
+    assert_pieces_match,
+    assert_prior_draws_simulate,
+)
 from tests.test_recovery import _check_calibration, _check_coverage, _fit_stats
 
 FS = 5000.0
@@ -250,49 +254,23 @@ def test_creep_after_a_step_follows_the_power_law(lam):
 @settings(max_examples=20, deadline=None)
 @given(cuts=st.lists(st.integers(1, 119), min_size=1, max_size=6, unique=True))
 def test_state_continuation(cuts):
-    model = FractionalMRC(3)
-    theta = _theta()
-    u, t = U[:120], T[:120]
-    whole = model.simulate(u, t, theta)
-    edges = [0, *sorted(cuts), 120]
-    state, pieces = None, []
-    for a, b in itertools.pairwise(edges):
-        traj = model.run(u[a:b], t[a:b], theta, state0=state)
-        pieces.append(traj.y)
-        state = traj.state
     # to rounding, as mrc: a new run re-solves the loop at the state's instant
-    np.testing.assert_allclose(np.concatenate(pieces), whole, rtol=0, atol=1e-12)
+    assert_pieces_match(FractionalMRC(3), U[:120], T[:120], _theta(), [0, *sorted(cuts), 120])
 
 
 def test_length_one_pieces_and_irregular_sampling():
-    model = FractionalMRC(3)
-    theta = _theta(lam=0.4)
     t = np.cumsum(np.random.default_rng(2).uniform(1e-4, 3e-4, 300))
-    whole = model.simulate(U[:300], t, theta)
-    state, out = None, []
-    for k in range(300):
-        traj = model.run(U[k:k + 1], t[k:k + 1], theta, state0=state)
-        out.append(traj.y[0])
-        state = traj.state
-    np.testing.assert_allclose(out, whole, rtol=0, atol=1e-12)
+    assert_pieces_match(FractionalMRC(3), U[:300], t, _theta(lam=0.4), range(301))
 
 
 def test_batched_equals_one_by_one():
     model = FractionalMRC(4)
-    space = model.param_space(DATA)
-    z = space.sample_prior(np.random.default_rng(3), 5)
-    batch = model.simulate_batch(U, T, space.unpack(z))
-    for j in range(5):
-        np.testing.assert_array_equal(batch[j], model.simulate(U, T, space.unpack(z[j])))
+    assert_batch_equals_single(model, U, T, model.param_space(DATA), seed=3)
 
 
 def test_prior_draws_never_nan():
     model = FractionalMRC(5)
-    space = model.param_space(DATA)
-    z = space.sample_prior(np.random.default_rng(17), 200)
-    traj = model.run_batch(U[:500], T[:500], space.unpack(z))
-    assert traj.n_failed == 0
-    assert np.all(np.isfinite(traj.y))
+    assert_prior_draws_simulate(model, U[:500], T[:500], model.param_space(DATA), seed=17)
 
 
 def test_relaxed_state_is_static_and_loops_widen_with_frequency():
