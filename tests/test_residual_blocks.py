@@ -221,5 +221,5 @@ def test_without_a_discrepancy_or_with_a_measured_residual_nothing_is_mixed():
     assert out is draws and np.all(res == 1.0)
     assert PredictionError.measured(rb).to_dict()["discrepancy_transfer"] is None
     for bad in (-0.1, 1.5, float("nan")):
-        with pytest.raises(ParameterError, match="discrepancy transfer"):
+        with pytest.raises(ParameterError, match="discrepancy_transfer"):
             PredictionError(rb, rb, bad)

@@ -58,6 +58,7 @@ from bayeshyst.inverse.feedforward import (
     Draws,
     Feedforward,
     PredictionError,
+    check_transfer_probability,
     design_feedforward,
     predict_outputs,
     predict_record,
@@ -435,10 +436,8 @@ def compensate(
         raise ParameterError(f"u_margin must be >= 0, got {u_margin}")
     if not 0.0 < robust_quantile < 1.0:
         raise ParameterError(f"robust_quantile must be in (0, 1), got {robust_quantile}")
-    if not (isinstance(discrepancy_transfer, (int, float)) and not
-            isinstance(discrepancy_transfer, bool) and 0.0 <= discrepancy_transfer <= 1.0):
-        raise ParameterError(f"discrepancy_transfer must be a probability in [0, 1], got "
-                             f"{discrepancy_transfer!r}")
+    # before the fit, not after it
+    check_transfer_probability(discrepancy_transfer)
     if nominal_inverse not in NOMINAL_INVERSES:
         raise ParameterError(f"nominal_inverse must be one of {NOMINAL_INVERSES}, "
                              f"got {nominal_inverse!r}")

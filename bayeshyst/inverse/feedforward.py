@@ -34,6 +34,7 @@ __all__ = [
     "Draws",
     "Feedforward",
     "PredictionError",
+    "check_transfer_probability",
     "design_feedforward",
     "predict_outputs",
     "predict_record",
@@ -135,9 +136,7 @@ class PredictionError(TableRecord):
     transfer: float = 1.0
 
     def __post_init__(self) -> None:
-        if not 0.0 <= self.transfer <= 1.0:
-            raise ParameterError(f"discrepancy transfer must be a probability in [0, 1], "
-                                 f"got {self.transfer!r}")
+        check_transfer_probability(self.transfer)
 
     @classmethod
     def of(cls, post: Any, z: np.ndarray, *,
@@ -211,6 +210,15 @@ class PredictionError(TableRecord):
             return f"PredictionError({self.residual})"
         return (f"PredictionError(discrepancy holds with probability {self.transfer:g}; "
                 f"with it {self.residual}; without it {self.without})")
+
+
+def check_transfer_probability(value: Any) -> float:
+    """``value`` as a discrepancy-transfer probability in [0, 1], else ParameterError."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)) \
+            or not 0.0 <= value <= 1.0:
+        raise ParameterError(f"discrepancy_transfer must be a probability in [0, 1], got "
+                             f"{value!r}")
+    return float(value)
 
 
 def _take_draws(draws: Draws, rows: slice) -> Draws:
