@@ -28,6 +28,7 @@ from bayeshyst.diagnosis.effects import (
     DriftEffect,
     RateDependence,
     RecordSignals,
+    shortest_half_period,
 )
 from bayeshyst.errors import ModelError
 from bayeshyst.models import get
@@ -272,6 +273,27 @@ def test_delay_history_covers_three_times_the_estimate(coef):
     # a small estimate keeps the default history of 10 samples
     small = DelayEffect().augment(BASE, "gaussian", np.array([0.5 * DT]), DATA)[0]
     assert small.blocks[-1].max_delay_samples == 10
+
+
+def test_delay_room_stops_at_half_the_shortest_period():
+    # a score estimate of 0.2 s on a 2 Hz record: three times it (0.6 s) reaches past half
+    # a period (0.25 s = 500 samples at 2 kHz), where the delayed loop's phase wraps
+    model = DelayEffect().augment(BASE, "gaussian", np.array([0.2]), DATA)[0]
+    assert model.blocks[-1].max_delay_samples == round(0.5 / F0 / DT)
+    assert math.isclose(shortest_half_period(DATA), 0.5 / F0)
+    # without a declared frequency the period comes from the input's reversals, also
+    # through sensor noise on the input (0.1 % of its span flips du's sign at every sample)
+    rng = np.random.default_rng(3)
+    noisy = Record(DATA.t, DATA.u + 1e-3 * np.ptp(DATA.u) * rng.standard_normal(DATA.n),
+                   DATA.y, name="no frequency")
+    assert abs(shortest_half_period(noisy) - 0.5 / F0) < 5 * DT
+    blk = DelayEffect().augment(BASE, "gaussian", np.array([0.2]), noisy)[0].blocks[-1]
+    assert abs(blk.max_delay_samples - 0.5 / F0 / DT) <= 5
+    # a record with fewer than two reversals has no period: the estimate alone sizes it
+    ramp = Record(DATA.t, DATA.t.copy(), DATA.t.copy(), name="ramp")
+    assert shortest_half_period(ramp) is None
+    blk = DelayEffect().augment(BASE, "gaussian", np.array([0.2]), ramp)[0].blocks[-1]
+    assert blk.max_delay_samples == math.ceil(0.6 / DT)
 
 
 # ------------------------------------------------------- effects with several variants

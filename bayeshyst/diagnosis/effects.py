@@ -38,6 +38,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
+from bayeshyst.data import find_reversals
 from bayeshyst.errors import SimulationError
 from bayeshyst.models.base import HysteresisModel
 from bayeshyst.models.blocks import AsymmetricOutput, Creep, Delay, Drift, SecondOrder
@@ -53,6 +54,7 @@ __all__ = [
     "Effect",
     "RateDependence",
     "RecordSignals",
+    "shortest_half_period",
 ]
 
 
@@ -314,6 +316,27 @@ class Asymmetry(_BlockEffect):
         return {"a2": float(coef[0])}
 
 
+def shortest_half_period(data: Any) -> float | None:
+    """Half the shortest excitation period (s) over the records of ``data``.
+
+    A record's period is ``1 / frequency_hz`` when it declares one, else twice the
+    median time between reversals of its input (turning points by
+    :func:`~bayeshyst.data.find_reversals`, robust to noise). None when no record has a
+    period (fewer than two reversals, no frequency).
+    """
+    records = list(data) if hasattr(data, "records") else [data]
+    halves = []
+    for rec in records:
+        freq = getattr(rec, "frequency_hz", None)
+        if freq:
+            halves.append(0.5 / float(freq))
+            continue
+        turns = find_reversals(np.asarray(rec.u, dtype=float))
+        if turns.size >= 2:
+            halves.append(float(np.median(np.diff(np.asarray(rec.t, dtype=float)[turns]))))
+    return min(halves) if halves else None
+
+
 class DelayEffect(_BlockEffect):
     """Delay: the sensor (or the amplifier) lags the drive by a constant time.
 
@@ -334,15 +357,22 @@ class DelayEffect(_BlockEffect):
             Data whose sample interval ``dt`` (s) sizes the history.
         d_max : float or None
             Expected delay (s): the history holds ``max(10, ceil(3 d_max / dt))`` samples;
-            10 samples when ``None``.
+            10 samples when ``None``. The room never exceeds half the shortest excitation
+            period (:func:`shortest_half_period`): a longer delay shifts the fastest
+            record's loop by more than half a cycle, where its phase wraps and the
+            posterior of ``d`` becomes multimodal (one mode per period) — that is not a
+            delay the data can identify, whatever the score coefficient said.
 
         Returns
         -------
         Delay
         """
         dt = time_scales(data).dt
-        n = 10 if d_max is None else max(10, math.ceil(3.0 * d_max / dt))
-        return Delay(max_delay_samples=n)
+        room = 10 * dt if d_max is None else max(10 * dt, 3.0 * d_max)
+        half = shortest_half_period(data)
+        if half is not None:
+            room = min(room, half)
+        return Delay(max_delay_samples=max(1, math.ceil(room / dt - 1e-9)))
 
     def unit_thetas(self, block, data):
         """One regressor: ``d = dt / 4``, divided by itself.

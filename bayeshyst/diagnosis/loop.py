@@ -102,8 +102,9 @@ def _carried(post: Posterior, previous: DiagnosisFit, added: dict[str, Any],
     """Points of the augmented posterior made from the previous fit's points ``z_old``.
 
     ``z_old`` is (M, ndim_old): its names are carried into the composite's ``static.``
-    namespace, the added parameters set at the test's estimate, anything else taken from
-    prior draws. Points that cannot be written in the new space are left out.
+    namespace, the added parameters set at the test's estimate (where their prior allows
+    it), anything else taken from prior draws. Points that cannot be written in the new
+    space are left out.
     """
     old = previous.posterior.space.unpack(np.atleast_2d(z_old))
     space = post.space
@@ -118,7 +119,11 @@ def _carried(post: Posterior, previous: DiagnosisFit, added: dict[str, Any],
                     break
             if name in added:
                 value = np.asarray(added[name], dtype=float)
-                if value.ndim == 0 or value.shape == np.shape(theta[name]):
+                lo, hi = space[name].prior.support
+                # an estimate outside the prior (a delay longer than the block's room)
+                # keeps the prior draw: the start must be a point the posterior can hold
+                inside = bool(np.all((value > lo) & (value < hi)))
+                if inside and (value.ndim == 0 or value.shape == np.shape(theta[name])):
                     # a scalar fills a vector parameter (the discrepancy's coefficients)
                     theta[name] = np.broadcast_to(value, np.shape(theta[name])).copy()
         try:
