@@ -336,3 +336,37 @@ def test_design_with_the_discrepancy_tracks_a_misspecified_plant_better(seed):
         assert any(s.startswith("With a discrepancy the bands mix")
                    for s in res.statements) == (kind == "hsgp")
     assert realised["hsgp"] < 0.8 * realised["none"]
+
+
+class _ConstantBasis:
+    """A discrepancy whose one basis function is 1: ``delta`` is each draw's constant."""
+
+    def basis(self, u, frequency_hz):
+        return np.ones((np.asarray(u).size, 1))
+
+
+@pytest.mark.parametrize("transfer", [0.5, 1.0])
+def test_robust_command_hedges_over_whether_the_discrepancy_holds(pi, transfer):
+    # oracle: minimax. Every design draw has the same model and a constant discrepancy c;
+    # hedged, a share `transfer` keeps c and the others drop it, so the errors are
+    # {e + c, e} and the 0.9-quantile of |error| is smallest at e = -c/2 (the model's
+    # output halfway between y_d - c and y_d). Unhedged (transfer 1) every draw keeps c:
+    # the model's output is y_d - c.
+    from bayeshyst.inference.residual import ResidualBlocks
+    from bayeshyst.inverse.feedforward import Draws, PredictionError, design_feedforward
+
+    model, _, theta = pi
+    s, c = 20, 0.6
+    thetas = {k: np.repeat(np.asarray(v, float)[None, ...], s, axis=0) for k, v in theta.items()}
+    design = Draws(thetas, np.zeros(s), _ConstantBasis(), np.full((s, 1), c))
+    rb = ResidualBlocks((np.zeros(40),), (None,), (4,))
+    errors = PredictionError(rb, rb, transfer)
+    hedged = errors.hedged(design)
+    assert np.count_nonzero(hedged.delta) == round(transfer * s)
+    t = np.arange(1000) * 1e-3
+    y_d = 8.0 + 4.0 * np.sin(2 * np.pi * 3.0 * t)
+    ff = design_feedforward(model, y_d, t, hedged, hedged, label="robust",
+                            objective="quantile", quantile=0.9, frequency_hz=3.0)
+    y_model = model.simulate(ff.u, t, theta)
+    shift = c * (0.5 if transfer < 1.0 else 1.0)
+    np.testing.assert_allclose(y_model, y_d - shift, atol=1e-3 * np.ptp(y_d))

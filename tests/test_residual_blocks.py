@@ -203,6 +203,8 @@ def test_a_share_of_the_draws_drops_the_discrepancy_and_takes_the_model_residual
     np.testing.assert_array_equal(out.delta[kept:], 0.0)
     parts = errors.split(draws)
     assert [d.size for d, _ in parts] == [n for n in (kept, 10 - kept) if n]
+    # the robust command's design draws are mixed the same way
+    np.testing.assert_array_equal(errors.hedged(draws).delta, out.delta)
     assert errors.mixed == (transfer < 1.0)
     table = errors.to_dataframe()
     assert list(table["hypothesis"]) == ["model + discrepancy", "model alone"]
@@ -219,6 +221,7 @@ def test_without_a_discrepancy_or_with_a_measured_residual_nothing_is_mixed():
     draws = _draws(6)
     out, res = PredictionError.measured(rb).apply(draws, 10, None, np.random.default_rng(1))
     assert out is draws and np.all(res == 1.0)
+    assert PredictionError.measured(rb).hedged(draws) is draws
     assert PredictionError.measured(rb).to_dict()["discrepancy_transfer"] is None
     for bad in (-0.1, 1.5, float("nan")):
         with pytest.raises(ParameterError, match="discrepancy_transfer"):

@@ -11,7 +11,9 @@ design. The objectives are those of ``bayeshyst compensate``:
 * ``robust`` -- the ``q``-quantile over draws of ``|y - y_d|`` is smallest.
 
 With a discrepancy in the fit the command is designed against model + discrepancy
-(:func:`~bayeshyst.inverse.feedforward.design_feedforward`).
+(:func:`~bayeshyst.inverse.feedforward.design_feedforward`); the robust one hedges over
+whether the discrepancy holds along the command, the two hypotheses its band mixes
+(:meth:`~bayeshyst.inverse.feedforward.PredictionError.hedged`).
 """
 
 from __future__ import annotations
@@ -191,6 +193,8 @@ def design_command(fit: SavedFit, reference: Reference, *, objective: str = "mea
     given = reference.covariates or {}
     missing = [c for c in needed if c not in given]
     covariates = None if missing or not needed else {c: given[c] for c in needed}
+    if objective == "robust":  # hedged over whether the discrepancy holds, as its band
+        design = errors.hedged(design)
     ff = design_feedforward(post.model, y_d, t, design, predict, label=objective,
                             objective="quantile" if objective == "robust" else "mean",
                             quantile=quantile, u_limits=limits, periodic=reference.periodic,

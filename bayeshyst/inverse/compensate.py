@@ -542,8 +542,10 @@ def _evaluate(model: HysteresisModel, ref: Reference, group: Dataset, nominal: D
                                                  label="nominal", **common)
     commands["posterior"] = design_feedforward(model, y_d, t, design, predict,
                                                label="posterior", **common)
-    commands["robust"] = design_feedforward(model, y_d, t, design, predict, label="robust",
-                                            objective="quantile", quantile=q, **common)
+    # the robust command hedges over whether the discrepancy holds along it, as its band
+    commands["robust"] = design_feedforward(model, y_d, t, errors.hedged(design), predict,
+                                            label="robust", objective="quantile", quantile=q,
+                                            **common)
     curves: dict[str, np.ndarray] = {"t": t, "y_d": y_d, "scored": mask}
     realised: dict[str, tuple[float, float]] = {}
     over_plants: dict[str, float] = {}

@@ -167,12 +167,24 @@ class PredictionError(TableRecord):
         if not self.mixed or draws.delta is None:
             return [(draws, self.residual)]
         keep = round(self.transfer * draws.size)
-        delta = draws.delta.copy()
-        delta[keep:] = 0.0
-        mixed = Draws(draws.theta, draws.offset, draws.discrepancy, delta)
+        mixed = self.hedged(draws)
         parts = [(_take_draws(mixed, slice(0, keep)), self.residual),
                  (_take_draws(mixed, slice(keep, draws.size)), self.without)]
         return [(d, r) for d, r in parts if d.size]
+
+    def hedged(self, draws: Draws) -> Draws:
+        """The draws with ``delta`` dropped from the share that it does not hold for.
+
+        The first ``round(transfer * S)`` draws keep ``delta``, the others have it set to
+        zero (the draws come in a random order): the robust command minimises its error
+        quantile over these, hedging over both hypotheses as the band it is scored by
+        does. Unchanged when the transfer is not in question.
+        """
+        if not self.mixed or draws.delta is None:
+            return draws
+        delta = draws.delta.copy()
+        delta[round(self.transfer * draws.size):] = 0.0
+        return Draws(draws.theta, draws.offset, draws.discrepancy, delta)
 
     def apply(self, draws: Draws, n_samples: int, frequency_hz: float | None,
               rng: np.random.Generator) -> tuple[Draws, np.ndarray]:
