@@ -51,6 +51,10 @@ _TRTRS = lapack.dtrtrs
 _SMALL = 16
 #: walkers whose Grams are kept (keyed by their design-determining coordinates)
 _CACHE_SIZE = 512
+#: Walkers' residuals per BLAS product against a shared design and basis: a fixed
+#: width, zero-padded, so a walker's Gram never depends on the batch (see
+#: LinearStructure._grams_with_basis_shared)
+_WALKER_CHUNK = 8
 #: (unit, walker) pairs whose held-out marginals are factorised in one stacked call
 #: (256 Grams of 110 x 110 coefficients: 25 MB)
 _HELD_OUT_STACK = 256
@@ -656,6 +660,8 @@ class LinearStructure:
         record and sample set, its products with the walkers' columns one product per
         walker (values independent of the batch, as in :func:`_grams_shared`).
         """
+        if self._shared_design and phi.shape[0] == 1 and np.all(np.isfinite(phi)):
+            return self._grams_with_basis_shared(rec_index, phi[0], r, keep)
         w = r.shape[0]
         basis = self._records[rec_index]["basis"][self._records[rec_index]["s0"]:]
         pd = self.p_design
@@ -695,6 +701,77 @@ class LinearStructure:
                 cross_a = (basis[rb].T @ xa.reshape(n_b, -1)).reshape(-1, w, ix.size)
                 out[:, ix[:, None], ib[None, :]] = cross_a.transpose(1, 2, 0)
             out[:, ib[:, None], ib[None, :]] = self._basis_gram(rec_index, a, b)[None]
+            return out
+
+        first = gram(np.array([0]), np.array([0])) if keep[0] else np.zeros((w, q, q))
+        idx = np.flatnonzero(keep[1:]) + 1
+        if idx.size == 0:
+            zero = np.zeros((w, q, q))
+            return first, zero, (zero if self.lagged else None), (zero if self.lagged else None)
+        lag0 = gram(idx, idx)
+        if not self.lagged:
+            return first, lag0, None, None
+        return first, lag0, gram(idx, idx - 1), gram(idx - 1, idx - 1)
+
+    def _design_basis(self, rec_index: int, phi: np.ndarray) -> np.ndarray:
+        """``[phi, B]`` (N, P) of one record for a shared design ``phi`` (N, pd), cached."""
+        key = ("design_basis", rec_index)
+        cached = self._basis_grams.get(key)
+        if cached is None or not np.array_equal(cached[:, :self.p_design], phi):
+            basis = self._records[rec_index]["basis"][self._records[rec_index]["s0"]:]
+            cached = np.ascontiguousarray(np.concatenate([phi, basis], axis=1))
+            self._basis_grams[key] = cached
+        return cached
+
+    def _grams_with_basis_shared(self, rec_index: int, phi: np.ndarray, r: np.ndarray,
+                                 keep: np.ndarray) -> tuple[np.ndarray, np.ndarray,
+                                                            np.ndarray | None,
+                                                            np.ndarray | None]:
+        """:meth:`_grams_with_basis` for a design shared by every walker (``phi`` (N, pd)).
+
+        Bouc–Wen's ``[u, 1]``: with ``A = [phi, B]`` the same for every walker, its own
+        Gram ``A^T A`` is computed once per record and sample set, and each walker adds
+        ``A^T r_w`` (and ``r_w^T r_w``) -- ``W`` columns against ``A``, not the ``W (pd +
+        1)`` of multiplying the design anew for each walker. The walkers' residuals go
+        through BLAS in chunks of :data:`_WALKER_CHUNK` columns, zero-padded, so every
+        product has the same shape whatever the batch: a walker's values do not depend
+        on the batch it is computed in (a product's shape can change its rounding;
+        tested).
+        """
+        w = r.shape[0]
+        a_all = self._design_basis(rec_index, phi)
+        q = self.p + 1
+        p = self.p
+        r = np.where(np.isfinite(r), r, 0.0)  # the caller flags these walkers failed
+
+        def rows(idx: np.ndarray) -> np.ndarray | slice:
+            if idx.size and int(idx[-1]) - int(idx[0]) + 1 == idx.size:
+                return slice(int(idx[0]), int(idx[-1]) + 1)
+            return idx
+
+        def products(a_rows: np.ndarray, r_rows: np.ndarray) -> np.ndarray:
+            # A_a^T r_w (W, P) in fixed-shape chunks of walkers
+            out = np.empty((w, p))
+            chunk = np.zeros((r_rows.shape[1], _WALKER_CHUNK))
+            for c in range(0, w, _WALKER_CHUNK):
+                k = min(_WALKER_CHUNK, w - c)
+                chunk[:, :k] = r_rows[c:c + k].T
+                chunk[:, k:] = 0.0
+                out[c:c + k] = (a_rows.T @ chunk)[:, :k].T
+            return out
+
+        def gram(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+            out = np.empty((w, q, q))
+            ra, rb = rows(a), rows(b)
+            key = ("design_gram", rec_index, a.tobytes(), b.tobytes())
+            if key not in self._basis_grams:
+                self._basis_grams[key] = a_all[ra].T @ a_all[rb]
+            out[:, :p, :p] = self._basis_grams[key][None]
+            r_a, r_b = r[:, ra], r[:, rb]
+            out[:, :p, p] = products(a_all[ra], r_b)
+            out[:, p, :p] = (out[:, :p, p] if np.array_equal(a, b)
+                             else products(a_all[rb], r_a))
+            out[:, p, p] = np.einsum("wn,wn->w", r_a, r_b, optimize=False)
             return out
 
         first = gram(np.array([0]), np.array([0])) if keep[0] else np.zeros((w, q, q))
