@@ -39,6 +39,10 @@ from bayeshyst.inference.posterior import NOISE, Posterior
 
 __all__ = ["DiscrepancyScales", "attach_discrepancy"]
 
+#: What the scale searches minimise where the held-out score is not finite (a large
+#: finite value: the optimisers need numbers to compare)
+_NO_DENSITY = 1e300
+
 
 @dataclass(frozen=True)
 class DiscrepancyScales:
@@ -143,13 +147,17 @@ def attach_discrepancy(post0: Posterior, start: MAPResult,
         zz = z.copy()
         zz[idx] = x
         out = -(loo(zz) + _log_prior_of(post, zz, hyper))
-        return out if math.isfinite(out) else 1e300
+        return out if math.isfinite(out) else _NO_DENSITY
 
     # three starts -- amplitudes at, below and above the prior's scale -- are scored and
-    # the search runs from the best, then restarts once from its optimum with a fresh
-    # simplex (Nelder-Mead can stall on a flat direction such as a rate length-scale).
-    # Measured on the bundled records: three full searches from the three starts ended
-    # within 1.5 nats of each other, at three times the cost
+    # the search runs from the best: quasi-Newton on finite differences (the held-out
+    # score is smooth in the log-scales), which reached Nelder-Mead's optimum (within
+    # 0.002 nats; measured on the bundled records, a 6 000-sample Bouc-Wen loop and the
+    # measured 150 V piezo) in 40-60 % of its evaluations. Where it stops without
+    # converging (a step into a region without finite density) Nelder-Mead takes over
+    # and restarts once from its optimum with a fresh simplex (it can stall on a flat
+    # direction such as a rate length-scale). Three full searches from the three starts
+    # ended within 1.5 nats of each other, at three times the cost
     starts = []
     for shift in (0.0, -2.0, 1.0):
         x0 = z[idx].copy()
@@ -161,13 +169,17 @@ def attach_discrepancy(post0: Posterior, start: MAPResult,
             x0[pos] = p.transform.forward(np.asarray(value))
         starts.append(x0)
     x_best = min(starts, key=neg)
-    best = None
-    for _ in range(2):
-        res = optimize.minimize(neg, x_best, method="Nelder-Mead",
-                                options={"xatol": 1e-2, "fatol": 1e-2, "maxiter": 1500})
-        if best is not None and not res.fun < best.fun - 1e-2:
-            break
-        best, x_best = res, res.x
+    best = optimize.minimize(neg, x_best, method="L-BFGS-B", options={"eps": 1e-5})
+    if not (best.success and best.fun < _NO_DENSITY):
+        if best.fun < neg(x_best):
+            x_best = best.x
+        best = None
+        for _ in range(2):
+            res = optimize.minimize(neg, x_best, method="Nelder-Mead",
+                                    options={"xatol": 1e-2, "fatol": 1e-2, "maxiter": 1500})
+            if best is not None and not res.fun < best.fun - 1e-2:
+                break
+            best, x_best = res, res.x
     zz = z.copy()
     zz[idx] = best.x
     theta = post.space.unpack(zz[None])
@@ -184,7 +196,7 @@ def attach_discrepancy(post0: Posterior, start: MAPResult,
         zn = zoff.copy()
         zn[noise_idx] = x
         out = -loo(zn)
-        return out if math.isfinite(out) else 1e300
+        return out if math.isfinite(out) else _NO_DENSITY
 
     off = optimize.minimize(neg_off, zoff[noise_idx], method="Nelder-Mead",
                             options={"xatol": 1e-4, "fatol": 1e-4, "maxiter": 500})
