@@ -19,6 +19,7 @@ from scipy import stats
 
 from bayeshyst.inference.conjugate import conjugate_posterior
 from bayeshyst.inference.convergence import (
+    assess,
     ess_bulk,
     ess_tail,
     hdi,
@@ -50,6 +51,20 @@ def test_rhat_and_ess_agree_with_arviz(phi, shift):
     assert rhat(x) == pytest.approx(float(az.rhat(x)), rel=1e-10)
     assert ess_bulk(x) == pytest.approx(float(az.ess(x, method="bulk")), rel=1e-8)
     assert ess_tail(x) == pytest.approx(float(az.ess(x, method="tail")), rel=1e-8)
+
+
+@pytest.mark.parametrize("where", [0, 2])
+def test_a_parameter_that_never_moves_is_not_converged_wherever_it_is(where):
+    # two well-mixed parameters and one the sampler never moved, first or last: the run
+    # is not converged either way and the reason says why in words, with no NaN
+    rng = np.random.default_rng(4)
+    chain = rng.normal(size=(4000, 8, 3))
+    chain[:, :, where] = 1.0
+    report = assess([chain])
+    assert not report.converged
+    assert "R-hat undefined" in str(report) and "nan" not in str(report)
+    chain[:, :, where] = rng.normal(size=(4000, 8))
+    assert assess([chain]).converged
 
 
 def test_integrated_time_agrees_with_emcee_and_hdi_with_arviz():

@@ -235,9 +235,13 @@ class ConvergenceReport:
 
     def __str__(self) -> str:
         state = "converged" if self.converged else "NOT converged: " + "; ".join(self.reasons)
-        return (f"{state} (R-hat max {self.rhat_max:.4f}, ESS bulk min {self.ess_bulk_min:.0f},"
-                f" tail min {self.ess_tail_min:.0f}, tau max {self.tau_max:.1f} steps, "
-                f"{self.n_steps} steps, burn {self.burn})")
+        def num(v: float, fmt: str) -> str:
+            return format(v, fmt) if math.isfinite(v) else "undefined"
+
+        return (f"{state} (R-hat max {num(self.rhat_max, '.4f')}, ESS bulk min "
+                f"{num(self.ess_bulk_min, '.0f')}, tail min {num(self.ess_tail_min, '.0f')}, "
+                f"tau max {num(self.tau_max, '.1f')} steps, {self.n_steps} steps, "
+                f"burn {self.burn})")
 
 
 def assess(
@@ -272,16 +276,24 @@ def assess(
     walkers = np.concatenate([c.transpose(1, 0, 2) for c in kept], axis=0)  # (chains, n, d)
     ensembles = np.stack([c.reshape(-1, c.shape[2]) for c in kept])  # step-major draws
     ndim = walkers.shape[2]
-    rh = max(max(rhat(walkers[:, :, d]), rhat(ensembles[:, :, d])) for d in range(ndim))
-    eb = min(ess_bulk(walkers[:, :, d]) for d in range(ndim))
-    et = min(ess_tail(walkers[:, :, d]) for d in range(ndim))
+    # an undefined value (a parameter whose draws are constant or not finite: the
+    # sampler never moved it) makes the extreme undefined, i.e. not converged, whichever
+    # parameter it is (Python's max and min keep or drop a NaN by its position)
+    rh = float(np.max([np.maximum(rhat(walkers[:, :, d]), rhat(ensembles[:, :, d]))
+                       for d in range(ndim)]))
+    eb = float(np.min([ess_bulk(walkers[:, :, d]) for d in range(ndim)]))
+    et = float(np.min([ess_tail(walkers[:, :, d]) for d in range(ndim)]))
     reasons = []
+    undefined = "undefined (a parameter's draws are constant or not finite)"
     if not rh < rhat_threshold:
-        reasons.append(f"R-hat {rh:.3f} >= {rhat_threshold}")
+        reasons.append(f"R-hat {rh:.3f} >= {rhat_threshold}" if math.isfinite(rh)
+                       else f"R-hat {undefined}")
     if not eb >= min_ess:
-        reasons.append(f"bulk ESS {eb:.0f} < {min_ess:.0f}")
+        reasons.append(f"bulk ESS {eb:.0f} < {min_ess:.0f}" if math.isfinite(eb)
+                       else f"bulk ESS {undefined}")
     if not et >= min_ess:
-        reasons.append(f"tail ESS {et:.0f} < {min_ess:.0f}")
+        reasons.append(f"tail ESS {et:.0f} < {min_ess:.0f}" if math.isfinite(et)
+                       else f"tail ESS {undefined}")
     n_kept = steps - burn
     if not n_kept >= tau_factor * tau:
         reasons.append(f"{n_kept} kept steps < {tau_factor:.0f} tau = {tau_factor * tau:.0f}")
