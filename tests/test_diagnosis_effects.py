@@ -257,6 +257,29 @@ def test_augment_appends_the_effects_block(name, coef, block, suffix):
     assert again.name == f"pi_play+{block}+{block}"
 
 
+def test_the_output_map_goes_before_linear_blocks_and_leaves_them_linear():
+    # Hammerstein order: asymmetry added to a model with creep and a delay goes right
+    # after the base; the spec, with the suffix inserted after the base's spec, rebuilds
+    # the same model, and creep's gains stay the exact linear group (an output map after
+    # creep would make the composite non-affine and leave nothing linear)
+    from bayeshyst.diagnosis.effects import insert_after_base
+    from bayeshyst.models import get as get_model
+
+    spec = "bouc_wen+creep+delay(max_delay_samples=10)"
+    model = get_model(spec)
+    assert model.linear_params == ("creep.c",)
+    new, _, suffix = Asymmetry().augment(model, "gaussian", np.array([0.05]), DATA)
+    assert [b.name for b in new.blocks] == ["asym_output", "creep", "delay"]
+    new_spec = insert_after_base(spec, suffix)
+    assert new_spec == "bouc_wen+asym_output(order=2)+creep+delay(max_delay_samples=10)"
+    assert get_model(new_spec) == new and new.linear_params == ("creep.c",)
+    # a base alone, or a base whose blocks are not all affine: appended
+    assert Asymmetry().augment(get_model("bouc_wen"), "gaussian", np.array([0.05]),
+                               DATA)[0].name == "bouc_wen+asym_output"
+    assert insert_after_base("pi_play(n_operators=8)", "+creep") == \
+        "pi_play(n_operators=8)+creep"
+
+
 def test_augment_with_colored_noise_changes_only_the_likelihood():
     model, lik, spec = ColoredNoise().augment(BASE, "gaussian", np.array([0.4]), DATA)
     assert model is BASE and lik == "ar1" and spec == " with likelihood ar1"

@@ -54,6 +54,7 @@ __all__ = [
     "Effect",
     "RateDependence",
     "RecordSignals",
+    "insert_after_base",
     "shortest_half_period",
 ]
 
@@ -299,6 +300,23 @@ class Asymmetry(_BlockEffect):
         """``asym_output(order=2)``: the spec names the order."""
         return "asym_output(order=2)"
 
+    def augment(self, model, likelihood, coef, data, variant=""):
+        """The output map right after the hysteresis model, before its linear blocks.
+
+        A static nonlinearity followed by linear dynamics (creep, second-order, delay) is
+        the Hammerstein structure of review Eq. 56–57; placed after them the map would
+        make the composite non-affine and leave creep's gains, which the sampler draws
+        exactly otherwise, to the ensemble moves (the micromanipulator's creep +
+        asymmetry fit did not converge in 10 000 steps that way). Without affine blocks
+        it is appended. The spec suffix is inserted after the base's spec by
+        :func:`insert_after_base` when the map goes first.
+        """
+        blk = self.block(data)
+        if isinstance(model, Composite) and model.blocks \
+                and all(b.affine for b in model.blocks):
+            return Composite(model.base, (blk, *model.blocks)), likelihood, f"+{self.spec(blk)}"
+        return Composite(model, (blk,)), likelihood, f"+{self.spec(blk)}"
+
     def evidence_axis(self, rec):
         """Normalised model output ``x = (w - c) / h`` (N,).
 
@@ -335,6 +353,20 @@ def shortest_half_period(data: Any) -> float | None:
         if turns.size >= 2:
             halves.append(float(np.median(np.diff(np.asarray(rec.t, dtype=float)[turns]))))
     return min(halves) if halves else None
+
+
+def insert_after_base(spec: str, suffix: str) -> str:
+    """``spec`` with ``suffix`` (``"+block(...)"``) right after its base model's spec.
+
+    The base is what precedes the first ``+`` outside parentheses; a spec without one
+    gets the suffix appended.
+    """
+    depth = 0
+    for i, ch in enumerate(spec):
+        depth += (ch == "(") - (ch == ")")
+        if ch == "+" and depth == 0:
+            return spec[:i] + suffix + spec[i:]
+    return spec + suffix
 
 
 class DelayEffect(_BlockEffect):

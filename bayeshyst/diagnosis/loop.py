@@ -56,7 +56,7 @@ from bayeshyst.diagnosis.candidates import (
     unexplained_candidate,
 )
 from bayeshyst.diagnosis.catalogue import EFFECTS, get_effect
-from bayeshyst.diagnosis.effects import ColoredNoise
+from bayeshyst.diagnosis.effects import ColoredNoise, insert_after_base
 from bayeshyst.diagnosis.records import (
     DiagnosisFit,
     DiagnosisResult,
@@ -212,7 +212,14 @@ def _augmented(test: EffectTest, current: DiagnosisFit, spec: str, disc: str | N
     eff = get_effect(test.effect)
     new_model, new_lik, suffix = eff.augment(current.model, current.likelihood, test.coef,
                                              data, variant=test.variant)
-    return (new_model, new_lik, spec if suffix.startswith(" ") else spec + suffix, disc,
+    if suffix.startswith(" "):  # the likelihood changed, not the model
+        new_spec = spec
+    elif (isinstance(new_model, Composite) and isinstance(current.model, Composite)
+          and new_model.blocks[1:] == current.model.blocks):
+        new_spec = insert_after_base(spec, suffix)  # placed before the existing blocks
+    else:
+        new_spec = spec + suffix
+    return (new_model, new_lik, new_spec, disc,
             (current, eff.initial(test.coef, test.estimates)))
 
 
