@@ -169,7 +169,15 @@ def test_each_hidden_effect_is_added_first_and_the_error_drops(effect):
                       n_draws=100, max_refits=1, max_candidates=1, max_rounds=1)
     step = result.steps[0]
     assert step.effect == effect and step.accepted, str(result)
-    assert step.after.rmse < step.before.rmse
+    if effect == "colored_noise":
+        # an AR(1) error model leaves the mean prediction where it was (its RMSE moves by
+        # the refit's parameter noise only, measured +0.1 %): the oracle is the hidden
+        # coefficient, 0.8, inside the added parameter's 90 % interval
+        (phi,) = step.added_parameters
+        assert phi.hdi_lo <= 0.8 <= phi.hdi_hi, str(phi)
+        assert step.after.rmse < 1.01 * step.before.rmse
+    else:
+        assert step.after.rmse < step.before.rmse
 
 
 # ------------------------------------------------------------- effects off the list
