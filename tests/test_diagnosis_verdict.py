@@ -150,3 +150,35 @@ def test_the_same_lag_under_steps_with_holds_and_two_frequencies_is_named(seed):
     (step,) = [s for s in result.steps if s.accepted]
     assert step.tied_with == () and not result.ties, result.verdict
     assert step.after.rmse < 0.1 * step.before.rmse
+
+
+def _stub_fit(elpd, rmse, names=("k",)):
+    from types import SimpleNamespace as NS
+
+    from bayeshyst.inference.fit import TrackingError
+
+    err = TrackingError(None, rmse, 2 * rmse, 1.0, 2.0, 100)
+    return NS(pointwise_elpd=np.asarray(elpd, float), overall=err, per_frequency=(err,),
+              posterior=NS(n_units=len(elpd), space=NS(names=names)),
+              sampling=NS(converged=True, summary=lambda: ()), label="m", spec="m",
+              model=NS(name="m"), analysis=NS(tests=(), drivers=None))
+
+
+@pytest.mark.parametrize("gain, kept", [(0.05, False), (0.5, True)])
+def test_a_gain_under_four_nats_is_not_kept_however_small_its_error(gain, kept):
+    # oracle: the paired difference over 12 cycles is 12 * gain with a tiny se (every
+    # cycle gains the same, up to 1e-3): 0.6 nats is precise but negligible (Sivula et
+    # al. 2020), 6 nats is kept
+    from bayeshyst.diagnosis.candidates import judge
+    from bayeshyst.diagnosis.records import DiagnosisSettings
+    from bayeshyst.diagnosis.verdict import MIN_ELPD_GAIN
+
+    jitter = 1e-3 * np.sin(np.arange(12))
+    current = _stub_fit(np.full(12, -50.0), 1.0)
+    cand = _stub_fit(np.full(12, -50.0) + gain + jitter, 0.99)
+    test = EffectTest("drift", "F", 10.0, 2, 100, 1e-6, 1e-5, 20.0, 0.1, 0.01, 0.1, {}, {},
+                      True)
+    step = judge(1, test, current, cand, DiagnosisSettings())
+    assert step.accepted == kept and (12 * gain > MIN_ELPD_GAIN) == kept
+    if not kept:
+        assert "negligible" in step.reason, step.reason

@@ -25,6 +25,7 @@ from bayeshyst.diagnosis.residual import EffectTest
 from bayeshyst.diagnosis.verdict import (
     FALLBACK_LOG_BF,
     LAG_LIKE,
+    MIN_ELPD_GAIN,
     MIN_GATE_UNITS,
     experiment_for,
     implausible,
@@ -130,10 +131,15 @@ def judge(rnd: int, test: EffectTest, current: DiagnosisFit, cand: DiagnosisFit,
     better = cand.overall.rmse < current.overall.rmse
     if n_units >= MIN_GATE_UNITS and math.isfinite(d) and math.isfinite(se):
         decided_by = "elpd"
-        ok = bool(d > st.threshold * se and d > 0)
-        reason = (f"held-out elpd improves by {d:.1f} > {st.threshold:g} x se {se:.1f}" if ok
-                  else f"held-out elpd changes by {d:.1f} (se {se:.1f}), not above "
-                  f"{st.threshold:g} x se")
+        ok = bool(d > st.threshold * se and d > MIN_ELPD_GAIN)
+        if ok:
+            reason = f"held-out elpd improves by {d:.1f} > {st.threshold:g} x se {se:.1f}"
+        elif d > st.threshold * se:
+            reason = (f"held-out elpd improves by {d:.1f} (se {se:.1f}), under the "
+                      f"{MIN_ELPD_GAIN:g} nats below which a gain is negligible")
+        else:
+            reason = (f"held-out elpd changes by {d:.1f} (se {se:.1f}), not above "
+                      f"{st.threshold:g} x se")
     else:
         cannot = (f"held-out elpd cannot decide on these data ({n_units} cycles, fewer than "
                   f"{MIN_GATE_UNITS}; change {d:.3g}, se {se:.3g})")
