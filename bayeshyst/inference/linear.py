@@ -151,6 +151,32 @@ def _one_for_all(st: LinearStats) -> bool:
             and bool(np.all(st.failed == st.failed[0])))
 
 
+def _rows(idx: np.ndarray) -> np.ndarray | slice:
+    """Sample indices as a slice when they are a contiguous run (a view), else as they are."""
+    if idx.size and int(idx[-1]) - int(idx[0]) + 1 == idx.size:
+        return slice(int(idx[0]), int(idx[-1]) + 1)
+    return idx
+
+
+def _lagged_grams(gram: Any, keep: np.ndarray, shape: tuple[int, int, int], lagged: bool
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None]:
+    """``first``, ``lag0`` (and ``cross``, ``prev`` for AR(1)) Grams from ``gram(a, b)``.
+
+    ``gram(a, b)`` is the Gram of the sample sets ``a`` and ``b`` (index arrays); the
+    first kept sample is ``first``, the others ``lag0``, their products with the samples
+    before them ``cross`` and those samples' own ``prev``.
+    """
+    first = gram(np.array([0]), np.array([0])) if keep[0] else np.zeros(shape)
+    idx = np.flatnonzero(keep[1:]) + 1
+    if idx.size == 0:
+        zero = np.zeros(shape)
+        return first, zero, (zero if lagged else None), (zero if lagged else None)
+    lag0 = gram(idx, idx)
+    if not lagged:
+        return first, lag0, None, None
+    return first, lag0, gram(idx, idx - 1), gram(idx - 1, idx - 1)
+
+
 def _stacked(phi: np.ndarray, r: np.ndarray) -> np.ndarray:
     """``X = [Phi, r]`` per walker, shape (W, N, P + 1), non-finite entries zeroed.
 
@@ -677,16 +703,10 @@ class LinearStructure:
         ix = np.r_[np.arange(pd), self.p]
         ib = np.arange(pd, self.p)
 
-        def rows(idx: np.ndarray) -> np.ndarray | slice:
-            # a contiguous run of samples as a slice (a view), else the indices
-            if idx.size and int(idx[-1]) - int(idx[0]) + 1 == idx.size:
-                return slice(int(idx[0]), int(idx[-1]) + 1)
-            return idx
-
         def gram(a: np.ndarray, b: np.ndarray) -> np.ndarray:
             out = np.empty((w, q, q))
             same = np.array_equal(a, b)
-            ra, rb = rows(a), rows(b)
+            ra, rb = _rows(a), _rows(b)
             xa = xt[ra]
             xb = xa if same else xt[rb]
             out[:, ix[:, None], ix[None, :]] = xa.transpose(1, 2, 0) @ xb.transpose(1, 0, 2)
@@ -703,15 +723,7 @@ class LinearStructure:
             out[:, ib[:, None], ib[None, :]] = self._basis_gram(rec_index, a, b)[None]
             return out
 
-        first = gram(np.array([0]), np.array([0])) if keep[0] else np.zeros((w, q, q))
-        idx = np.flatnonzero(keep[1:]) + 1
-        if idx.size == 0:
-            zero = np.zeros((w, q, q))
-            return first, zero, (zero if self.lagged else None), (zero if self.lagged else None)
-        lag0 = gram(idx, idx)
-        if not self.lagged:
-            return first, lag0, None, None
-        return first, lag0, gram(idx, idx - 1), gram(idx - 1, idx - 1)
+        return _lagged_grams(gram, keep, (w, q, q), self.lagged)
 
     def _design_basis(self, rec_index: int, phi: np.ndarray) -> np.ndarray:
         """``[phi, B]`` (N, P) of one record for a shared design ``phi`` (N, pd), cached."""
@@ -744,11 +756,6 @@ class LinearStructure:
         p = self.p
         r = np.where(np.isfinite(r), r, 0.0)  # the caller flags these walkers failed
 
-        def rows(idx: np.ndarray) -> np.ndarray | slice:
-            if idx.size and int(idx[-1]) - int(idx[0]) + 1 == idx.size:
-                return slice(int(idx[0]), int(idx[-1]) + 1)
-            return idx
-
         def products(a_rows: np.ndarray, r_rows: np.ndarray) -> np.ndarray:
             # A_a^T r_w (W, P) in fixed-shape chunks of walkers
             out = np.empty((w, p))
@@ -762,7 +769,7 @@ class LinearStructure:
 
         def gram(a: np.ndarray, b: np.ndarray) -> np.ndarray:
             out = np.empty((w, q, q))
-            ra, rb = rows(a), rows(b)
+            ra, rb = _rows(a), _rows(b)
             key = ("design_gram", rec_index, a.tobytes(), b.tobytes())
             if key not in self._basis_grams:
                 self._basis_grams[key] = a_all[ra].T @ a_all[rb]
@@ -774,15 +781,7 @@ class LinearStructure:
             out[:, p, p] = np.einsum("wn,wn->w", r_a, r_b, optimize=False)
             return out
 
-        first = gram(np.array([0]), np.array([0])) if keep[0] else np.zeros((w, q, q))
-        idx = np.flatnonzero(keep[1:]) + 1
-        if idx.size == 0:
-            zero = np.zeros((w, q, q))
-            return first, zero, (zero if self.lagged else None), (zero if self.lagged else None)
-        lag0 = gram(idx, idx)
-        if not self.lagged:
-            return first, lag0, None, None
-        return first, lag0, gram(idx, idx - 1), gram(idx - 1, idx - 1)
+        return _lagged_grams(gram, keep, (w, q, q), self.lagged)
 
     def held_out_log_predictive(self, z: np.ndarray, *, chunk: int = 64) -> np.ndarray:
         """Held-out ``log p(y_c | y_-c, z_n)`` of every cycle ``c``, shape (W, n_units).
