@@ -38,8 +38,8 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from bayeshyst.data import find_reversals
-from bayeshyst.errors import SimulationError
+from bayeshyst.data import estimate_frequency
+from bayeshyst.errors import DataError, SimulationError
 from bayeshyst.models.base import HysteresisModel
 from bayeshyst.models.blocks import AsymmetricOutput, Creep, Delay, Drift, SecondOrder
 from bayeshyst.models.blocks.base import EffectBlock, time_scales
@@ -337,21 +337,18 @@ class Asymmetry(_BlockEffect):
 def shortest_half_period(data: Any) -> float | None:
     """Half the shortest excitation period (s) over the records of ``data``.
 
-    A record's period is ``1 / frequency_hz`` when it declares one, else twice the
-    median time between reversals of its input (turning points by
-    :func:`~bayeshyst.data.find_reversals`, robust to noise). None when no record has a
-    period (fewer than two reversals, no frequency).
+    A record's period is ``1 / frequency_hz`` when it declares one, else
+    :func:`~bayeshyst.data.estimate_frequency` by its input's reversals (noise-robust).
+    None when no record has a period (no frequency and too few reversals).
     """
     records = list(data) if hasattr(data, "records") else [data]
     halves = []
     for rec in records:
-        freq = getattr(rec, "frequency_hz", None)
-        if freq:
-            halves.append(0.5 / float(freq))
+        try:
+            freq = rec.frequency_hz or estimate_frequency(rec, method="reversals")
+        except DataError:  # too few turning points: this record has no period
             continue
-        turns = find_reversals(np.asarray(rec.u, dtype=float))
-        if turns.size >= 2:
-            halves.append(float(np.median(np.diff(np.asarray(rec.t, dtype=float)[turns]))))
+        halves.append(0.5 / float(freq))
     return min(halves) if halves else None
 
 
