@@ -134,47 +134,55 @@ def _carried(post: Posterior, previous: DiagnosisFit, added: dict[str, Any],
     return np.array(out).reshape(-1, space.ndim)
 
 
-def _warm_start(post: Posterior, previous: DiagnosisFit, added: dict[str, Any],
-                seed: int) -> tuple[np.ndarray | None, np.ndarray | None]:
-    """A start for the augmented fit, carried over from the previous fit.
+def _warm_point(post: Posterior, previous: DiagnosisFit, added: dict[str, Any],
+                seed: int) -> np.ndarray | None:
+    """The previous fit's best point carried into ``post``: an extra MAP start.
 
-    The previous fit's best point becomes an extra MAP start and its final ensembles the
-    sampler's starting walkers, so the augmented posterior is not sampled from scratch.
-    None where nothing has finite density (the MAP search and the sampler then start
-    alone).
+    None where it has no finite density (the MAP search then starts alone).
     """
     best = _carried(post, previous, added, best_point(previous.sampling)[None, :], seed)
-    x0 = best[0] if best.shape[0] and np.isfinite(post.log_prob(best[0])) else None
+    return best[0] if best.shape[0] and np.isfinite(post.log_prob(best[0])) else None
+
+
+def _warm_walkers(post: Posterior, previous: DiagnosisFit, added: dict[str, Any],
+                  seed: int) -> np.ndarray | None:
+    """The previous fit's final ensembles carried into ``post``: the starting walkers.
+
+    So the augmented posterior is not sampled from scratch; None where none has finite
+    density (the sampler then starts alone).
+    """
     last = previous.sampling.chains[:, -1].reshape(-1, previous.posterior.ndim)
     walkers = _carried(post, previous, added, last, seed + 1)
     if walkers.shape[0]:
         walkers = walkers[np.isfinite(post.log_prob_batch(walkers))]
-    return x0, (walkers if walkers.shape[0] else None)
+    return walkers if walkers.shape[0] else None
 
 
 def _fit(data: Dataset, model: HysteresisModel, likelihood: str, label: str,
          st: DiagnosisSettings, checkpoint_dir: Path | None,
          warm: tuple[DiagnosisFit, dict[str, Any]] | None = None,
          discrepancy: str | None = None) -> DiagnosisFit:
-    post = Posterior(data, model, likelihood, discrepancy=discrepancy)
+    post = Posterior(data, model, likelihood)
     start = initial = scales = None
     if discrepancy is not None and post.likelihood.name in ("gaussian", "ar1"):
         # as fit_model: the discrepancy anchored at the MAP without it and its scales
         # fixed at their held-out optimum. Sampled jointly with its coefficients, the
         # scales make a funnel: a block added on top of the shape correction (creep on
         # the 150 V piezo) reached R-hat 1.87 in 10 000 steps
-        post0 = Posterior(data, model, likelihood)
-        seed0 = fit_sampler(post0, st.sampler, st.seed, None).seed
-        x0 = None if warm is None else _warm_start(post0, warm[0], warm[1], seed0)[0]
-        start0 = find_map(post0, seed=np.random.default_rng(seed0), x0=x0)
-        post, scales, start = attach_discrepancy(post0, start0, discrepancy)
+        seed0 = fit_sampler(post, st.sampler, st.seed, None).seed
+        x0 = None if warm is None else _warm_point(post, warm[0], warm[1], seed0)
+        start0 = find_map(post, seed=np.random.default_rng(seed0), x0=x0)
+        post, scales, start = attach_discrepancy(post, start0, discrepancy)
+    elif discrepancy is not None:  # sampled scales: the one way for other likelihoods
+        post = Posterior(data, model, likelihood, discrepancy=discrepancy)
     # the seed, checkpoint and walkers follow from what is fitted: the base fit of a report
     # is the comparison's joint fit (same posterior, same settings, same checkpoint folder)
     sampler = fit_sampler(post, st.sampler, st.seed, checkpoint_dir)
     seed = sampler.seed
     if warm is not None:
-        x0, initial = _warm_start(post, warm[0], warm[1], seed)
-        if x0 is not None and scales is None:  # an extra MAP start, not a replacement
+        initial = _warm_walkers(post, warm[0], warm[1], seed)
+        x0 = None if scales is not None else _warm_point(post, warm[0], warm[1], seed)
+        if x0 is not None:  # an extra start of the MAP search, not a replacement
             start = find_map(post, seed=np.random.default_rng(seed), x0=x0)
     res = sample_posterior(post, sampler, start=start, initial=initial)
     notes = [] if res.converged else [f"{label}: the sampler did not converge within its "

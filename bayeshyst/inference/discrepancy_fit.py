@@ -168,10 +168,11 @@ def attach_discrepancy(post0: Posterior, start: MAPResult,
                      else float(np.median(p.prior.sample(np.random.default_rng(1), (2001,)))))
             x0[pos] = p.transform.forward(np.asarray(value))
         starts.append(x0)
-    x_best = min(starts, key=neg)
+    scores = [neg(x) for x in starts]
+    f_best, x_best = min(scores), starts[int(np.argmin(scores))]
     best = optimize.minimize(neg, x_best, method="L-BFGS-B", options={"eps": 1e-5})
     if not (best.success and best.fun < _NO_DENSITY):
-        if best.fun < neg(x_best):
+        if best.fun < f_best:
             x_best = best.x
         best = None
         for _ in range(2):
