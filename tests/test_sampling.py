@@ -53,6 +53,44 @@ def test_rhat_and_ess_agree_with_arviz(phi, shift):
     assert ess_tail(x) == pytest.approx(float(az.ess(x, method="tail")), rel=1e-8)
 
 
+def test_rhat_and_ess_agree_with_arviz_when_draws_tie():
+    # rejected proposals repeat a value: ties must get their average rank
+    x = np.round(_ar_chains(0.7, seed=5), 1)
+    assert len(np.unique(x)) < x.size // 10
+    assert rhat(x) == pytest.approx(float(az.rhat(x)), rel=1e-10)
+    assert ess_bulk(x) == pytest.approx(float(az.ess(x, method="bulk")), rel=1e-8)
+    assert ess_tail(x) == pytest.approx(float(az.ess(x, method="tail")), rel=1e-8)
+
+
+@pytest.mark.parametrize("steps", [601, 600])
+def test_assess_agrees_with_the_per_parameter_diagnostics(steps):
+    # assess ranks each parameter once for both chain arrangements (walkers, ensembles)
+    # and the bulk ESS; the oracle is the public per-parameter functions (checked against
+    # arviz above) on the same kept draws, including a parameter with ties and one whose
+    # ensembles disagree
+    rng = np.random.default_rng(7)
+    chains = []
+    for e in range(2):
+        c = rng.normal(size=(steps, 6, 3))
+        c[:, :, 0] += 0.5 * np.cumsum(c[:, :, 0], axis=0) / np.arange(1, steps + 1)[:, None]
+        c[:, :, 1] = np.round(c[:, :, 1])
+        c[:, :, 2] += 1.0 * e
+        chains.append(c)
+    report = assess(chains)
+    assert (steps - report.burn) % 2 == 0
+    kept = [c[report.burn:] for c in chains]
+    walkers = np.concatenate([c.transpose(1, 0, 2) for c in kept], axis=0)
+    ensembles = np.stack([c.reshape(-1, 3) for c in kept])
+    rh = [(rhat(walkers[:, :, d]), rhat(ensembles[:, :, d])) for d in range(3)]
+    # the ensembles' disagreement shows most with each ensemble as one chain
+    assert max(rh[2]) == rh[2][1] == max(max(r) for r in rh)
+    assert report.rhat_max == pytest.approx(rh[2][1], rel=1e-12)
+    assert report.ess_bulk_min == pytest.approx(
+        min(ess_bulk(walkers[:, :, d]) for d in range(3)), rel=1e-10)
+    assert report.ess_tail_min == pytest.approx(
+        min(ess_tail(walkers[:, :, d]) for d in range(3)), rel=1e-10)
+
+
 @pytest.mark.parametrize("where", [0, 2])
 def test_a_parameter_that_never_moves_is_not_converged_wherever_it_is(where):
     # two well-mixed parameters and one the sampler never moved, first or last: the run

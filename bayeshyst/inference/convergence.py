@@ -14,7 +14,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import special, stats
+from scipy import special
 
 __all__ = [
     "ConvergenceReport",
@@ -27,28 +27,97 @@ __all__ = [
 
 
 def _split(x: np.ndarray) -> np.ndarray:
-    """(chains, draws) -> (2 chains, draws // 2), dropping the middle draw if odd."""
-    n = x.shape[1] // 2
-    return np.concatenate([x[:, :n], x[:, x.shape[1] - n:]], axis=0)
+    """(..., chains, draws) -> (..., 2 chains, draws // 2), dropping the middle draw if odd."""
+    n = x.shape[-1] // 2
+    return np.concatenate([x[..., :n], x[..., x.shape[-1] - n:]], axis=-2)
+
+
+#: Draws per batch of quantities processed together: the batched FFTs and sorts are
+#: faster than one quantity at a time, but a 10 000-step, 100-parameter run would need
+#: gigabytes at once
+_BATCH_DRAWS = 1 << 21
+
+
+def _batched(fn, x: np.ndarray) -> np.ndarray:
+    """``fn`` over batches of the leading axis of ``x`` (P, ...), results concatenated."""
+    per = max(1, _BATCH_DRAWS // max(1, x[0].size))
+    return np.concatenate([fn(x[i:i + per]) for i in range(0, x.shape[0], per)]) \
+        if x.shape[0] else fn(x)
+
+
+def _average_ranks(flat: np.ndarray) -> np.ndarray:
+    """Ranks 1..N along the last axis of ``flat`` (P, N), ties given their average rank.
+
+    One unstable sort per row: tied values share their group's average rank whatever
+    order the sort leaves them in (the sampler repeats a value at every rejected
+    proposal, so ties are common).
+    """
+    n = flat.shape[1]
+    order = np.argsort(flat, axis=1)
+    ordered = np.take_along_axis(flat, order, axis=1)
+    avg = np.broadcast_to(np.arange(1.0, n + 1.0), flat.shape)
+    first = np.ones(flat.shape, dtype=bool)
+    first[:, 1:] = ordered[:, 1:] != ordered[:, :-1]
+    tied = ~np.all(first, axis=1)
+    if tied.any():  # only rows with ties need their groups' bounds
+        avg = avg.copy()
+        f = first[tied]
+        pos = np.broadcast_to(np.arange(n), f.shape)
+        last = np.ones(f.shape, dtype=bool)
+        last[:, :-1] = f[:, 1:]
+        lo = np.maximum.accumulate(np.where(f, pos, 0), axis=1)
+        hi = np.minimum.accumulate(np.where(last, pos, n - 1)[:, ::-1], axis=1)[:, ::-1]
+        avg[tied] = (lo + hi) / 2.0 + 1.0
+    ranks = np.empty(flat.shape)
+    np.put_along_axis(ranks, order, avg, axis=1)
+    return ranks
 
 
 def _z_scale(x: np.ndarray) -> np.ndarray:
-    """Rank-normalise all draws jointly (average ranks, fractional offset 3/8)."""
-    ranks = stats.rankdata(x, method="average").reshape(x.shape)
-    return special.ndtri((ranks - 0.375) / (x.size + 0.25))
+    """Rank-normalise the draws of each quantity jointly (average ranks, offset 3/8).
+
+    ``x`` is (..., chains, draws); the leading axes index quantities, each ranked over
+    all its chains and draws together.
+    """
+    size = x.shape[-2] * x.shape[-1]
+    ranks = _average_ranks(x.reshape(-1, size)).reshape(x.shape)
+    return special.ndtri((ranks - 0.375) / (size + 0.25))
 
 
-def _rhat_basic(x: np.ndarray) -> float:
-    n = x.shape[1]
+def _rhat_basic(x: np.ndarray) -> np.ndarray:
+    """Split-free R-hat of each quantity of ``x`` (..., chains, draws); NaN where undefined."""
+    n = x.shape[-1]
     if n < 2:
-        return math.nan
-    means = x.mean(axis=1)
-    within = x.var(axis=1, ddof=1).mean()
-    between = n * means.var(ddof=1)
-    if within <= 0:
-        return math.nan
-    var_hat = (n - 1) / n * within + between / n
-    return float(math.sqrt(var_hat / within))
+        return np.full(x.shape[:-2], math.nan)
+    within = x.var(axis=-1, ddof=1).mean(axis=-1)
+    between = n * x.mean(axis=-1).var(axis=-1, ddof=1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        var_hat = (n - 1) / n * within + between / n
+        out = np.sqrt(var_hat / within)
+    return np.where(within > 0, out, math.nan)
+
+
+def _defined(x: np.ndarray) -> np.ndarray:
+    """Which quantities of ``x`` (..., chains, draws) have finite, non-constant draws."""
+    flat = x.reshape(*x.shape[:-2], -1)
+    finite = np.all(np.isfinite(flat), axis=-1)
+    with np.errstate(invalid="ignore"):
+        return finite & (np.ptp(flat, axis=-1) > 0)
+
+
+def _rhat_many(x: np.ndarray) -> np.ndarray:
+    """Rank-normalised split R-hat of each quantity of ``x`` (P, chains, draws)."""
+    out = np.full(x.shape[0], math.nan)
+    ok = _defined(x)
+    if x.shape[-1] < 4 or not ok.any():
+        return out
+    s = _split(x[ok])
+    bulk = _rhat_basic(_z_scale(s))
+    folded = np.abs(s - np.median(s.reshape(s.shape[0], -1), axis=1)[:, None, None])
+    tail = _rhat_basic(_z_scale(folded))
+    # a NaN in either makes the quantity's R-hat undefined
+    out[ok] = np.where(np.isnan(bulk) | np.isnan(tail), math.nan, np.maximum(bulk, tail))
+    return out
 
 
 def rhat(x: np.ndarray) -> float:
@@ -65,45 +134,27 @@ def rhat(x: np.ndarray) -> float:
         R-hat (1 at convergence); NaN when undefined (constant draws, < 4 draws).
     """
     x = np.asarray(x, dtype=float)
-    if x.ndim != 2 or x.shape[1] < 4 or not np.all(np.isfinite(x)):
+    if x.ndim != 2:
         return math.nan
-    if np.ptp(x) == 0:
-        return math.nan
-    s = _split(x)
-    bulk = _rhat_basic(_z_scale(s))
-    folded = np.abs(s - np.median(s))
-    tail = _rhat_basic(_z_scale(folded))
-    return float(max(bulk, tail))
+    return float(_rhat_many(x[None])[0])
 
 
 def _autocov(x: np.ndarray) -> np.ndarray:
-    """Autocovariance of each chain by FFT, shape (chains, draws)."""
-    n = x.shape[1]
+    """Autocovariance of each chain by FFT along the last axis, shape of ``x``."""
+    n = x.shape[-1]
     size = 1 << (2 * n - 1).bit_length()
-    xc = x - x.mean(axis=1, keepdims=True)
-    f = np.fft.rfft(xc, n=size, axis=1)
-    acov = np.fft.irfft(f * np.conjugate(f), n=size, axis=1)[:, :n] / n
+    xc = x - x.mean(axis=-1, keepdims=True)
+    f = np.fft.rfft(xc, n=size, axis=-1)
+    acov = np.fft.irfft(f * np.conjugate(f), n=size, axis=-1)[..., :n] / n
     return acov
 
 
-def _ess(x: np.ndarray) -> float:
-    """ESS of (chains, draws) by Stan's estimator.
+def _geyer_tau(rho: np.ndarray, m: int, n: int) -> float:
+    """Stan's integrated time from the combined autocorrelation ``rho`` (n,).
 
     Geyer's initial positive then monotone sequence of paired autocorrelations
     ``rho_2t + rho_2t+1``.
     """
-    m, n = x.shape
-    if n < 4:
-        return math.nan
-    acov = _autocov(x)
-    mean_var = acov[:, 0].mean() * n / (n - 1.0)
-    var_plus = mean_var * (n - 1.0) / n
-    if m > 1:
-        var_plus += x.mean(axis=1).var(ddof=1)
-    if var_plus <= 0:
-        return math.nan
-    rho = 1.0 - (mean_var - acov.mean(axis=0)) / var_plus
-    rho[0] = 1.0
     # initial positive sequence: keep pairs (rho_t, rho_t+1), t even, while their sum > 0
     kept = np.zeros(n)
     kept[:2] = rho[:2]
@@ -124,28 +175,103 @@ def _ess(x: np.ndarray) -> float:
             kept[t + 1] = kept[t + 2] = (kept[t - 1] + kept[t]) / 2.0
         t += 2
     tau = -1.0 + 2.0 * kept[: max_t + 1].sum() + kept[max_t + 1: max_t + 2].sum()
-    tau = max(tau, 1.0 / math.log10(m * n))
-    return float(m * n / tau)
+    return max(tau, 1.0 / math.log10(m * n))
+
+
+def _ess_many(x: np.ndarray) -> np.ndarray:
+    """ESS of each quantity of ``x`` (P, chains, draws) by Stan's estimator."""
+    p, m, n = x.shape
+    out = np.full(p, math.nan)
+    if n < 4 or p == 0:
+        return out
+    acov = _autocov(x)
+    mean_var = acov[:, :, 0].mean(axis=1) * n / (n - 1.0)
+    var_plus = mean_var * (n - 1.0) / n
+    if m > 1:
+        var_plus = var_plus + x.mean(axis=2).var(axis=1, ddof=1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        rho = 1.0 - (mean_var[:, None] - acov.mean(axis=1)) / var_plus[:, None]
+    for i in np.flatnonzero(var_plus > 0):
+        r = rho[i].copy()
+        r[0] = 1.0
+        out[i] = m * n / _geyer_tau(r, m, n)
+    return out
+
+
+def _ess_bulk_many(x: np.ndarray) -> np.ndarray:
+    """Bulk ESS of each quantity of ``x`` (P, chains, draws)."""
+    out = np.full(x.shape[0], math.nan)
+    ok = _defined(x)
+    if x.shape[-1] < 4 or not ok.any():
+        return out
+    out[ok] = _ess_many(_z_scale(_split(x[ok])))
+    return out
+
+
+def _ess_tail_many(x: np.ndarray) -> np.ndarray:
+    """Tail ESS of each quantity of ``x`` (P, chains, draws): the 5 % / 95 % indicators'."""
+    out = np.full(x.shape[0], math.nan)
+    ok = _defined(x)
+    if x.shape[-1] < 4 or not ok.any():
+        return out
+    xs = x[ok]
+    flat = xs.reshape(xs.shape[0], -1)
+    ess = []
+    for q in (0.05, 0.95):
+        ind = _split((xs <= np.quantile(flat, q, axis=1)[:, None, None]).astype(float))
+        e = _ess_many(ind)
+        ess.append(np.where(np.ptp(ind.reshape(ind.shape[0], -1), axis=1) > 0, e, math.nan))
+    out[ok] = np.where(np.isnan(ess[0]) | np.isnan(ess[1]), math.nan,
+                       np.minimum(ess[0], ess[1]))
+    return out
+
+
+def _rhat_ess_bulk(walkers: np.ndarray, n_ensembles: int) -> np.ndarray:
+    """R-hat (walkers and ensembles as chains, the larger) and bulk ESS of each quantity.
+
+    Returns (P, 2): R-hat, bulk ESS.
+
+    ``walkers`` is (P, ensembles * walkers, n) with ``n`` even, ensemble-major; as
+    :func:`rhat` and :func:`ess_bulk` on the two arrangements, ranking each quantity's
+    draws once (both arrangements' split chains hold the same draws).
+    """
+    p, c, n = walkers.shape
+    rh, eb = np.full(p, math.nan), np.full(p, math.nan)
+    ok = _defined(walkers)
+    if n < 4 or not ok.any():
+        return np.stack([rh, eb], axis=1)
+    x = walkers[ok]
+    k = x.shape[0]
+    bulk = _z_scale(x)
+    folded = _z_scale(np.abs(x - np.median(x.reshape(k, -1), axis=1)[:, None, None]))
+
+    def as_ensembles(z: np.ndarray) -> np.ndarray:  # each ensemble's draws step-major
+        w = c // n_ensembles
+        return z.reshape(k, n_ensembles, w, n).transpose(0, 1, 3, 2).reshape(
+            k, n_ensembles, n * w)
+
+    parts = [_rhat_basic(_split(z)) for z in (bulk, folded, as_ensembles(bulk),
+                                               as_ensembles(folded))]
+    both = np.stack(parts)
+    rh[ok] = np.where(np.isnan(both).any(axis=0), math.nan, both.max(axis=0))
+    eb[ok] = _ess_many(_split(bulk))
+    return np.stack([rh, eb], axis=1)
 
 
 def ess_bulk(x: np.ndarray) -> float:
     """Bulk effective sample size (rank-normalised split chains)."""
     x = np.asarray(x, dtype=float)
-    if x.ndim != 2 or x.shape[1] < 4 or np.ptp(x) == 0:
+    if x.ndim != 2:
         return math.nan
-    return _ess(_z_scale(_split(x)))
+    return float(_ess_bulk_many(x[None])[0])
 
 
 def ess_tail(x: np.ndarray) -> float:
     """Tail ESS: the smaller ESS of the 5 % and 95 % quantile indicators."""
     x = np.asarray(x, dtype=float)
-    if x.ndim != 2 or x.shape[1] < 4 or np.ptp(x) == 0:
+    if x.ndim != 2:
         return math.nan
-    out = []
-    for q in (0.05, 0.95):
-        ind = _split((x <= np.quantile(x, q)).astype(float))
-        out.append(_ess(ind) if np.ptp(ind) > 0 else math.nan)
-    return float(min(out))
+    return float(_ess_tail_many(x[None])[0])
 
 
 def integrated_time(chain: np.ndarray, c: float = 5.0) -> np.ndarray:
@@ -169,23 +295,21 @@ def integrated_time(chain: np.ndarray, c: float = 5.0) -> np.ndarray:
         it away would hide exactly that).
     """
     chain = np.asarray(chain, dtype=float)
-    ndim = chain.shape[2]
-    out = np.empty(ndim)
-    for d in range(ndim):
-        acov = _autocov(chain[:, :, d].T)  # (walkers, steps)
-        var = acov[:, :1]
-        if np.all(var <= 0):
-            out[d] = math.nan
-            continue
-        if np.any(var <= 0):
-            out[d] = float(chain.shape[0])
-            continue
-        acf = (acov / var).mean(axis=0)  # each walker normalised, then averaged
-        taus = 2.0 * np.cumsum(acf) - 1.0
-        window = np.arange(len(taus)) < c * taus
-        m = int(np.argmin(window)) if not np.all(window) else len(taus) - 1
-        out[d] = taus[m]
-    return out
+    return _batched(lambda x: _integrated_time_many(x, c), chain.transpose(2, 1, 0))
+
+
+def _integrated_time_many(x: np.ndarray, c: float) -> np.ndarray:
+    """:func:`integrated_time` of each quantity of ``x`` (ndim, walkers, steps)."""
+    acov = _autocov(x)
+    var = acov[:, :, :1]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        acf = (acov / var).mean(axis=1)  # each walker normalised, then averaged
+    taus = 2.0 * np.cumsum(acf, axis=1) - 1.0
+    window = np.arange(taus.shape[1]) < c * taus
+    m = np.where(np.all(window, axis=1), taus.shape[1] - 1, np.argmin(window, axis=1))
+    out = taus[np.arange(taus.shape[0]), m]
+    out = np.where(np.any(var[:, :, 0] <= 0, axis=1), float(x.shape[2]), out)
+    return np.where(np.all(var[:, :, 0] <= 0, axis=1), math.nan, out)
 
 
 def hdi(x: np.ndarray, prob: float = 0.9) -> tuple[float, float]:
@@ -271,18 +395,20 @@ def assess(
     chains = [c[:steps] for c in chains]
     tau_all = max(float(np.nanmax(integrated_time(c))) for c in chains)
     burn = int(max(min(math.ceil(burn_factor * tau_all), steps // 2), min(min_burn, steps - 4)))
+    # an even number of kept steps: every split chain then holds all the draws, in both
+    # arrangements below, so one rank-normalisation serves R-hat (walkers and ensembles
+    # as chains) and the bulk ESS
+    burn += (steps - burn) % 2
     kept = [c[burn:] for c in chains]
     tau = max(float(np.nanmax(integrated_time(c))) for c in kept)
-    walkers = np.concatenate([c.transpose(1, 0, 2) for c in kept], axis=0)  # (chains, n, d)
-    ensembles = np.stack([c.reshape(-1, c.shape[2]) for c in kept])  # step-major draws
-    ndim = walkers.shape[2]
+    # (d, chains, n): every walker of every ensemble a chain
+    walkers = np.concatenate([c.transpose(2, 1, 0) for c in kept], axis=1)
     # an undefined value (a parameter whose draws are constant or not finite: the
     # sampler never moved it) makes the extreme undefined, i.e. not converged, whichever
-    # parameter it is (Python's max and min keep or drop a NaN by its position)
-    rh = float(np.max([np.maximum(rhat(walkers[:, :, d]), rhat(ensembles[:, :, d]))
-                       for d in range(ndim)]))
-    eb = float(np.min([ess_bulk(walkers[:, :, d]) for d in range(ndim)]))
-    et = float(np.min([ess_tail(walkers[:, :, d]) for d in range(ndim)]))
+    # parameter it is (np.max and np.min propagate NaN)
+    rh_eb = _batched(lambda x: _rhat_ess_bulk(x, len(kept)), walkers)
+    rh, eb = float(np.max(rh_eb[:, 0])), float(np.min(rh_eb[:, 1]))
+    et = float(np.min(_batched(_ess_tail_many, walkers)))
     reasons = []
     undefined = "undefined (a parameter's draws are constant or not finite)"
     if not rh < rhat_threshold:
