@@ -32,6 +32,7 @@ import xarray as xr
 
 from bayeshyst.errors import ParameterError
 from bayeshyst.files import atomic_path
+from bayeshyst.inference.held_out import held_out_log_predictive
 from bayeshyst.inference.linear import LinearStructure
 from bayeshyst.inference.posterior import NOISE, Posterior
 from bayeshyst.inference.sampling import ParamSummary, SamplingResult, summarise_draws
@@ -272,7 +273,7 @@ def to_inference_data(
             ``cycle_record``, ``cycle_index``, ``cycle_frequency_hz`` (NaN if unknown);
             ``arviz.loo`` leaves out one cycle at a time. Where the posterior has a
             linear block, also ``y_given_rest``: ``log p(y_c | y_-c, z_n)`` with the block
-            integrated out exactly (:meth:`LinearStructure.held_out_log_predictive`),
+            integrated out exactly (:func:`~bayeshyst.inference.held_out.held_out_log_predictive`),
             which :func:`loo` uses.
         ``posterior_predictive``
             ``y`` [chain (1), draw, obs]: noise-free prediction plus a noise draw
@@ -305,8 +306,8 @@ def to_inference_data(
     structure = LinearStructure.of(post, reference=result.start.z)
     given_rest = None
     if structure is not None:
-        given_rest = structure.held_out_log_predictive(flat).reshape(n_chain, n_draw,
-                                                                     post.n_units)
+        given_rest = held_out_log_predictive(structure, flat).reshape(n_chain, n_draw,
+                                                                      post.n_units)
 
     chain_coords = {
         "chain": np.arange(n_chain),

@@ -16,6 +16,12 @@ from bayeshyst.inference.calibration import (
     uncertainty_budget,
 )
 from bayeshyst.inference.fit import fit_model
+from bayeshyst.inference.held_out import (
+    held_out_from_units,
+    held_out_gradient,
+    held_out_log_predictive,
+    unit_grams,
+)
 from bayeshyst.inference.linear import LinearStructure
 from bayeshyst.inference.optimize import find_map
 from bayeshyst.inference.posterior import Posterior
@@ -135,11 +141,45 @@ def test_held_out_terms_with_the_basis_equal_refits_of_the_algebra(pi):
     assert post.n_units >= 3
     s = LinearStructure(post)
     z = post.space.sample_prior(np.random.default_rng(4), 2)
-    ho = s.held_out_log_predictive(z)
+    ho = held_out_log_predictive(s, z)
     full = s.log_marginal(s.stats(z), z)
     for u in range(post.n_units):
         s_u = LinearStructure(post.holding_out([u]))
         assert np.allclose(ho[:, u], full - s_u.log_marginal(s_u.stats(z), z), atol=1e-6)
+
+
+def test_held_out_gradient_equals_central_differences_of_the_held_out_score(pi):
+    # oracle: central differences of held_out_from_units (the values the gradient is of)
+    # in every scale coordinate and the noise, at points spread over the prior
+    model, rec, _ = pi
+    post = Posterior(rec, model, discrepancy="hsgp")
+    s = LinearStructure(post)
+    names = [n for n in post.space.names if n.startswith(("disc.", "noise.")) and n != "disc.xi"]
+    idx = post.space.indices(names)
+    assert len(idx) >= 4
+    for z in post.space.sample_prior(np.random.default_rng(11), 3):
+        grams = unit_grams(s, z[None])
+        value, grad = held_out_gradient(s, grams, z, idx)
+        assert value == pytest.approx(float(np.sum(held_out_from_units(s, grams, z[None]))),
+                                      rel=1e-12)
+        fd = []
+        for k in idx:
+            zp, zm = z.copy(), z.copy()
+            zp[k] += 1e-5
+            zm[k] -= 1e-5
+            fd.append((np.sum(held_out_from_units(s, grams, zp[None]))
+                       - np.sum(held_out_from_units(s, grams, zm[None]))) / 2e-5)
+        # differences' rounding: ~ 1e-16 |value| / 1e-5 per term, with room
+        np.testing.assert_allclose(grad, fd, rtol=1e-5, atol=1e-7 * max(1.0, abs(value)))
+
+
+def test_held_out_gradient_refuses_ar1_noise(pi):
+    model, rec, _ = pi
+    post = Posterior(rec, model, "ar1", discrepancy="hsgp")
+    s = LinearStructure(post)
+    z = post.space.sample_prior(np.random.default_rng(1), 1)[0]
+    with pytest.raises(ValueError, match="white noise only"):
+        held_out_gradient(s, unit_grams(s, z[None]), z, np.arange(2))
 
 
 # ------------------------------------------------------------------ fits

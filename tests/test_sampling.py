@@ -19,6 +19,8 @@ from scipy import stats
 
 from bayeshyst.inference.conjugate import conjugate_posterior
 from bayeshyst.inference.convergence import (
+    _sorted_median,
+    _sorted_quantile,
     assess,
     ess_bulk,
     ess_tail,
@@ -60,6 +62,17 @@ def test_rhat_and_ess_agree_with_arviz_when_draws_tie():
     assert rhat(x) == pytest.approx(float(az.rhat(x)), rel=1e-10)
     assert ess_bulk(x) == pytest.approx(float(az.ess(x, method="bulk")), rel=1e-8)
     assert ess_tail(x) == pytest.approx(float(az.ess(x, method="tail")), rel=1e-8)
+
+
+def test_quantiles_and_medians_of_sorted_rows_are_numpys():
+    # the tail ESS's indicators compare draws with these: the same arithmetic, bit for bit
+    rng = np.random.default_rng(2)
+    for n in (7, 8, 4512, 4513):
+        x = np.round(rng.normal(size=(5, n)), 2)
+        ordered = np.sort(x, axis=1)
+        for q in (0.05, 0.5, 0.95):
+            assert np.array_equal(_sorted_quantile(ordered, q), np.quantile(x, q, axis=1))
+        assert np.array_equal(_sorted_median(ordered), np.median(x, axis=1))
 
 
 @pytest.mark.parametrize("steps", [601, 600])

@@ -33,6 +33,7 @@ from scipy import optimize
 
 from bayeshyst.discrepancy import DISC, Anchor, Discrepancy, make_discrepancy
 from bayeshyst.errors import ParameterError
+from bayeshyst.inference.held_out import held_out_from_units, held_out_gradient, unit_grams
 from bayeshyst.inference.linear import LinearStructure
 from bayeshyst.inference.optimize import MAPResult, conditional_mode
 from bayeshyst.inference.posterior import NOISE, Posterior
@@ -137,10 +138,10 @@ def attach_discrepancy(post0: Posterior, start: MAPResult,
     structure = LinearStructure(post, reference=z)
     # the per-cycle Grams depend on the model's coordinates only: computed once, then
     # every candidate scale is a few small Cholesky factorisations
-    grams = structure.unit_grams(z[None])
+    grams = unit_grams(structure, z[None])
 
     def loo(zz: np.ndarray) -> float:
-        val = float(np.sum(structure.held_out_from_units(grams, zz[None])[0]))
+        val = float(np.sum(held_out_from_units(structure, grams, zz[None])[0]))
         return val if math.isfinite(val) else -math.inf
 
     def neg(x: np.ndarray) -> float:
@@ -148,6 +149,18 @@ def attach_discrepancy(post0: Posterior, start: MAPResult,
         zz[idx] = x
         out = -(loo(zz) + _log_prior_of(post, zz, hyper))
         return out if math.isfinite(out) else _NO_DENSITY
+
+    def neg_and_gradient(x: np.ndarray) -> tuple[float, np.ndarray]:
+        # white noise: the held-out score's gradient is analytic (one factorisation and
+        # one triangular inverse per held-out set instead of one evaluation per
+        # coordinate); the scales' log prior is cheap, its gradient by differences
+        zz = z.copy()
+        zz[idx] = x
+        value, grad = held_out_gradient(structure, grams, zz, idx)
+        prior, d_prior = _log_prior_and_gradient(post, zz, hyper, idx)
+        if not (math.isfinite(value) and math.isfinite(prior)):
+            return _NO_DENSITY, np.zeros(x.size)
+        return -(value + prior), -(grad + d_prior)
 
     # three starts -- amplitudes at, below and above the prior's scale -- are scored and
     # the search runs from the best: quasi-Newton on finite differences (the held-out
@@ -170,7 +183,9 @@ def attach_discrepancy(post0: Posterior, start: MAPResult,
         starts.append(x0)
     scores = [neg(x) for x in starts]
     f_best, x_best = min(scores), starts[int(np.argmin(scores))]
-    best = optimize.minimize(neg, x_best, method="L-BFGS-B", options={"eps": 1e-5})
+    best = (optimize.minimize(neg_and_gradient, x_best, jac=True, method="L-BFGS-B")
+            if not structure.lagged else
+            optimize.minimize(neg, x_best, method="L-BFGS-B", options={"eps": 1e-5}))
     if not (best.success and best.fun < _NO_DENSITY):
         if best.fun < f_best:
             x_best = best.x
@@ -199,8 +214,18 @@ def attach_discrepancy(post0: Posterior, start: MAPResult,
         out = -loo(zn)
         return out if math.isfinite(out) else _NO_DENSITY
 
-    off = optimize.minimize(neg_off, zoff[noise_idx], method="Nelder-Mead",
-                            options={"xatol": 1e-4, "fatol": 1e-4, "maxiter": 500})
+    def neg_off_and_gradient(x: np.ndarray) -> tuple[float, np.ndarray]:
+        zn = zoff.copy()
+        zn[noise_idx] = x
+        value, grad = held_out_gradient(structure, grams, zn, noise_idx)
+        return (-value, -grad) if math.isfinite(value) else (_NO_DENSITY, np.zeros(x.size))
+
+    off = (optimize.minimize(neg_off_and_gradient, zoff[noise_idx], jac=True,
+                             method="L-BFGS-B")
+           if not structure.lagged and noise_idx.size else None)
+    if off is None or not (off.success and off.fun < _NO_DENSITY):
+        off = optimize.minimize(neg_off, zoff[noise_idx], method="Nelder-Mead",
+                                options={"xatol": 1e-4, "fatol": 1e-4, "maxiter": 500})
     lm, lm_off = loo(zz), -float(off.fun)
     fixed = post
     held_noise = {n: float(np.asarray(theta[n]).ravel()[0]) for n in noise}
@@ -243,13 +268,32 @@ def _start(fixed: Posterior, post: Posterior, z_full: np.ndarray, post0: Posteri
                                      "without it and the coefficients' exact conditional"))
 
 
-def _log_prior_of(post: Posterior, z: np.ndarray, names: list[str]) -> float:
-    """Sum of the log priors (with log-Jacobians) of the named free coordinates of ``z``."""
-    total = 0.0
+def _log_prior_rows(post: Posterior, z: np.ndarray, names: list[str]) -> np.ndarray:
+    """Sum of the log priors (with log-Jacobians) of the named coordinates, per row of ``z``."""
+    total = np.zeros(z.shape[0])
     for n in names:
         p = post.space[n]
-        zc = np.asarray(z[post.space.slice_of(n)], float)
+        zc = np.asarray(z[:, post.space.slice_of(n)], float)
         with np.errstate(over="ignore", divide="ignore", invalid="ignore"):
             x = p.transform.inverse(zc)
-            total += float(np.sum(p.prior.logpdf(x)) + np.sum(p.transform.log_jacobian(zc)))
-    return total if math.isfinite(total) else -math.inf
+            total += (np.sum(p.prior.logpdf(x), axis=1)
+                      + np.sum(p.transform.log_jacobian(zc), axis=1))
+    return np.where(np.isfinite(total), total, -np.inf)
+
+
+def _log_prior_of(post: Posterior, z: np.ndarray, names: list[str]) -> float:
+    """Sum of the log priors (with log-Jacobians) of the named free coordinates of ``z``."""
+    return float(_log_prior_rows(post, z[None], names)[0])
+
+
+def _log_prior_and_gradient(post: Posterior, z: np.ndarray, names: list[str],
+                            idx: np.ndarray) -> tuple[float, np.ndarray]:
+    """:func:`_log_prior_of` and its gradient in ``z[idx]`` (central differences, 1e-6)."""
+    k = len(idx)
+    zs = np.tile(z, (2 * k + 1, 1))
+    zs[1 + np.arange(k), idx] += 1e-6
+    zs[1 + k + np.arange(k), idx] -= 1e-6
+    rows = _log_prior_rows(post, zs, names)
+    with np.errstate(invalid="ignore"):
+        grad = (rows[1:k + 1] - rows[k + 1:]) / 2e-6
+    return float(rows[0]), np.where(np.isfinite(grad), grad, 0.0)

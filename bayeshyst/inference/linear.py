@@ -55,16 +55,15 @@ _CACHE_SIZE = 512
 #: width, zero-padded, so a walker's Gram never depends on the batch (see
 #: LinearStructure._grams_with_basis_shared)
 _WALKER_CHUNK = 8
-#: (unit, walker) pairs whose held-out marginals are factorised in one stacked call
-#: (256 Grams of 110 x 110 coefficients: 25 MB)
-_HELD_OUT_STACK = 256
 
 
 @dataclass(frozen=True)
 class LinearStats:
     """Gram matrices of ``[Phi, r_ref]`` for ``W`` walkers, summed over the records.
 
-    ``first`` holds the first scored sample of each record, ``lag0`` the others;
+    ``first`` holds the first scored sample of each record, ``lag0`` the others (None
+    when they are summed into ``first``: a white-noise likelihood whitens nothing, and
+    the held-out marginals then pass one array instead of two);
     ``cross``/``prev`` the lag-one products (AR(1) only, else None). ``n`` scored
     samples, ``n_first`` of them first samples (integers, or one per walker (W,) when
     the walkers' Grams cover different samples, as in the held-out marginals).
@@ -73,7 +72,7 @@ class LinearStats:
     """
 
     first: np.ndarray
-    lag0: np.ndarray
+    lag0: np.ndarray | None
     cross: np.ndarray | None
     prev: np.ndarray | None
     n: int | np.ndarray
@@ -664,7 +663,7 @@ class LinearStructure:
         bad = ~np.all(np.isfinite(s), axis=1)
         s = np.where(bad[:, None], 1.0, s)
         outer = s[:, :, None] * s[:, None, :]
-        return LinearStats(st.first * outer, st.lag0 * outer,
+        return LinearStats(st.first * outer, None if st.lag0 is None else st.lag0 * outer,
                            None if st.cross is None else st.cross * outer,
                            None if st.prev is None else st.prev * outer,
                            st.n, st.n_first, st.failed | bad)
@@ -783,119 +782,10 @@ class LinearStructure:
 
         return _lagged_grams(gram, keep, (w, q, q), self.lagged)
 
-    def held_out_log_predictive(self, z: np.ndarray, *, chunk: int = 64) -> np.ndarray:
-        """Held-out ``log p(y_c | y_-c, z_n)`` of every cycle ``c``, shape (W, n_units).
-
-        With the linear block integrated out exactly, this is the Rao-Blackwellised
-        leave-one-cycle-out term: the marginal of all scored samples minus the marginal
-        without cycle ``c`` (whose Grams are the cycle's own
-        contribution taken away; with AR(1) noise the sample after a held-out cycle
-        stays conditioned on it, as in :meth:`Posterior.holding_out`). Importance
-        sampling over the nonlinear draws alone (PSIS-LOO on these values) leaves the
-        linear block's sensitivity to one cycle to the algebra, so it needs no refits.
-
-        Parameters
-        ----------
-        z : ndarray, shape (W, ndim)
-            Posterior draws.
-        chunk : int
-            Draws processed together (bounds the memory of the per-cycle Grams).
-        """
-        z = np.atleast_2d(np.asarray(z, dtype=float))
-        n_units = self.post.n_units
-        out = np.full((z.shape[0], n_units), -np.inf)
-        for a in range(0, z.shape[0], chunk):
-            zz = z[a:a + chunk]
-            out[a:a + chunk] = self._held_out_chunk(zz, n_units)
-        return out
-
-    def _held_out_chunk(self, z: np.ndarray, n_units: int) -> np.ndarray:
-        return self.held_out_from_units(self.unit_grams(z, n_units), z)
-
-    def unit_grams(self, z: np.ndarray, n_units: int | None = None) -> tuple:
-        """Per-cycle Grams (unscaled basis) of the walkers ``z``: what the held-out terms need.
-
-        They depend on ``z`` only through the design (the model's coordinates), so a
-        search over the noise or the discrepancy's scales computes them once and calls
-        :meth:`held_out_from_units` for each candidate.
-        """
-        n_units = self.post.n_units if n_units is None else n_units
-        w, q = z.shape[0], self.p + 1
-        shape = (n_units, w, q, q)
-        first, lag0 = np.zeros(shape), np.zeros(shape)
-        cross = np.zeros(shape) if self.lagged else np.zeros((n_units, 1, 1, 1))
-        prev = np.zeros(shape) if self.lagged else np.zeros((n_units, 1, 1, 1))
-        n_unit = np.zeros(n_units, dtype=int)
-        n_first = np.zeros(n_units, dtype=int)
-        rows, failed = self.designs(z)
-        for i, (rec, (phi, const)) in enumerate(zip(self._records, rows, strict=True)):
-            r = self._reference_residual(rec, phi, const)
-            failed |= ~np.all(np.isfinite(r), axis=1)
-            x = (None if self.has_basis else
-                 _stacked(np.broadcast_to(phi, (w, *phi.shape[1:])), r))
-            keep = rec["keep"] if rec["keep"] is not None else np.ones(r.shape[1], dtype=bool)
-            bounds = [*rec["unit_starts"], r.shape[1]]
-            for j in range(len(bounds) - 1):
-                u = rec["unit_first"] + j
-                mask = np.zeros(r.shape[1], dtype=bool)
-                mask[bounds[j]:bounds[j + 1]] = True
-                mask &= keep
-                if not mask.any():
-                    continue
-                f, l0, c, pv = (self._grams_with_basis(i, phi, r, mask) if x is None
-                                else _grams(x, mask, self.lagged))
-                first[u], lag0[u] = f, l0
-                if self.lagged:
-                    cross[u], prev[u] = c, pv
-                n_unit[u] = int(np.count_nonzero(mask))
-                n_first[u] = int(mask[0])
-        return first, lag0, cross, prev, n_unit, n_first, failed
-
-    def held_out_from_units(self, grams: tuple, z: np.ndarray) -> np.ndarray:
-        """Held-out ``log p(y_c | y_-c, z_n)`` (W, n_units) from :meth:`unit_grams`."""
-        first, lag0, cross, prev, n_unit, n_first, failed = grams
-        w, q, n_units = z.shape[0], self.p + 1, n_unit.size
-        if self.has_basis:  # the unit Grams are linear in the scaled columns
-            outer = self._scaled(LinearStats(np.ones((w, q, q)), np.ones((w, q, q)), None, None,
-                                             0, 0, failed), z)
-            failed = outer.failed
-            first, lag0 = first * outer.first[None], lag0 * outer.first[None]
-            if self.lagged:
-                cross, prev = cross * outer.first[None], prev * outer.first[None]
-        tot = LinearStats(first.sum(axis=0), lag0.sum(axis=0),
-                          cross.sum(axis=0) if self.lagged else None,
-                          prev.sum(axis=0) if self.lagged else None,
-                          int(n_unit.sum()), int(n_first.sum()), failed)
-        lm_all = self.log_marginal(tot, z)
-        out = np.full((w, n_units), -np.inf)
-        # the marginals without each unit, several units per call as one stack of
-        # (unit, walker) pairs: each pair's factor is computed on its own (the values do
-        # not depend on the grouping), and the scale search's ~600 evaluations of 10-40
-        # units each were mostly per-call overhead one unit at a time (measured)
-        units = np.flatnonzero(n_unit > 0)  # the others are held out already
-        step = max(1, _HELD_OUT_STACK // w)
-        for a in range(0, units.size, step):
-            us = units[a:a + step]
-
-            def rest(total: np.ndarray | None, parts: np.ndarray | None,
-                     us: np.ndarray = us) -> np.ndarray | None:
-                if total is None or parts is None:
-                    return None
-                return (total[None] - parts[us]).reshape(us.size * w, q, q)
-
-            st = LinearStats(rest(tot.first, first), rest(tot.lag0, lag0),
-                             rest(tot.cross, cross), rest(tot.prev, prev),
-                             np.repeat(tot.n - n_unit[us], w),
-                             np.repeat(tot.n_first - n_first[us], w), np.tile(failed, us.size))
-            with np.errstate(invalid="ignore"):
-                out[:, us] = lm_all[:, None] - self.log_marginal(
-                    st, np.tile(z, (us.size, 1))).reshape(us.size, w).T
-        return np.where(np.isfinite(out), out, -np.inf)
-
     def whitened(self, st: LinearStats, phi: np.ndarray) -> np.ndarray:
         """The whitened Gram ``M`` (W, Q, Q) at AR coefficients ``phi`` (W,)."""
         if not self.lagged:
-            return st.first + st.lag0
+            return st.first if st.lag0 is None else st.first + st.lag0
         ph = phi[:, None, None]
         with np.errstate(divide="ignore", invalid="ignore"):
             inner = (st.lag0 - ph * (st.cross + st.cross.transpose(0, 2, 1))
@@ -932,11 +822,14 @@ class LinearStructure:
         m = self.whitened(st, np.where(ok, phi, 0.0))
         s2 = np.where(ok, sigma, 1.0) ** 2
         p = self.p
-        prec = m[:, :p, :p] / s2[:, None, None] + np.diag(1.0 / self.s0**2)[None]
+        prec = m[:, :p, :p] / s2[:, None, None]
+        diag = np.arange(p)
+        prec[:, diag, diag] += 1.0 / self.s0**2  # the prior precision, in place
         h = m[:, :p, p] / s2[:, None] + ((self.m0 - self.beta_ref) / self.s0**2)[None]
-        ok &= np.all(np.isfinite(prec), axis=(1, 2)) & np.all(np.isfinite(h), axis=1)
-        prec = np.where(ok[:, None, None], prec, np.eye(p)[None])
-        h = np.where(ok[:, None], h, 0.0)
+        ok &= np.isfinite(prec.sum(axis=(1, 2))) & np.all(np.isfinite(h), axis=1)
+        if not ok.all():
+            prec[~ok] = np.eye(p)
+            h = np.where(ok[:, None], h, 0.0)
         # stacked LAPACK calls: each walker's factor is computed on its own, so the
         # values do not depend on the batch (cached and recomputed ones agree)
         try:
@@ -971,14 +864,25 @@ class LinearStructure:
                   - 0.5 * st.n * _LOG_2PI - 0.5 * quad / s**2)
         return np.where(ok & np.isfinite(ll), ll, -np.inf)
 
-    def log_marginal(self, st: LinearStats, z: np.ndarray) -> np.ndarray:
+    def log_marginal(self, st: LinearStats, z: np.ndarray, *,
+                     conditional: bool = False) -> np.ndarray | tuple[np.ndarray, Conditional]:
         """``log p(y | z_n)`` with the linear block integrated over its (Gaussian) prior (W,).
 
         Exact for Normal priors; with stand-in priors it is the stand-in's marginal.
+        With ``conditional``, also ``beta | z_n`` (as :meth:`conditional`) from the same
+        factorisation.
         """
+        chol, half, ok_factor = self._factor(st, z)
+        out = self._marginal_value(st, z, chol, half, ok_factor)
+        if not conditional:
+            return out
+        mean = self.beta_ref + _triangular(chol, half, transpose=True)
+        return out, Conditional(mean, chol, ok_factor & np.all(np.isfinite(mean), axis=1))
+
+    def _marginal_value(self, st: LinearStats, z: np.ndarray, chol: np.ndarray,
+                        half: np.ndarray, ok_factor: np.ndarray) -> np.ndarray:
         sigma, phi = self.noise(z)
         ok = ~st.failed & self._noise_ok(sigma, phi)
-        chol, half, ok_factor = self._factor(st, z)
         ok &= ok_factor & np.all(np.isfinite(half), axis=1)
         m = self.whitened(st, np.where(ok, phi, 0.0))
         p = self.p
