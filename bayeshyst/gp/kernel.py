@@ -23,9 +23,9 @@ import numpy as np
 from scipy import linalg, optimize
 from scipy.spatial.distance import cdist
 from sklearn.gaussian_process.kernels import RBF, ConstantKernel, Matern, WhiteKernel
-from threadpoolctl import ThreadpoolController
 
 from bayeshyst.errors import DataError, ParameterError
+from bayeshyst.threads import single_threaded_blas
 
 __all__ = [
     "BOUNDS",
@@ -45,7 +45,6 @@ BOUNDS = {"signal_variance": (1e-3, 1e4), "length_scale": (1e-2, 1e3), "noise_le
 
 #: Largest training-set size whose linear algebra runs with single-threaded BLAS.
 SMALL_BLAS = 1000
-_CONTROLLER: ThreadpoolController | None = None
 
 
 @contextlib.contextmanager
@@ -57,13 +56,10 @@ def blas_limit(m: int) -> Iterator[None]:
     took 172 ms instead of ~1 ms with another job on both cores). Larger problems keep
     the configured thread count.
     """
-    global _CONTROLLER
     if m > SMALL_BLAS:
         yield
         return
-    if _CONTROLLER is None:
-        _CONTROLLER = ThreadpoolController()
-    with _CONTROLLER.limit(limits=1, user_api="blas"):
+    with single_threaded_blas():
         yield
 
 

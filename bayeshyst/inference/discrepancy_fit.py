@@ -37,6 +37,7 @@ from bayeshyst.inference.held_out import held_out_from_units, held_out_gradient,
 from bayeshyst.inference.linear import LinearStructure
 from bayeshyst.inference.optimize import MAPResult, conditional_mode
 from bayeshyst.inference.posterior import NOISE, Posterior
+from bayeshyst.threads import with_single_threaded_blas
 
 __all__ = ["DiscrepancyScales", "attach_discrepancy"]
 
@@ -82,6 +83,7 @@ def _hyper_names(post: Posterior) -> list[str]:
             if n.startswith(DISC + ".") and n != f"{DISC}.xi"]
 
 
+@with_single_threaded_blas
 def attach_discrepancy(post0: Posterior, start: MAPResult,
                        kind: str | Discrepancy | None = "hsgp", *, fix_noise: bool = True
                        ) -> tuple[Posterior, DiscrepancyScales | None, MAPResult]:

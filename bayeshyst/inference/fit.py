@@ -31,6 +31,7 @@ from bayeshyst.likelihoods import Likelihood
 from bayeshyst.models.base import HysteresisModel
 from bayeshyst.params import ParamSpace
 from bayeshyst.tables import TableRecord, frame
+from bayeshyst.threads import with_single_threaded_blas
 
 __all__ = [
     "FitResult", "TrackingError", "calibrate_fit", "errors_by_frequency", "fit_model",
@@ -208,6 +209,7 @@ class FitResult(TableRecord):
         return "\n".join(lines)
 
 
+@with_single_threaded_blas
 def fit_model(
     data: Dataset | Record,
     model: HysteresisModel | str,

@@ -21,6 +21,7 @@ from scipy import optimize
 
 from bayeshyst.errors import ParameterError
 from bayeshyst.inference.posterior import NOISE, Posterior
+from bayeshyst.threads import with_single_threaded_blas
 
 __all__ = ["MAPResult", "conditional_mode", "find_map", "initial_ensemble", "laplace_covariance"]
 
@@ -231,6 +232,7 @@ def _global_search(post: Posterior, rng: np.random.Generator, cand: np.ndarray,
     return complete(np.asarray(res.x, dtype=float)[None, :])[0]
 
 
+@with_single_threaded_blas
 def find_map(
     post: Posterior,
     *,

@@ -52,6 +52,7 @@ from bayeshyst.inference.optimize import (
 from bayeshyst.inference.posterior import EvalCounts, Posterior
 from bayeshyst.inference.settings import SamplerSettings
 from bayeshyst.params import ParamSpace
+from bayeshyst.threads import with_single_threaded_blas
 
 __all__ = [
     "MIN_MOVE_RATE", "ParamSummary", "SamplingResult", "adaptation_points", "chunk_boundaries",
@@ -523,6 +524,7 @@ def _advance(samplers: list, indeps: list, other: np.ndarray, settings: SamplerS
     return out
 
 
+@with_single_threaded_blas
 def sample_posterior(
     post: Posterior,
     settings: SamplerSettings | None = None,
