@@ -27,6 +27,7 @@ from bayeshyst.likelihoods import Likelihood, get_likelihood
 from bayeshyst.models import get as get_model
 from bayeshyst.models.base import HysteresisModel
 from bayeshyst.params import Normal, Param, ParamSpace
+from bayeshyst.threads import with_single_threaded_blas
 
 __all__ = ["EvalCounts", "Posterior", "Unit", "cycle_units", "record_covariates"]
 
@@ -417,6 +418,7 @@ class Posterior:
             out.append(pw)
         return out, failed
 
+    @with_single_threaded_blas
     def log_prob_batch(self, z: np.ndarray) -> np.ndarray:
         """Log posterior density (up to a constant) of ``W`` points.
 
@@ -455,6 +457,7 @@ class Posterior:
 
     __call__ = log_prob_batch
 
+    @with_single_threaded_blas
     def log_likelihood_units(self, z: np.ndarray) -> np.ndarray:
         """Log-likelihood of each unit (cycle) for ``W`` points.
 
@@ -492,6 +495,7 @@ class Posterior:
         return theta, np.broadcast_to(np.asarray(off, dtype=float).ravel(),
                                       (z.shape[0],)).copy()
 
+    @with_single_threaded_blas
     def predict(self, z: np.ndarray, *, discrepancy: bool = True) -> list[np.ndarray]:
         """Noise-free predictions (offset included) for ``W`` points, per record.
 
@@ -515,6 +519,7 @@ class Posterior:
         return [self.model.run_batch(r["u"], r["t"], model_theta, covariates=r["covariates"]).y
                 + off + self._delta(r, coef) for r in self._records]
 
+    @with_single_threaded_blas
     def discrepancy_draws(self, z: np.ndarray) -> list[np.ndarray] | None:
         """The discrepancy ``delta`` (W, N_record) per record, None without one."""
         coef = self.discrepancy_coefficients(z)
