@@ -7,9 +7,10 @@ numba's threads for the same cores: measured on 2 cores, one log-density batch o
 Bouc–Wen walkers with a discrepancy took 11.1 ms with OpenBLAS's two threads and 5.8 ms
 with one (5.3 and 4.7 ms without the discrepancy); 64 ``pi_play(8)`` walkers with a
 discrepancy 41.6 ms against 3.3 ms. Products this small gain nothing from a second BLAS
-thread, so the inference's entry points (the fits, the MAP search, the sampler) and the
-posterior's batch evaluations run with one (:func:`with_single_threaded_blas`); large
-problems outside them (a big GP's Cholesky) keep the configured team.
+thread, so the inference's entry points (the fits, the MAP search, the sampler on a
+hysteresis posterior) and the posterior's batch evaluations run with one
+(:func:`with_single_threaded_blas`); other work (a GP's hyperparameters over a large
+training set, whose Cholesky factors do gain from threads) keeps the configured team.
 """
 
 from __future__ import annotations

@@ -21,6 +21,7 @@ uninterrupted run.
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import logging
 import math
@@ -52,7 +53,7 @@ from bayeshyst.inference.optimize import (
 from bayeshyst.inference.posterior import EvalCounts, Posterior
 from bayeshyst.inference.settings import SamplerSettings
 from bayeshyst.params import ParamSpace
-from bayeshyst.threads import with_single_threaded_blas
+from bayeshyst.threads import single_threaded_blas
 
 __all__ = [
     "MIN_MOVE_RATE", "ParamSummary", "SamplingResult", "adaptation_points", "chunk_boundaries",
@@ -524,7 +525,6 @@ def _advance(samplers: list, indeps: list, other: np.ndarray, settings: SamplerS
     return out
 
 
-@with_single_threaded_blas
 def sample_posterior(
     post: Posterior,
     settings: SamplerSettings | None = None,
@@ -560,6 +560,16 @@ def sample_posterior(
     ParameterError
         For too few walkers for the move set, or a checkpoint of another run.
     """
+    # a hysteresis posterior alternates numba kernels with small BLAS products: one BLAS
+    # thread (bayeshyst.threads); other targets (a GP's hyperparameters over a large
+    # training set) choose their own
+    limit = single_threaded_blas() if isinstance(post, Posterior) else contextlib.nullcontext()
+    with limit:
+        return _sample_posterior(post, settings, start, initial)
+
+
+def _sample_posterior(post: Posterior, settings: SamplerSettings | None,
+                      start: MAPResult | None, initial: np.ndarray | None) -> SamplingResult:
     t0 = time.perf_counter()
     settings = SamplerSettings() if settings is None else settings
     if not isinstance(settings, SamplerSettings):
