@@ -295,6 +295,7 @@ def cut_record(rec: Record, cut: Cut) -> Record:
                     meta[key] = meta[key] // k
             seg = None if rec.segment is None else rec.segment[::k]
             rec = rec.with_(t=rec.t[::k], u=rec.u[::k], y=rec.y[::k], segment=seg,
+                            covariates={c: v[::k] for c, v in rec.covariates.items()},
                             warmup=min(math.ceil(rec.warmup / k), rec.t[::k].size - 2),
                             metadata=meta)
             notes.append(f"every {_ordinal(k)} sample kept ({fs0:.6g} Hz -> {fs0 / k:.6g} Hz)")

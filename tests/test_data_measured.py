@@ -122,6 +122,17 @@ def test_mr_damper_matrix_matches_source(mr):
     assert mr["25mm0x1Hz0x75A"].frequency_hz == 0.1
 
 
+def test_mr_damper_keeps_the_velocity_column_and_it_is_the_first_difference(mr):
+    # SOURCE.md: dx/dt is the first difference of the smoothed displacement -- a column the
+    # loader does not map to t, u, y is kept as a covariate, not dropped
+    for r in mr:
+        assert set(r.covariates) == {"velocity_mm_s"}
+        v = np.asarray(r.covariates["velocity_mm_s"])
+        diff = np.diff(r.u) / r.dt
+        assert np.corrcoef(v[1:], diff)[0, 1] > 0.99
+        assert np.median(np.abs(v[1:] - diff)) < 0.02 * np.ptp(diff)
+
+
 def test_mr_damper_physics_facts(mr):
     # peak force grows with coil current: ~+-140-220 N at 0 A, up to ~+-1.5 kN at 1 A
     at_zero = [np.abs(r.y).max() for r in mr if r.metadata["current_a"] == 0.0]

@@ -313,7 +313,9 @@ def load_mr_damper(
     Files ``<amp>mm<freq>Hz<current>A.txt`` (``x`` = decimal point), whitespace text
     without header: t [s], x [mm], dx/dt [mm/s], F [N]. Here the **input** u is the
     displacement x [mm] and the **output** y the force F [N]; the velocity column is
-    dropped (it is the first difference of x). The authors smoothed both signals with
+    kept as the covariate ``velocity_mm_s`` (the authors' first difference of the
+    smoothed x: an MR damper's viscous force follows it, so the diagnosis' driver scan
+    and ``aux`` candidate can look at it). The authors smoothed both signals with
     a causal moving average of 1/10 period and removed the mean (``metadata
     ["preprocessing"]``), so harmonics are attenuated and delayed.
 
@@ -338,7 +340,8 @@ def load_mr_damper(
     -------
     Dataset
         ``"mr_damper_utfsm_sine"``, records named by file stem, ordered by frequency,
-        amplitude, current; units ``{"t": "s", "u": "mm", "y": "N"}``; metadata
+        amplitude, current; units ``{"t": "s", "u": "mm", "y": "N"}``; covariate
+        ``velocity_mm_s`` [mm/s]; metadata
         ``frequency_hz``, ``amplitude_mm``, ``current_a`` parsed from the name.
 
     Raises
@@ -392,6 +395,7 @@ def load_mr_damper(
             t=t,
             u=table.floats("col1", label="field 2 of 4 (x)"),
             y=table.floats("col3", label="field 4 of 4 (F)"),
+            covariates={"velocity_mm_s": table.floats("col2", label="field 3 of 4 (dx/dt)")},
             warmup=round(warmup_periods / (freq * dt)),
             metadata=meta,
             units={"t": "s", "u": "mm", "y": "N"},
