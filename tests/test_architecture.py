@@ -26,7 +26,7 @@ PACKAGE = Path(__file__).resolve().parents[1] / "bayeshyst"
 
 #: lowest first; the same table as docs/ARCHITECTURE.md
 LAYERS: tuple[tuple[str, ...], ...] = (
-    ("errors", "files", "_version", "tables"),
+    ("errors", "files", "_version", "tables", "threads"),
     ("data",),
     ("params",),
     ("models", "likelihoods"),
