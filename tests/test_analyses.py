@@ -405,8 +405,8 @@ def test_what_fires_on_measured_data_is_the_same_for_every_seed(shared_data_dir,
     # what the loop is asked to explain on measured data must come from the data, not
     # from the sampler's seed: three seeds, converged base fits, the same score tests
     # firing, the same drivers kept by the scan, the same candidates in the same order.
-    # (The candidates' own fits are not compared: the branch-shape correction with creep
-    # on the 150 V record does not converge in 10 000 steps -- see the README.)
+    # (The candidates' own fits are not compared: on the 150 V record the branch-shape
+    # correction and creep on top of it take ~20 min per seed -- see the README.)
     from bayeshyst.diagnosis import analyse_residual
     from bayeshyst.inference.posterior import Posterior
     from bayeshyst.inference.sampling import sample_posterior
