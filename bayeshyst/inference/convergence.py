@@ -113,6 +113,15 @@ def _sorted_median(ordered: np.ndarray) -> np.ndarray:
     return ordered[:, mid] if n % 2 else (ordered[:, mid - 1] + ordered[:, mid]) / 2.0
 
 
+def _bulk_and_folded(x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Rank-normalised draws, the same of their distance to the median, the sorted draws.
+
+    ``x`` is (P, chains, draws); the sorted draws are (P, chains * draws).
+    """
+    bulk, ordered = _z_scale_sorted(x)
+    return bulk, _z_scale(np.abs(x - _sorted_median(ordered)[:, None, None])), ordered
+
+
 def _rhat_basic(x: np.ndarray) -> np.ndarray:
     """Split-free R-hat of each quantity of ``x`` (..., chains, draws); NaN where undefined."""
     n = x.shape[-1]
@@ -140,12 +149,9 @@ def _rhat_many(x: np.ndarray) -> np.ndarray:
     ok = _defined(x)
     if x.shape[-1] < 4 or not ok.any():
         return out
-    s = _split(x[ok])
-    bulk = _rhat_basic(_z_scale(s))
-    folded = np.abs(s - np.median(s.reshape(s.shape[0], -1), axis=1)[:, None, None])
-    tail = _rhat_basic(_z_scale(folded))
-    # a NaN in either makes the quantity's R-hat undefined
-    out[ok] = np.where(np.isnan(bulk) | np.isnan(tail), math.nan, np.maximum(bulk, tail))
+    bulk, folded, _ = _bulk_and_folded(_split(x[ok]))
+    # np.maximum propagates NaN: undefined in either is undefined
+    out[ok] = np.maximum(_rhat_basic(bulk), _rhat_basic(folded))
     return out
 
 
@@ -255,8 +261,7 @@ def _ess_tail_many(x: np.ndarray, ordered: np.ndarray | None = None) -> np.ndarr
         ind = _split((xs <= _sorted_quantile(ordered, q)[:, None, None]).astype(float))
         e = _ess_many(ind)
         ess.append(np.where(np.ptp(ind.reshape(ind.shape[0], -1), axis=1) > 0, e, math.nan))
-    out[ok] = np.where(np.isnan(ess[0]) | np.isnan(ess[1]), math.nan,
-                       np.minimum(ess[0], ess[1]))
+    out[ok] = np.minimum(ess[0], ess[1])  # NaN in either stays NaN
     return out
 
 
@@ -275,8 +280,7 @@ def _diagnostics_many(walkers: np.ndarray, n_ensembles: int) -> np.ndarray:
         return out
     x = walkers[ok]
     k = x.shape[0]
-    bulk, ordered = _z_scale_sorted(x)
-    folded = _z_scale(np.abs(x - _sorted_median(ordered)[:, None, None]))
+    bulk, folded, ordered = _bulk_and_folded(x)
 
     def as_ensembles(z: np.ndarray) -> np.ndarray:  # each ensemble's draws step-major
         w = c // n_ensembles
@@ -285,8 +289,7 @@ def _diagnostics_many(walkers: np.ndarray, n_ensembles: int) -> np.ndarray:
 
     parts = [_rhat_basic(_split(z)) for z in (bulk, folded, as_ensembles(bulk),
                                                as_ensembles(folded))]
-    both = np.stack(parts)
-    out[ok, 0] = np.where(np.isnan(both).any(axis=0), math.nan, both.max(axis=0))
+    out[ok, 0] = np.stack(parts).max(axis=0)  # NaN in any part stays NaN
     out[ok, 1] = _ess_many(_split(bulk))
     out[ok, 2] = _ess_tail_many(x, ordered)
     return out
