@@ -33,7 +33,13 @@ from scipy import optimize
 
 from bayeshyst.discrepancy import DISC, Anchor, Discrepancy, make_discrepancy
 from bayeshyst.errors import ParameterError
-from bayeshyst.inference.held_out import held_out_from_units, held_out_gradient, unit_grams
+from bayeshyst.inference.held_out import (
+    SCALE_STEP,
+    central_points,
+    held_out_from_units,
+    held_out_gradient,
+    unit_grams,
+)
 from bayeshyst.inference.linear import LinearStructure
 from bayeshyst.inference.optimize import MAPResult, conditional_mode
 from bayeshyst.inference.posterior import NOISE, Posterior
@@ -290,12 +296,9 @@ def _log_prior_of(post: Posterior, z: np.ndarray, names: list[str]) -> float:
 
 def _log_prior_and_gradient(post: Posterior, z: np.ndarray, names: list[str],
                             idx: np.ndarray) -> tuple[float, np.ndarray]:
-    """:func:`_log_prior_of` and its gradient in ``z[idx]`` (central differences, 1e-6)."""
+    """:func:`_log_prior_of` and its gradient in ``z[idx]`` (central differences)."""
     k = len(idx)
-    zs = np.tile(z, (2 * k + 1, 1))
-    zs[1 + np.arange(k), idx] += 1e-6
-    zs[1 + k + np.arange(k), idx] -= 1e-6
-    rows = _log_prior_rows(post, zs, names)
+    rows = _log_prior_rows(post, central_points(z, idx), names)
     with np.errstate(invalid="ignore"):
-        grad = (rows[1:k + 1] - rows[k + 1:]) / 2e-6
+        grad = (rows[1:k + 1] - rows[k + 1:]) / (2.0 * SCALE_STEP)
     return float(rows[0]), np.where(np.isfinite(grad), grad, 0.0)

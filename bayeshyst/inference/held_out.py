@@ -33,13 +33,13 @@ from typing import TYPE_CHECKING
 import numpy as np
 from scipy.linalg import lapack
 
-from bayeshyst.inference.linear import LinearStats, _grams, _stacked
+from bayeshyst.inference.linear import LinearStats, _grams, _rows, _stacked
 
 if TYPE_CHECKING:
     from bayeshyst.inference.linear import LinearStructure
 
-__all__ = ["held_out_from_units", "held_out_gradient", "held_out_log_predictive",
-           "unit_grams"]
+__all__ = ["SCALE_STEP", "central_points", "held_out_from_units", "held_out_gradient",
+           "held_out_log_predictive", "unit_grams"]
 
 #: (unit, walker) pairs whose held-out marginals are factorised in one stacked call
 #: (256 Grams of 110 x 110 coefficients: 25 MB)
@@ -47,7 +47,19 @@ _HELD_OUT_STACK = 256
 _TRTRI = lapack.dtrtri
 #: Step of the central differences of the column scales and the noise's transform in
 #: their unconstrained coordinates (cheap functions: no factorisation)
-_SCALE_STEP = 1e-6
+SCALE_STEP = 1e-6
+
+
+def central_points(z: np.ndarray, idx: np.ndarray, step: float = SCALE_STEP) -> np.ndarray:
+    """``z`` (ndim,), then ``z + step e_k`` and ``z - step e_k`` for each ``k`` of ``idx``.
+
+    Shape (2 len(idx) + 1, ndim): one batch for central differences of a cheap function.
+    """
+    k = len(idx)
+    zs = np.tile(z, (2 * k + 1, 1))
+    zs[1 + np.arange(k), idx] += step
+    zs[1 + k + np.arange(k), idx] -= step
+    return zs
 
 
 def held_out_log_predictive(structure: LinearStructure, z: np.ndarray, *,
@@ -166,8 +178,7 @@ def _subsets(structure: LinearStructure, grams: tuple, z: np.ndarray):
     step = max(1, _HELD_OUT_STACK // w)
     for a in range(0, units.size, step):
         us = units[a:a + step]
-        # a view when the units are a contiguous run
-        rows = slice(int(us[0]), int(us[-1]) + 1) if us[-1] - us[0] + 1 == us.size else us
+        rows = _rows(us)  # a view when the units are a contiguous run
 
         def rest(total: np.ndarray | None, parts: np.ndarray | None,
                  rows: np.ndarray | slice = rows, k: int = us.size) -> np.ndarray | None:
@@ -265,17 +276,14 @@ def held_out_gradient(structure: LinearStructure, grams: tuple, z: np.ndarray,
         return -np.inf, np.zeros(len(idx))
     # chain rule to the unconstrained coordinates: d log c_j / d z_k and d log sigma /
     # d z_k by central differences of the (cheap) scale functions
-    # the point and its +-step neighbours along each coordinate, in one call each
     k = len(idx)
-    zs = np.tile(z1, (2 * k + 1, 1))
-    zs[1 + np.arange(k), idx] += _SCALE_STEP
-    zs[1 + k + np.arange(k), idx] -= _SCALE_STEP
+    zs = central_points(z, idx)
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
         c, sig = structure.column_scale(zs), structure.noise(zs)[0]
-        dc = (c[1:k + 1] - c[k + 1:]) / (2.0 * _SCALE_STEP)
+        dc = (c[1:k + 1] - c[k + 1:]) / (2.0 * SCALE_STEP)
         # a column scaled to zero carries no data and has no gradient
         dlog_c = np.where(c[0] > 0, dc / c[0], 0.0)
-        dlog_s = (sig[1:k + 1] - sig[k + 1:]) / (2.0 * _SCALE_STEP * sig[0])
+        dlog_s = (sig[1:k + 1] - sig[k + 1:]) / (2.0 * SCALE_STEP * sig[0])
     out = dlog_c @ grad[:-1] + dlog_s * grad[-1]
     if not np.all(np.isfinite(out)):
         return -np.inf, np.zeros(len(idx))
