@@ -25,16 +25,18 @@ from threadpoolctl import ThreadpoolController
 __all__ = ["single_threaded_blas", "with_single_threaded_blas"]
 
 _F = TypeVar("_F", bound=Callable[..., Any])
-#: Built on first use: it inspects the loaded libraries, which takes milliseconds
-_CONTROLLER: list[ThreadpoolController] = []
+
+
+@functools.cache
+def _controller() -> ThreadpoolController:
+    # built on first use and kept: it inspects the loaded libraries (milliseconds)
+    return ThreadpoolController()
 
 
 @contextlib.contextmanager
 def single_threaded_blas() -> Iterator[None]:
     """One BLAS thread inside the block; the previous count restored after it (nests)."""
-    if not _CONTROLLER:
-        _CONTROLLER.append(ThreadpoolController())
-    with _CONTROLLER[0].limit(limits=1, user_api="blas"):
+    with _controller().limit(limits=1, user_api="blas"):
         yield
 
 
