@@ -178,6 +178,34 @@ def test_structure_statistics_do_not_depend_on_the_batch(spec, discrepancy, like
             np.testing.assert_array_equal(a[j], b[0])
 
 
+def test_walkers_that_overflow_are_failed_quietly_and_the_rest_unchanged():
+    # a natural frequency near the float limit (2 pi f_n overflows) and a design whose
+    # products overflow: both walkers get -inf, counted as failed, with no numpy warning
+    # reaching the user; the other walkers' values are those of a batch without them
+    import warnings
+
+    _, rec, _ = pi_data(n_ops=2, n=600)
+    post = Posterior(rec, "pi_play(n_operators=2)+second_order")
+    z = post.space.sample_prior(np.random.default_rng(5), 4)
+    z[1, post.space.slice_of("second_order.f_n")] = 709.5
+    s = LinearStructure(post)
+    rows, failed = s.designs(z)
+    huge = [(phi.copy(), const) for phi, const in rows]
+    for phi, _ in huge:
+        phi[2] *= 1e300
+    keep = [0, 3]
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        lp = post.log_prob_batch(z)
+        st = s._stats_of(huge, failed.copy())
+        lm = s.log_marginal(st, z)
+    assert lp[1] == -np.inf and post.counts.failed >= 1
+    assert np.all(np.isneginf(lm[[1, 2]]))
+    ref = LinearStructure(post)
+    np.testing.assert_array_equal(lm[keep], ref.log_marginal(ref.stats(z[keep]), z[keep]))
+    assert np.all(np.isfinite(lm[keep]))
+
+
 def test_statistics_cache_keeps_every_walker_of_a_call_when_it_trims(monkeypatch):
     # more distinct walkers than the cache holds, mixed with cached ones: every lookup
     # must find its walker, and cached values equal a fresh computation

@@ -517,18 +517,22 @@ class LinearStructure:
             r = self._reference_residual(rec, phi, const)
             failed |= ~np.all(np.isfinite(r), axis=1)
             keep = rec["keep"] if rec["keep"] is not None else np.ones(r.shape[1], dtype=bool)
-            if self.has_basis:
-                f, l0, c, pv = self._grams_with_basis(i, phi, r, keep)
-            elif self._shared_design and np.all(np.isfinite(phi)):
-                f, l0, c, pv = _grams_shared(phi[0], r, keep, self.lagged)
-            else:
-                f, l0, c, pv = _grams(_stacked(np.broadcast_to(phi, (w, *phi.shape[1:])), r),
-                                      keep, self.lagged)
-            first += f
-            lag0 += l0
-            if self.lagged:
-                cross += c
-                prev += pv
+            # a walker far out in its prior can give a finite design whose products
+            # overflow: its Grams turn non-finite and _factor flags it failed (counted)
+            with np.errstate(over="ignore", invalid="ignore"):
+                if self.has_basis:
+                    f, l0, c, pv = self._grams_with_basis(i, phi, r, keep)
+                elif self._shared_design and np.all(np.isfinite(phi)):
+                    f, l0, c, pv = _grams_shared(phi[0], r, keep, self.lagged)
+                else:
+                    f, l0, c, pv = _grams(
+                        _stacked(np.broadcast_to(phi, (w, *phi.shape[1:])), r),
+                        keep, self.lagged)
+                first += f
+                lag0 += l0
+                if self.lagged:
+                    cross += c
+                    prev += pv
             n += int(np.count_nonzero(keep))
             n_first += int(keep[0])
         return LinearStats(first, lag0, cross, prev, n, n_first, failed)
@@ -787,9 +791,12 @@ class LinearStructure:
     def whitened(self, st: LinearStats, phi: np.ndarray) -> np.ndarray:
         """The whitened Gram ``M`` (W, Q, Q) at AR coefficients ``phi`` (W,)."""
         if not self.lagged:
-            return st.first if st.lag0 is None else st.first + st.lag0
+            if st.lag0 is None:
+                return st.first
+            with np.errstate(over="ignore", invalid="ignore"):  # overflowed walkers: failed
+                return st.first + st.lag0
         ph = phi[:, None, None]
-        with np.errstate(divide="ignore", invalid="ignore"):
+        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
             inner = (st.lag0 - ph * (st.cross + st.cross.transpose(0, 2, 1))
                      + ph * ph * st.prev) / (1.0 - ph * ph)
         return st.first + inner

@@ -192,7 +192,10 @@ class SecondOrder(EffectBlock):
 
     def _apply(self, w, t, theta, state):
         out, st, failed = kernel_buffers(state, w.shape[1])
-        wn = 2.0 * np.pi * np.ascontiguousarray(theta["f_n"], dtype=np.float64)
+        # an f_n near the float limit overflows to inf here; the kernel refuses a
+        # non-finite wn and flags the walker failed (counted), so no warning is due
+        with np.errstate(over="ignore"):
+            wn = 2.0 * np.pi * np.ascontiguousarray(theta["f_n"], dtype=np.float64)
         second_order_batch(w, t, wn, np.ascontiguousarray(theta["zeta"]), self.hold == "foh",
                            st, out, failed)
         return out, st, failed
