@@ -33,7 +33,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 from scipy.linalg import lapack
 
-from bayeshyst.inference.linear import LinearStats, _grams, _rows, _stacked
+from bayeshyst.inference._grams import grams, sample_rows, stacked
+from bayeshyst.inference.linear import LinearStats
 
 if TYPE_CHECKING:
     from bayeshyst.inference.linear import LinearStructure
@@ -118,7 +119,7 @@ def unit_grams(structure: LinearStructure, z: np.ndarray,
         r = s._reference_residual(rec, phi, const)
         failed |= ~np.all(np.isfinite(r), axis=1)
         x = (None if s.has_basis else
-             _stacked(np.broadcast_to(phi, (w, *phi.shape[1:])), r))
+             stacked(np.broadcast_to(phi, (w, *phi.shape[1:])), r))
         keep = rec["keep"] if rec["keep"] is not None else np.ones(r.shape[1], dtype=bool)
         bounds = [*rec["unit_starts"], r.shape[1]]
         for j in range(len(bounds) - 1):
@@ -129,7 +130,7 @@ def unit_grams(structure: LinearStructure, z: np.ndarray,
             if not mask.any():
                 continue
             f, l0, c, pv = (s._grams_with_basis(i, phi, r, mask) if x is None
-                            else _grams(x, mask, s.lagged))
+                            else grams(x, mask, s.lagged))
             first[u], lag0[u] = f, l0
             if s.lagged:
                 cross[u], prev[u] = c, pv
@@ -178,7 +179,7 @@ def _subsets(structure: LinearStructure, grams: tuple, z: np.ndarray):
     step = max(1, _HELD_OUT_STACK // w)
     for a in range(0, units.size, step):
         us = units[a:a + step]
-        rows = _rows(us)  # a view when the units are a contiguous run
+        rows = sample_rows(us)  # a view when the units are a contiguous run
 
         def rest(total: np.ndarray | None, parts: np.ndarray | None,
                  rows: np.ndarray | slice = rows, k: int = us.size) -> np.ndarray | None:

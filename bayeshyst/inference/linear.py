@@ -39,6 +39,7 @@ from scipy import special
 from scipy.linalg import lapack
 
 from bayeshyst.discrepancy import DISC
+from bayeshyst.inference._grams import BasisGrams, Grams, grams, grams_shared, stacked
 from bayeshyst.inference.posterior import NOISE, OBS, Posterior
 from bayeshyst.models.base import LinearDesign
 from bayeshyst.params import Identity, Normal
@@ -51,13 +52,6 @@ _TRTRS = lapack.dtrtrs
 _SMALL = 16
 #: walkers whose Grams are kept (keyed by their design-determining coordinates)
 _CACHE_SIZE = 512
-#: Walkers' residuals per BLAS product against a shared design and basis: a fixed
-#: width, zero-padded, so a walker's Gram never depends on the batch (see
-#: LinearStructure._grams_with_basis_shared). Four: OpenBLAS's fastest width for these
-#: tall, thin products (6 000 x 33 design, 24 walkers: 0.40 ms at 4, 0.58 at 8, 0.63 at
-#: 2; measured single-threaded)
-_WALKER_CHUNK = 4
-
 
 @dataclass(frozen=True)
 class LinearStats:
@@ -152,110 +146,6 @@ def _one_for_all(st: LinearStats) -> bool:
             and bool(np.all(st.failed == st.failed[0])))
 
 
-def _rows(idx: np.ndarray) -> np.ndarray | slice:
-    """Sample indices as a slice when they are a contiguous run (a view), else as they are."""
-    if idx.size and int(idx[-1]) - int(idx[0]) + 1 == idx.size:
-        return slice(int(idx[0]), int(idx[-1]) + 1)
-    return idx
-
-
-def _lagged_grams(gram: Any, keep: np.ndarray, shape: tuple[int, int, int], lagged: bool
-                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None]:
-    """``first``, ``lag0`` (and ``cross``, ``prev`` for AR(1)) Grams from ``gram(a, b)``.
-
-    ``gram(a, b)`` is the Gram of the sample sets ``a`` and ``b`` (index arrays); the
-    first kept sample is ``first``, the others ``lag0``, their products with the samples
-    before them ``cross`` and those samples' own ``prev``.
-    """
-    first = gram(np.array([0]), np.array([0])) if keep[0] else np.zeros(shape)
-    idx = np.flatnonzero(keep[1:]) + 1
-    if idx.size == 0:
-        zero = np.zeros(shape)
-        return first, zero, (zero if lagged else None), (zero if lagged else None)
-    lag0 = gram(idx, idx)
-    if not lagged:
-        return first, lag0, None, None
-    return first, lag0, gram(idx, idx - 1), gram(idx - 1, idx - 1)
-
-
-def _stacked(phi: np.ndarray, r: np.ndarray) -> np.ndarray:
-    """``X = [Phi, r]`` per walker, shape (W, N, P + 1), non-finite entries zeroed.
-
-    The walkers with non-finite entries are flagged failed by the caller.
-    """
-    w, n = r.shape
-    p = phi.shape[2]
-    x = np.empty((w, n, p + 1))
-    x[:, :, :p] = phi
-    x[:, :, p] = r
-    return x if np.all(np.isfinite(x)) else np.where(np.isfinite(x), x, 0.0)
-
-
-def _grams(x: np.ndarray, keep: np.ndarray, lagged: bool
-           ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None]:
-    """Gram matrices (W, Q, Q) of the kept samples of one record.
-
-    ``first = x_0 x_0^T`` (when sample 0 is kept), ``lag0 = sum_{k>=1} x_k x_k^T``; with
-    ``lagged`` also ``cross = sum x_k x_{k-1}^T`` and ``prev = sum x_{k-1} x_{k-1}^T`` (the
-    AR(1) innovations ``x_k - phi x_{k-1}``), sums over the kept ``k >= 1``. Stacked BLAS
-    products: each walker's matrix is one product of the same shape whatever the batch,
-    so cached and recomputed values agree to the bit (tested).
-    """
-    w, _, q = x.shape
-    first = (x[:, 0, :, None] * x[:, 0, None, :]) if keep[0] else np.zeros((w, q, q))
-    idx = np.flatnonzero(keep[1:]) + 1
-    if idx.size and idx[-1] - idx[0] + 1 == idx.size:  # a contiguous run: views
-        xk, xp = x[:, idx[0]:idx[-1] + 1], x[:, idx[0] - 1:idx[-1]]
-    else:
-        xk, xp = x[:, idx], x[:, idx - 1]
-    xkt = xk.transpose(0, 2, 1)
-    lag0 = xkt @ xk
-    if not lagged:
-        return first, lag0, None, None
-    return first, lag0, xkt @ xp, xp.transpose(0, 2, 1) @ xp
-
-
-def _grams_shared(phi: np.ndarray, r: np.ndarray, keep: np.ndarray, lagged: bool
-                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None]:
-    """:func:`_grams` for a design shared by every walker (``phi`` (N, P)).
-
-    Used e.g. for Bouc–Wen's ``[u, 1]``: the design's own products once, its products
-    with each walker's residual one ``r_w @ phi`` each (one call per walker: values
-    independent of the batch), and no ``W``-fold copy of the design.
-    """
-    w, _ = r.shape
-    p = phi.shape[1]
-    q = p + 1
-    r = np.where(np.isfinite(r), r, 0.0)
-
-    def block(a_phi: np.ndarray, a_r: np.ndarray, b_phi: np.ndarray,
-              b_r: np.ndarray) -> np.ndarray:
-        out = np.empty((w, q, q))
-        out[:, :p, :p] = a_phi.T @ b_phi
-        out[:, :p, p] = np.stack([b_r[j] @ a_phi for j in range(w)]) if p else 0.0
-        out[:, p, :p] = np.stack([a_r[j] @ b_phi for j in range(w)]) if p else 0.0
-        out[:, p, p] = np.einsum("wn,wn->w", a_r, b_r, optimize=False)
-        return out
-
-    if not lagged:
-        # the Gaussian likelihood needs only the sum over every kept sample: one block
-        idx = np.flatnonzero(keep)
-        if idx.size and idx[-1] - idx[0] + 1 == idx.size:
-            sl = slice(idx[0], idx[-1] + 1)
-            return np.zeros((w, q, q)), block(phi[sl], r[:, sl], phi[sl], r[:, sl]), None, None
-        return (np.zeros((w, q, q)), block(phi[idx], r[:, idx], phi[idx], r[:, idx]),
-                None, None)
-    first = (block(phi[:1], r[:, :1], phi[:1], r[:, :1]) if keep[0]
-             else np.zeros((w, q, q)))
-    idx = np.flatnonzero(keep[1:]) + 1
-    if idx.size and idx[-1] - idx[0] + 1 == idx.size:  # a contiguous run: views
-        sk, sp = slice(idx[0], idx[-1] + 1), slice(idx[0] - 1, idx[-1])
-        pk, rk, pp, rp = phi[sk], r[:, sk], phi[sp], r[:, sp]
-    else:
-        pk, rk, pp, rp = phi[idx], r[:, idx], phi[idx - 1], r[:, idx - 1]
-    return first, block(pk, rk, pk, rk), block(pk, rk, pp, rp), block(pp, rp, pp, rp)
-
-
 class LinearStructure:
     """The linear block of a posterior (see the module docstring).
 
@@ -336,7 +226,7 @@ class LinearStructure:
         self.p_design = self.p - self.m_basis
         self.lagged = kind == "ar1"
         self._records = post._records
-        self._basis_grams: dict[tuple, np.ndarray] = {}
+        self._basis_grams = BasisGrams(self._records, self.p_design, self.p, self.lagged)
         self._composite_base = None
         self._constant: LinearStats | None = None
         self._cache: OrderedDict[bytes, tuple] = OrderedDict()
@@ -523,10 +413,10 @@ class LinearStructure:
                 if self.has_basis:
                     f, l0, c, pv = self._grams_with_basis(i, phi, r, keep)
                 elif self._shared_design and np.all(np.isfinite(phi)):
-                    f, l0, c, pv = _grams_shared(phi[0], r, keep, self.lagged)
+                    f, l0, c, pv = grams_shared(phi[0], r, keep, self.lagged)
                 else:
-                    f, l0, c, pv = _grams(
-                        _stacked(np.broadcast_to(phi, (w, *phi.shape[1:])), r),
+                    f, l0, c, pv = grams(
+                        stacked(np.broadcast_to(phi, (w, *phi.shape[1:])), r),
                         keep, self.lagged)
                 first += f
                 lag0 += l0
@@ -674,119 +564,10 @@ class LinearStructure:
                            None if st.prev is None else st.prev * outer,
                            st.n, st.n_first, st.failed | bad)
 
-    def _basis_gram(self, rec_index: int, a: np.ndarray, b: np.ndarray) -> np.ndarray:
-        """``B[a]^T B[b]`` (m, m) of one record's basis rows ``a``, ``b``, cached."""
-        key = (rec_index, a.tobytes(), b.tobytes())
-        if key not in self._basis_grams:
-            basis = self._records[rec_index]["basis"][self._records[rec_index]["s0"]:]
-            self._basis_grams[key] = basis[a].T @ basis[b]
-        return self._basis_grams[key]
-
     def _grams_with_basis(self, rec_index: int, phi: np.ndarray, r: np.ndarray,
-                          keep: np.ndarray) -> tuple[np.ndarray, np.ndarray,
-                                                     np.ndarray | None, np.ndarray | None]:
-        """:func:`_grams` of ``[phi, B, r]`` with the basis ``B`` unscaled (W, Q, Q).
-
-        The basis is the same for every walker: its own products are computed once per
-        record and sample set, its products with the walkers' columns one product per
-        walker (values independent of the batch, as in :func:`_grams_shared`).
-        """
-        if self._shared_design and phi.shape[0] == 1 and np.all(np.isfinite(phi)):
-            return self._grams_with_basis_shared(rec_index, phi[0], r, keep)
-        w = r.shape[0]
-        basis = self._records[rec_index]["basis"][self._records[rec_index]["s0"]:]
-        pd = self.p_design
-        q = self.p + 1
-        # the walkers' own columns in (N, W, pd + 1) layout: a run of samples is then one
-        # (n, W (pd + 1)) matrix for the basis product without a copy (the (W, N, .)
-        # layout copied the walkers' columns twice per Gram: 2.5x the time, measured)
-        xt = np.empty((r.shape[1], w, pd + 1))
-        xt[:, :, :pd] = np.broadcast_to(phi, (w, *phi.shape[1:])).transpose(1, 0, 2)
-        xt[:, :, pd] = r.T
-        if not np.all(np.isfinite(xt)):  # as _stacked: zeroed, the caller flags them failed
-            xt = np.where(np.isfinite(xt), xt, 0.0)
-        ix = np.r_[np.arange(pd), self.p]
-        ib = np.arange(pd, self.p)
-
-        def gram(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-            out = np.empty((w, q, q))
-            same = np.array_equal(a, b)
-            ra, rb = _rows(a), _rows(b)
-            xa = xt[ra]
-            xb = xa if same else xt[rb]
-            out[:, ix[:, None], ix[None, :]] = xa.transpose(1, 2, 0) @ xb.transpose(1, 0, 2)
-            # one product over all walkers: the basis (N x m, tens of MB on long records)
-            # is read once, not once per walker (W skinny products were memory-bound)
-            n_b = xb.shape[0]
-            cross_b = (basis[ra].T @ xb.reshape(n_b, -1)).reshape(-1, w, ix.size)
-            out[:, ib[:, None], ix[None, :]] = cross_b.transpose(1, 0, 2)
-            if same:
-                out[:, ix[:, None], ib[None, :]] = cross_b.transpose(1, 2, 0)
-            else:
-                cross_a = (basis[rb].T @ xa.reshape(n_b, -1)).reshape(-1, w, ix.size)
-                out[:, ix[:, None], ib[None, :]] = cross_a.transpose(1, 2, 0)
-            out[:, ib[:, None], ib[None, :]] = self._basis_gram(rec_index, a, b)[None]
-            return out
-
-        return _lagged_grams(gram, keep, (w, q, q), self.lagged)
-
-    def _design_basis(self, rec_index: int, phi: np.ndarray) -> np.ndarray:
-        """``[phi, B]`` (N, P) of one record for a shared design ``phi`` (N, pd), cached."""
-        key = ("design_basis", rec_index)
-        cached = self._basis_grams.get(key)
-        if cached is None or not np.array_equal(cached[:, :self.p_design], phi):
-            basis = self._records[rec_index]["basis"][self._records[rec_index]["s0"]:]
-            cached = np.ascontiguousarray(np.concatenate([phi, basis], axis=1))
-            self._basis_grams[key] = cached
-        return cached
-
-    def _grams_with_basis_shared(self, rec_index: int, phi: np.ndarray, r: np.ndarray,
-                                 keep: np.ndarray) -> tuple[np.ndarray, np.ndarray,
-                                                            np.ndarray | None,
-                                                            np.ndarray | None]:
-        """:meth:`_grams_with_basis` for a design shared by every walker (``phi`` (N, pd)).
-
-        Bouc–Wen's ``[u, 1]``: with ``A = [phi, B]`` the same for every walker, its own
-        Gram ``A^T A`` is computed once per record and sample set, and each walker adds
-        ``A^T r_w`` (and ``r_w^T r_w``) -- ``W`` columns against ``A``, not the ``W (pd +
-        1)`` of multiplying the design anew for each walker. The walkers' residuals go
-        through BLAS in chunks of :data:`_WALKER_CHUNK` columns, zero-padded, so every
-        product has the same shape whatever the batch: a walker's values do not depend
-        on the batch it is computed in (a product's shape can change its rounding;
-        tested).
-        """
-        w = r.shape[0]
-        a_all = self._design_basis(rec_index, phi)
-        q = self.p + 1
-        p = self.p
-        r = np.where(np.isfinite(r), r, 0.0)  # the caller flags these walkers failed
-
-        def products(a_rows: np.ndarray, r_rows: np.ndarray) -> np.ndarray:
-            # A_a^T r_w (W, P) in fixed-shape chunks of walkers
-            out = np.empty((w, p))
-            chunk = np.zeros((r_rows.shape[1], _WALKER_CHUNK))
-            for c in range(0, w, _WALKER_CHUNK):
-                k = min(_WALKER_CHUNK, w - c)
-                chunk[:, :k] = r_rows[c:c + k].T
-                chunk[:, k:] = 0.0
-                out[c:c + k] = (a_rows.T @ chunk)[:, :k].T
-            return out
-
-        def gram(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-            out = np.empty((w, q, q))
-            ra, rb = _rows(a), _rows(b)
-            key = ("design_gram", rec_index, a.tobytes(), b.tobytes())
-            if key not in self._basis_grams:
-                self._basis_grams[key] = a_all[ra].T @ a_all[rb]
-            out[:, :p, :p] = self._basis_grams[key][None]
-            r_a, r_b = r[:, ra], r[:, rb]
-            out[:, :p, p] = products(a_all[ra], r_b)
-            out[:, p, :p] = (out[:, :p, p] if np.array_equal(a, b)
-                             else products(a_all[rb], r_a))
-            out[:, p, p] = np.einsum("wn,wn->w", r_a, r_b, optimize=False)
-            return out
-
-        return _lagged_grams(gram, keep, (w, q, q), self.lagged)
+                          keep: np.ndarray) -> Grams:
+        """Grams of ``[phi, B, r]`` with the discrepancy's basis ``B`` unscaled (W, Q, Q)."""
+        return self._basis_grams.grams(rec_index, phi, r, keep, self._shared_design)
 
     def whitened(self, st: LinearStats, phi: np.ndarray) -> np.ndarray:
         """The whitened Gram ``M`` (W, Q, Q) at AR coefficients ``phi`` (W,)."""
