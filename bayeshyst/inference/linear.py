@@ -612,11 +612,14 @@ class LinearStructure:
         m = self.whitened(st, np.where(ok, phi, 0.0))
         s2 = np.where(ok, sigma, 1.0) ** 2
         p = self.p
-        prec = m[:, :p, :p] / s2[:, None, None]
-        diag = np.arange(p)
-        prec[:, diag, diag] += 1.0 / self.s0**2  # the prior precision, in place
-        h = m[:, :p, p] / s2[:, None] + ((self.m0 - self.beta_ref) / self.s0**2)[None]
-        ok &= np.isfinite(prec.sum(axis=(1, 2))) & np.all(np.isfinite(h), axis=1)
+        # a walker whose Grams overflowed has a non-finite precision (inf - inf in the
+        # sum): it is flagged here, so the arithmetic's warnings are not the user's
+        with np.errstate(over="ignore", invalid="ignore"):
+            prec = m[:, :p, :p] / s2[:, None, None]
+            diag = np.arange(p)
+            prec[:, diag, diag] += 1.0 / self.s0**2  # the prior precision, in place
+            h = m[:, :p, p] / s2[:, None] + ((self.m0 - self.beta_ref) / self.s0**2)[None]
+            ok &= np.isfinite(prec.sum(axis=(1, 2))) & np.all(np.isfinite(h), axis=1)
         if not ok.all():
             prec[~ok] = np.eye(p)
             h = np.where(ok[:, None], h, 0.0)
