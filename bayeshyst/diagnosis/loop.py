@@ -13,8 +13,13 @@ Two gates stand between a residual pattern and an effect in ``effects_found``:
 
 Fired effects are tried in order of support (Bayes factor; coloured noise last); the
 first that passes gate 2 is kept and the loop starts again from the augmented fit.
-Effects that fire but fail gate 2 are recorded as rejected steps. The loop stops when
-no test fires, when every fired effect is rejected, or after ``max_rounds``.
+Effects that fire but fail gate 2 are recorded as rejected steps. When every candidate
+of a round fails and the best of them lost on some held-out cycles while gaining on the
+whole, it is fitted once more together with a partner that explains those cycles
+(:func:`~bayeshyst.diagnosis.candidates.pair_for`: one noise scale serves every cycle,
+so a delay that fits the fast cycles tighter loses on the slow ones that creep
+explains); the pair passes the same gate. The loop stops when no test fires, when
+every fired effect (and the pair) is rejected, or after ``max_rounds``.
 
 Beyond the catalogue (:mod:`bayeshyst.diagnosis.verdict` has the rules):
 
@@ -52,6 +57,7 @@ from bayeshyst.diagnosis.candidates import (
     UNEXPLAINED,
     judge,
     line_candidate,
+    pair_for,
     shape_candidate,
     unexplained_candidate,
 )
@@ -263,6 +269,48 @@ def _challenge(step: DiagnosisStep, cand: DiagnosisFit, alt_step: DiagnosisStep,
                          f"needs > {threshold:g} x se): the physical effect is kept")
 
 
+#: Effects :func:`pair_for` may fit together: the catalogue's blocks (the noise model
+#: changes the likelihood, and the scan-judged candidates have their own gate)
+_PAIRABLE = tuple(e for e in EFFECTS if e != ColoredNoise.name)
+
+
+def _try_pair(first: tuple[EffectTest, DiagnosisFit, DiagnosisStep, str, str | None],
+              partner: EffectTest, current: DiagnosisFit, attempt: Callable[..., Any],
+              unexplained: EffectTest | None, threshold: float, steps: list[DiagnosisStep],
+              rnd: int) -> tuple[DiagnosisFit, str, str | None, tuple[str, ...]] | None:
+    """Fit ``partner`` on top of the rejected ``first`` candidate and gate the pair.
+
+    The pair is judged against the round's current fit like any candidate, and credited
+    to both effects. A partner that can follow slow structure is challenged by a smooth
+    term in time in its place, as a single effect is. Appends the steps it takes.
+    """
+    test_a, fit_a, _, spec_a, disc_a = first
+    name = f"{test_a.effect}+{partner.effect}"
+    lost = int(np.sum(fit_a.pointwise_elpd < current.pointwise_elpd))
+    n = current.pointwise_elpd.size
+    why = (f"fitted together, neither having passed alone ({test_a.effect} lost on {lost} "
+           f"of {n} held-out cycles: one noise scale serves every cycle, and it tightens "
+           f"where {test_a.effect} fits)")
+    cand, step, new_spec, new_disc = attempt(partner, on=(fit_a, spec_a, disc_a))
+    step = replace(step, effect=name, reason=f"{why}; {step.reason}")
+    effects: tuple[str, ...] = (test_a.effect, partner.effect)
+    if (step.accepted and partner.effect in SLOW_IN_TIME and unexplained is not None
+            and unexplained.variant == TIME):
+        alt, alt_step, alt_spec, alt_disc = attempt(unexplained, on=(fit_a, spec_a, disc_a))
+        alt_step = replace(alt_step, effect=f"{test_a.effect}+{UNEXPLAINED}",
+                           reason=f"{why}; {alt_step.reason}")
+        step, alt_step = _challenge(step, cand, alt_step, alt, threshold)
+        steps += [step, alt_step]
+        if alt_step.accepted:
+            cand, step, new_spec, new_disc = alt, alt_step, alt_spec, alt_disc
+            effects = (test_a.effect, UNEXPLAINED)
+    else:
+        steps.append(step)
+    _log.info("round %d: %s %s (%s)", rnd, step.effect,
+              "accepted" if step.accepted else "rejected", step.reason)
+    return (cand, new_spec, new_disc, effects) if step.accepted else None
+
+
 def _check_settings(st: DiagnosisSettings) -> None:
     bad = [e for e in st.effects if e not in EFFECTS]
     if bad:
@@ -415,21 +463,27 @@ def diagnose(
             break
 
         def attempt(test: EffectTest, rnd: int = rnd, current: DiagnosisFit = current,
-                    spec: str = spec, disc: str | None = disc
+                    spec: str = spec, disc: str | None = disc,
+                    on: tuple[DiagnosisFit, str, str | None] | None = None
                     ) -> tuple[DiagnosisFit, DiagnosisStep, str, str | None]:
-            new_model, new_lik, new_spec, new_disc, warm = _augmented(test, current, spec,
-                                                                      disc, data)
+            # ``on``: augment that fit (a candidate of this round) instead of the current
+            # one; the result is still judged against the current fit
+            below, below_spec, below_disc = (current, spec, disc) if on is None else on
+            new_model, new_lik, new_spec, new_disc, warm = _augmented(
+                test, below, below_spec, below_disc, data)
             cand = fit(new_model, new_lik, lab(new_spec, new_lik, new_disc), warm, new_disc)
             warnings.extend(w for w in cand.warnings if w not in warnings)
             return cand, judge(rnd, test, current, cand, st), new_spec, new_disc
 
         accepted, refitted, challenged = None, 0, False
+        tried: list[tuple[EffectTest, DiagnosisFit, DiagnosisStep, str, str | None]] = []
         for test in candidates:
             if refitted >= st.max_candidates:
                 break
             if test is unexplained and challenged:
                 continue  # already fitted as a challenger this round
             cand, step, new_spec, new_disc = attempt(test)
+            tried.append((test, cand, step, new_spec, new_disc))
             if not step.accepted and step.reason.startswith("implausible"):
                 # the structure is real, this explanation of it is not: the next
                 # candidate gets its turn without using up the round's budget
@@ -453,12 +507,19 @@ def diagnose(
             _log.info("round %d: %s %s (%s)", rnd, step.effect,
                       "accepted" if step.accepted else "rejected", step.reason)
             if step.accepted:
-                accepted = (cand, new_spec, new_disc, step.effect)
+                accepted = (cand, new_spec, new_disc, (step.effect,))
                 break
         if accepted is None:
+            untried = [t for t in candidates if all(t is not u for u, *_ in tried)]
+            pick = pair_for([(t, c, s) for t, c, s, _, _ in tried], untried, current,
+                            _PAIRABLE)
+            if pick is not None:
+                accepted = _try_pair(tried[pick[0]], pick[1], current, attempt,
+                                     unexplained, st.threshold, steps, rnd)
+        if accepted is None:
             break
-        current, spec, disc, effect = accepted
-        found.append(effect)
+        current, spec, disc, effects = accepted
+        found.extend(effects)
         rounds.append(current.analysis)
     return DiagnosisResult(base.label, current.label, tuple(found), tuple(steps), base,
                            current, tuple(rounds), st, tuple(warnings),

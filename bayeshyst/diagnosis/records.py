@@ -339,11 +339,13 @@ class DiagnosisResult(TableRecord):
             head = ("no effect was kept" + (f" (tried: {', '.join(tried)})" if tried else "")
                     + "; ")
         else:
-            named = [s.effect for s in self.steps if s.accepted and s.effect != UNEXPLAINED]
+            # a pair kept together is named "a+b" (bayeshyst.diagnosis.candidates.pair_for)
+            kept = [(s, s.effect.split("+")) for s in self.steps if s.accepted]
+            named = [e for _, parts in kept for e in parts if e != UNEXPLAINED]
             smooth = [f"unexplained structure depending on {s.test.variant} (the smooth term "
                       f"took {s.test.value:.1f} % of the residual's held-out variance; RMSE "
                       f"{s.before.rmse:.4g} -> {s.after.rmse:.4g})"
-                      for s in self.steps if s.accepted and s.effect == UNEXPLAINED]
+                      for s, parts in kept if UNEXPLAINED in parts]
             head = "; ".join(([f"effects found: {', '.join(named)}"] if named else [])
                              + smooth) + "; "
         fired = [t.effect for t in last.fired()]
