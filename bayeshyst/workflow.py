@@ -525,17 +525,19 @@ DEMO_QUICK = DemoPlan(
     frequencies_hz=(1.0, 200.0))
 
 #: ``bayeshyst demo``: the classic families and the GP peer on all five frequencies, with
-#: the leave-one-frequency-out fits and up to four diagnosis rounds of two candidates each
-#: (the bundled actuator hides asymmetry, dynamics, creep, drift and a delay; ``bayeshyst
+#: the leave-one-frequency-out fits and two diagnosis rounds of two candidates each (the
+#: bundled actuator hides asymmetry, dynamics, creep, drift and a delay: round 1 keeps the
+#: asymmetry, round 2 the delay and creep as a pair; a third round, the branch-shape
+#: correction with its exact refit, took 12 minutes alone on 2 cores -- ``bayeshyst
 #: report`` runs up to six rounds, with more exact refits of PSIS-unreliable cycles); every
 #: fit converges at the default sampler budget (times in benchmarks/RESULTS.md).
 DEMO_DEFAULT = DemoPlan(
     models=("pi_play(n_operators=8)", "bouc_wen", "gp_memory"),
     settings=ReportSettings(sampler=SamplerSettings(max_steps=5000),
-                            lofo=True, max_refits=1, max_rounds=4, max_candidates=2,
+                            lofo=True, max_refits=1, max_rounds=2, max_candidates=2,
                             design_draws=16),
-    description="3 models, 5 frequencies, leave-one-frequency-out, up to four diagnosis "
-                "rounds, up to 5000 steps per ensemble")
+    description="3 models, 5 frequencies, leave-one-frequency-out, two diagnosis rounds, "
+                "up to 5000 steps per ensemble")
 
 
 def bundled_data(name: str = "virtual_multifreq.csv", *,
