@@ -81,10 +81,7 @@ def grams(x: np.ndarray, keep: np.ndarray, lagged: bool) -> Grams:
     w, _, q = x.shape
     first = (x[:, 0, :, None] * x[:, 0, None, :]) if keep[0] else np.zeros((w, q, q))
     idx = np.flatnonzero(keep[1:]) + 1
-    if idx.size and idx[-1] - idx[0] + 1 == idx.size:  # a contiguous run: views
-        xk, xp = x[:, idx[0]:idx[-1] + 1], x[:, idx[0] - 1:idx[-1]]
-    else:
-        xk, xp = x[:, idx], x[:, idx - 1]
+    xk, xp = x[:, sample_rows(idx)], x[:, sample_rows(idx - 1)]  # views on a run
     xkt = xk.transpose(0, 2, 1)
     lag0 = xkt @ xk
     if not lagged:
@@ -115,20 +112,14 @@ def grams_shared(phi: np.ndarray, r: np.ndarray, keep: np.ndarray, lagged: bool)
 
     if not lagged:
         # the Gaussian likelihood needs only the sum over every kept sample: one block
-        idx = np.flatnonzero(keep)
-        if idx.size and idx[-1] - idx[0] + 1 == idx.size:
-            sl = slice(idx[0], idx[-1] + 1)
-            return np.zeros((w, q, q)), block(phi[sl], r[:, sl], phi[sl], r[:, sl]), None, None
-        return (np.zeros((w, q, q)), block(phi[idx], r[:, idx], phi[idx], r[:, idx]),
+        rows = sample_rows(np.flatnonzero(keep))
+        return (np.zeros((w, q, q)), block(phi[rows], r[:, rows], phi[rows], r[:, rows]),
                 None, None)
     first = (block(phi[:1], r[:, :1], phi[:1], r[:, :1]) if keep[0]
              else np.zeros((w, q, q)))
     idx = np.flatnonzero(keep[1:]) + 1
-    if idx.size and idx[-1] - idx[0] + 1 == idx.size:  # a contiguous run: views
-        sk, sp = slice(idx[0], idx[-1] + 1), slice(idx[0] - 1, idx[-1])
-        pk, rk, pp, rp = phi[sk], r[:, sk], phi[sp], r[:, sp]
-    else:
-        pk, rk, pp, rp = phi[idx], r[:, idx], phi[idx - 1], r[:, idx - 1]
+    sk, sp = sample_rows(idx), sample_rows(idx - 1)  # views on a run
+    pk, rk, pp, rp = phi[sk], r[:, sk], phi[sp], r[:, sp]
     return first, block(pk, rk, pk, rk), block(pk, rk, pp, rp), block(pp, rp, pp, rp)
 
 
