@@ -269,13 +269,46 @@ def _challenge(step: DiagnosisStep, cand: DiagnosisFit, alt_step: DiagnosisStep,
                          f"needs > {threshold:g} x se): the physical effect is kept")
 
 
+#: A fitted candidate: the fit, its step, its spec and its discrepancy (or None).
+Fitted = tuple[DiagnosisFit, DiagnosisStep, str, "str | None"]
+
+
+def _credited(effect: str, fitted: Fitted, unexplained: EffectTest | None,
+              challenger: Callable[[], Fitted], threshold: float, steps: list[DiagnosisStep],
+              rnd: int) -> tuple[Fitted, bool]:
+    """Record a fitted candidate's step, after its challenge when one is due.
+
+    When the scan says the residual follows time, an accepted effect that can follow
+    slow structure is credited only if it explains it at least as well as a generic
+    smooth term in time (``challenger()`` fits that term in its place; it cannot be read
+    physically). Returns the winner and whether the challenger was fitted.
+    """
+    cand, step, _, _ = fitted
+    ran = bool(step.accepted and effect in SLOW_IN_TIME and unexplained is not None
+               and unexplained.variant == TIME)
+    if ran:
+        alt, alt_step, alt_spec, alt_disc = challenger()
+        step, alt_step = _challenge(step, cand, alt_step, alt, threshold)
+        steps += [step, alt_step]  # in the order they were fitted
+        if alt_step.accepted:
+            _log.info("round %d: %s beaten by %s", rnd, effect, UNEXPLAINED)
+            fitted = (alt, alt_step, alt_spec, alt_disc)
+        else:
+            fitted = (cand, step, fitted[2], fitted[3])
+    else:
+        steps.append(step)
+    _log.info("round %d: %s %s (%s)", rnd, fitted[1].effect,
+              "accepted" if fitted[1].accepted else "rejected", fitted[1].reason)
+    return fitted, ran
+
+
 #: Effects :func:`pair_for` may fit together: the catalogue's blocks (the noise model
 #: changes the likelihood, and the scan-judged candidates have their own gate)
 _PAIRABLE = tuple(e for e in EFFECTS if e != ColoredNoise.name)
 
 
 def _try_pair(first: tuple[EffectTest, DiagnosisFit, DiagnosisStep, str, str | None],
-              partner: EffectTest, current: DiagnosisFit, attempt: Callable[..., Any],
+              partner: EffectTest, current: DiagnosisFit, attempt: Callable[..., Fitted],
               unexplained: EffectTest | None, threshold: float, steps: list[DiagnosisStep],
               rnd: int) -> tuple[DiagnosisFit, str, str | None, tuple[str, ...]] | None:
     """Fit ``partner`` on top of the rejected ``first`` candidate and gate the pair.
@@ -285,30 +318,23 @@ def _try_pair(first: tuple[EffectTest, DiagnosisFit, DiagnosisStep, str, str | N
     term in time in its place, as a single effect is. Appends the steps it takes.
     """
     test_a, fit_a, _, spec_a, disc_a = first
-    name = f"{test_a.effect}+{partner.effect}"
     lost = int(np.sum(fit_a.pointwise_elpd < current.pointwise_elpd))
     n = current.pointwise_elpd.size
     why = (f"fitted together, neither having passed alone ({test_a.effect} lost on {lost} "
            f"of {n} held-out cycles: one noise scale serves every cycle, and it tightens "
            f"where {test_a.effect} fits)")
-    cand, step, new_spec, new_disc = attempt(partner, on=(fit_a, spec_a, disc_a))
-    step = replace(step, effect=name, reason=f"{why}; {step.reason}")
-    effects: tuple[str, ...] = (test_a.effect, partner.effect)
-    if (step.accepted and partner.effect in SLOW_IN_TIME and unexplained is not None
-            and unexplained.variant == TIME):
-        alt, alt_step, alt_spec, alt_disc = attempt(unexplained, on=(fit_a, spec_a, disc_a))
-        alt_step = replace(alt_step, effect=f"{test_a.effect}+{UNEXPLAINED}",
-                           reason=f"{why}; {alt_step.reason}")
-        step, alt_step = _challenge(step, cand, alt_step, alt, threshold)
-        steps += [step, alt_step]
-        if alt_step.accepted:
-            cand, step, new_spec, new_disc = alt, alt_step, alt_spec, alt_disc
-            effects = (test_a.effect, UNEXPLAINED)
-    else:
-        steps.append(step)
-    _log.info("round %d: %s %s (%s)", rnd, step.effect,
-              "accepted" if step.accepted else "rejected", step.reason)
-    return (cand, new_spec, new_disc, effects) if step.accepted else None
+
+    def on_first(test: EffectTest, label: str) -> Fitted:
+        # fitted on top of the first effect's fit, named as the pair
+        cand, step, spec, disc = attempt(test, on=(fit_a, spec_a, disc_a))
+        return cand, replace(step, effect=label, reason=f"{why}; {step.reason}"), spec, disc
+
+    (cand, step, new_spec, new_disc), _ = _credited(
+        partner.effect, on_first(partner, f"{test_a.effect}+{partner.effect}"), unexplained,
+        lambda: on_first(unexplained, f"{test_a.effect}+{UNEXPLAINED}"), threshold, steps,
+        rnd)
+    # the step names the pair kept: the partner, or the smooth term that beat it
+    return (cand, new_spec, new_disc, tuple(step.effect.split("+"))) if step.accepted else None
 
 
 def _check_settings(st: DiagnosisSettings) -> None:
@@ -490,22 +516,10 @@ def diagnose(
                 warnings.append(f"{test.effect}: {step.reason}")
             else:
                 refitted += 1
-            if (step.accepted and test.effect in SLOW_IN_TIME and unexplained is not None
-                    and unexplained.variant == TIME):
-                # the scan says the residual follows time: an effect that can follow
-                # slow structure is credited only if it explains it at least as well as
-                # a generic smooth term in time (which cannot be read physically)
-                challenged = True
-                alt, alt_step, alt_spec, alt_disc = attempt(unexplained)
-                step, alt_step = _challenge(step, cand, alt_step, alt, st.threshold)
-                steps += [step, alt_step]  # in the order they were fitted
-                if alt_step.accepted:
-                    _log.info("round %d: %s beaten by %s", rnd, test.effect, UNEXPLAINED)
-                    cand, step, new_spec, new_disc = alt, alt_step, alt_spec, alt_disc
-            else:
-                steps.append(step)
-            _log.info("round %d: %s %s (%s)", rnd, step.effect,
-                      "accepted" if step.accepted else "rejected", step.reason)
+            (cand, step, new_spec, new_disc), ran = _credited(
+                test.effect, (cand, step, new_spec, new_disc), unexplained,
+                lambda u=unexplained: attempt(u), st.threshold, steps, rnd)
+            challenged |= ran
             if step.accepted:
                 accepted = (cand, new_spec, new_disc, (step.effect,))
                 break
