@@ -178,3 +178,55 @@ def test_a_run_out_of_restarts_names_the_missed_mode(monkeypatch):
                                                           warmup=6), start=wrong)
     assert not res.converged
     assert any("missed the main mode" in r for r in res.convergence.reasons)
+
+
+def _inert_exponent():
+    """Bouc–Wen with ``beta`` and ``gamma`` held at ~0: the loop is ``k u + alpha u``,
+    the exponent ``n`` moves the output by a negligible amount and its posterior is its
+    prior."""
+    t = np.arange(1500) * 1e-3
+    u = 50.0 * np.sin(2 * np.pi * t)
+    y = 0.4 * u + np.random.default_rng(3).normal(0, 0.05, t.size)
+    rec = Record(t=t, u=u, y=y, name="inert", warmup=100)
+    return (Posterior(rec, "bouc_wen").fix("beta", 1e-15).fix("gamma", 0.0)
+            .fix("noise.sigma", 0.05))
+
+
+def test_least_squares_stays_where_a_flat_bounded_coordinate_still_means_something():
+    from bayeshyst.inference.least_squares import SATURATED_LOGIT, least_squares_point
+
+    post = _inert_exponent()
+    i = post.space.slice_of("n").start
+    for seed in range(4):  # starts anywhere in the prior, and one far past saturation
+        z0 = post.space.sample_prior(np.random.default_rng(seed), 1)[0]
+        z0[i] = (-1.0, 2.0, -1e4, 1e4)[seed]
+        z, _ = least_squares_point(post, None, z0)
+        assert np.all(np.isfinite(z))
+        # beyond it n is its bound to double precision: nothing there to search for
+        assert abs(z[i]) <= SATURATED_LOGIT
+
+
+def test_the_map_of_an_inert_bounded_coordinate_is_its_prior_mode_in_z():
+    """Oracle: with ``n`` inert its posterior in ``z`` is prior times Jacobian, whose
+    mode a scalar search finds independently; the MAP search must land there and
+    never below an explicit start (it once returned a point 1.7e9 nats below it)."""
+    from scipy import optimize as sopt
+
+    post = _inert_exponent()
+    p = post.space["n"]
+    i = post.space.slice_of("n").start
+
+    def neg(zn):
+        return -float(p.prior.logpdf(p.transform.inverse(np.asarray(zn)))
+                      + p.transform.log_jacobian(np.asarray(zn)))
+
+    mode = sopt.minimize_scalar(neg, bounds=(-30.0, 30.0), method="bounded",
+                                options={"xatol": 1e-9}).x
+    for seed in (0, 1):
+        start = find_map(post, seed=seed)
+        assert abs(start.z[i] - mode) < 1e-3, (start.z[i], mode)
+        x0 = start.z.copy()
+        x0[i] = -8.0  # a walker far out in the prior's tail
+        m = find_map(post, seed=seed, x0=x0, n_screen=16, n_starts=1, global_search=False)
+        assert m.log_prob >= float(post.log_prob(x0))
+        assert abs(m.z[i] - mode) < 1e-3, (m.z[i], mode)
