@@ -344,3 +344,26 @@ def test_evidence_file_names():
                              steps=steps)
     assert [name for name, _ in evidence_figures(result)] == [
         "evidence_creep.png", "evidence_delay.png", "evidence_round2_asymmetry.png"]
+
+
+def test_a_candidate_from_the_driver_scan_kept_in_a_later_round_has_no_evidence_figure():
+    # the branch shape kept in round 3 (the micromanipulator's diagnosis): its test is
+    # the scan's held-out gain, with no partial residual to plot; listing it made
+    # writing the outputs fail after every fit had been done
+    from bayeshyst.diagnosis.candidates import shape_candidate
+
+    scan = SimpleNamespace(found=True, selected=[SimpleNamespace(
+        driver="loop position", conditional_percent=31.0, p_value=0.001)])
+    shape = shape_candidate(SimpleNamespace(analysis=SimpleNamespace(drivers=scan)), 0.01)
+    assert shape is not None and shape.significant and not shape.has_evidence
+    steps = [SimpleNamespace(index=3, accepted=True, effect=shape.effect, test=shape),
+             SimpleNamespace(index=4, accepted=True, effect="delay", test=_test("delay"))]
+    result = SimpleNamespace(base=SimpleNamespace(analysis=SimpleNamespace(
+        tests=[_test("creep")])), steps=steps)
+    listed = evidence_figures(result)
+    assert [name for name, _ in listed] == ["evidence_creep.png",
+                                            "evidence_round4_delay.png"]
+    for _, test in listed:  # every listed figure can be drawn
+        effect_evidence_figure(test, y_unit="um")
+    with pytest.raises(ParameterError, match="lacks"):
+        effect_evidence_figure(shape)

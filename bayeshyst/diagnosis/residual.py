@@ -25,7 +25,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 from scipy import stats
@@ -137,6 +137,19 @@ class EffectTest(TableRecord):
     coef: np.ndarray = field(default_factory=lambda: np.zeros(0), repr=False)
     cov: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)), repr=False)
     evidence: dict[str, Any] = field(default_factory=dict, repr=False)
+
+    #: the arrays an evidence plot needs
+    EVIDENCE_KEYS: ClassVar[tuple[str, ...]] = ("x", "partial_residual", "component")
+
+    @property
+    def has_evidence(self) -> bool:
+        """Whether the test carries the arrays of an evidence plot.
+
+        A skipped test has none, nor have the candidates built from the driver scan or
+        the spectrum (the branch shape, a disturbance line, an unexplained smooth term):
+        their numbers are the scan's held-out gain, not a regression on a partial residual.
+        """
+        return self.skipped is None and all(k in self.evidence for k in self.EVIDENCE_KEYS)
 
     def to_dataframe(self) -> Any:
         """One row: :meth:`to_dict`."""

@@ -51,12 +51,13 @@ def evidence_figures(result: DiagnosisResult) -> list[tuple[str, EffectTest]]:
     :func:`~bayeshyst.outputs.assemble.diagnosis_figures` builds these:
     ``evidence_<effect>.png`` for every effect tested on the base model's residual, and
     ``evidence_round<k>_<effect>.png`` for the test behind each step accepted in a later
-    round ``k``. Skipped tests have no evidence and no figure.
+    round ``k``. Tests without evidence arrays (skipped ones, and the candidates the
+    driver scan or the spectrum proposed: :attr:`EffectTest.has_evidence`) have none.
     """
     out = [(f"evidence_{_slug(t.effect)}.png", t) for t in result.base.analysis.tests
-           if t.skipped is None]
+           if t.has_evidence]
     for step in result.steps:
-        if step.accepted and step.index > 1 and step.test.skipped is None:
+        if step.accepted and step.index > 1 and step.test.has_evidence:
             out.append((f"evidence_round{step.index}_{_slug(step.effect)}.png", step.test))
     return out
 

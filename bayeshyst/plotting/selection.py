@@ -448,7 +448,7 @@ def effect_evidence_figure(test: Any, *, ax: Axes | None = None,
         raise ParameterError(f"{test.effect} was not tested ({test.skipped}): no evidence "
                              "to plot")
     ev = test.evidence
-    missing = [k for k in ("x", "partial_residual", "component") if k not in ev]
+    missing = [k for k in test.EVIDENCE_KEYS if k not in ev]
     if missing:
         raise ParameterError(f"{test.effect}: the evidence lacks {missing}")
     x = np.asarray(ev["x"], dtype=float)
