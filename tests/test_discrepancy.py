@@ -223,6 +223,17 @@ def test_budget_without_discrepancy_is_noise_and_parameters(pi):
     assert b.parameters == pytest.approx(float(np.mean(np.var(pred, axis=0))), rel=1e-9)
 
 
+def _no_coefficient_move_raises(post, start):
+    """``start`` is the conditional maximum in the discrepancy's coefficients: no move of
+    one of them raises the log density (oracle: the density itself)."""
+    xi = post.space.slice_of("disc.xi")
+    for j in range(xi.start, xi.stop, 5):
+        for h in (-1e-3, 1e-3):
+            z = start.z.copy()
+            z[j] += h
+            assert post.log_prob(z) <= start.log_prob + 1e-9
+
+
 def test_discrepancy_scales_are_found_from_held_out_cycles(pi):
     model, rec, _ = pi
     post0 = Posterior(rec, model)
@@ -232,14 +243,8 @@ def test_discrepancy_scales_are_found_from_held_out_cycles(pi):
     assert set(scales.values) == {"disc.amplitude", "disc.branch_amplitude", "disc.length"}
     assert all(n in post.space.fixed for n in scales.values)
     assert "disc.xi" in post.space.names
-    # the built start is the exact conditional maximum in the coefficients: no
-    # coefficient move raises the log density (oracle: the density itself)
-    xi = post.space.slice_of("disc.xi")
-    for j in range(xi.start, xi.stop, 5):
-        for h in (-1e-3, 1e-3):
-            z = begin.z.copy()
-            z[j] += h
-            assert post.log_prob(z) <= begin.log_prob + 1e-9
+    # the built start is the exact conditional maximum in the coefficients
+    _no_coefficient_move_raises(post, begin)
     # on well-specified data a discrepancy buys no held-out density worth the name
     assert scales.evidence < 5.0
 
@@ -267,12 +272,7 @@ def test_exact_refit_with_a_discrepancy_starts_at_the_held_out_conditional_mode(
     assert LinearStructure.of(held).design_idx.size  # the path with coordinates kept
     start = _held_out_start(held, begin, 4)
     assert np.isfinite(start.log_prob)
-    xi = held.space.slice_of("disc.xi")
-    for j in range(xi.start, xi.stop, 5):
-        for h in (-1e-3, 1e-3):
-            z = start.z.copy()
-            z[j] += h
-            assert held.log_prob(z) <= start.log_prob + 1e-9
+    _no_coefficient_move_raises(held, start)
     searched = find_map(held, seed=np.random.default_rng(4), x0=begin.z, n_screen=32,
                         global_search=False)
     settings = SamplerSettings(seed=6, max_steps=4000)
