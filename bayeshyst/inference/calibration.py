@@ -33,7 +33,7 @@ from scipy import stats
 from bayeshyst.data.record import frequency_key, frequency_label
 from bayeshyst.inference.convergence import _autocov
 from bayeshyst.inference.linear import LinearStructure
-from bayeshyst.inference.optimize import MAPResult, conditional_mode
+from bayeshyst.inference.optimize import MAPResult, conditional_start
 from bayeshyst.inference.posterior import NOISE, Posterior
 from bayeshyst.inference.sampling import sample_posterior
 from bayeshyst.inference.settings import SamplerSettings
@@ -281,9 +281,7 @@ def check_calibration(post: Posterior, draws: np.ndarray, sampler: SamplerSettin
     if structure is not None:
         # the full fit's mode, its linear block and noise moved to the held-out data's:
         # a fresh MAP search would differentiate every coefficient
-        z0 = conditional_mode(held, structure, start.z)
-        begin = replace(start, z=z0, theta=held.space.unpack(z0),
-                        log_prob=float(held.log_prob(z0)))
+        begin = conditional_start(held, structure, start)
     res = sample_posterior(held, sampler, initial=draws, start=begin)
     rng = np.random.default_rng(sampler.seed)
     z = res.draws(n_draws, seed=sampler.seed)

@@ -13,7 +13,7 @@ Laplace covariance that spreads the initial walkers along the posterior's own ri
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -23,7 +23,8 @@ from bayeshyst.errors import ParameterError
 from bayeshyst.inference.posterior import NOISE, Posterior
 from bayeshyst.threads import with_single_threaded_blas
 
-__all__ = ["MAPResult", "conditional_mode", "find_map", "initial_ensemble", "laplace_covariance"]
+__all__ = ["MAPResult", "conditional_mode", "conditional_start", "find_map", "initial_ensemble",
+           "laplace_covariance"]
 
 # stands for -log p = +inf inside the optimisers (they cannot take inf); far above any
 # feasible value, yet its square stays finite (differential evolution takes the std of
@@ -492,3 +493,15 @@ def conditional_mode(post: Posterior, structure: Any, z: np.ndarray) -> np.ndarr
     res = optimize.minimize(neg, np.asarray(z, float)[noise_idx], method="Nelder-Mead",
                             options={"xatol": 1e-5, "fatol": 1e-4})
     return with_block(res.x)
+
+
+def conditional_start(post: Posterior, structure: Any, start: MAPResult,
+                      z: np.ndarray | None = None) -> MAPResult:
+    """``start`` moved to :func:`conditional_mode` of ``post`` from ``z`` (default ``start.z``).
+
+    Its covariance is kept (the walkers' spread around the new point), its notes are not
+    (they were about the old point).
+    """
+    z0 = conditional_mode(post, structure, start.z if z is None else z)
+    return replace(start, z=z0, theta=post.space.unpack(z0), log_prob=float(post.log_prob(z0)),
+                   notes=())

@@ -46,7 +46,7 @@ from bayeshyst.inference.linear import LinearStructure
 from bayeshyst.inference.moves import MoveStats, StructuredTarget, structured_moves
 from bayeshyst.inference.optimize import (
     MAPResult,
-    conditional_mode,
+    conditional_start,
     find_map,
     initial_ensemble,
 )
@@ -637,10 +637,9 @@ def _sample_posterior(post: Posterior, settings: SamplerSettings | None,
                 # keeps the best walker's nonlinear ones and moves the block and the
                 # noise to their conditional mode (a full search differentiates every
                 # coefficient: 10+ minutes on 30 000 samples, measured)
-                z0 = conditional_mode(post, LinearStructure.of(post, reference=run.restart_from),
-                                      run.restart_from)
-                new = replace(start, z=z0, theta=post.space.unpack(z0),
-                              log_prob=float(post.log_prob(z0)), notes=())
+                new = conditional_start(
+                    post, LinearStructure.of(post, reference=run.restart_from), start,
+                    run.restart_from)
             else:
                 # a local polish from the walker, as the note below says: the multi-start
                 # search with its global stage is what missed this mode, and repeating

@@ -36,7 +36,7 @@ import time
 import traceback
 import warnings
 import zlib
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -49,7 +49,7 @@ from bayeshyst.errors import DataError, ModelError, ParameterError, SimulationEr
 from bayeshyst.gp import gp_from_spec
 from bayeshyst.inference.fit import TrackingError, errors_by_frequency, tracking_errors
 from bayeshyst.inference.linear import LinearStructure
-from bayeshyst.inference.optimize import MAPResult, conditional_mode, find_map
+from bayeshyst.inference.optimize import MAPResult, conditional_start, find_map
 from bayeshyst.inference.posterior import Posterior, cycle_units
 from bayeshyst.inference.sampling import sample_posterior
 from bayeshyst.inference.settings import SamplerSettings
@@ -346,9 +346,7 @@ def _held_out_start(held: Posterior, start: MAPResult, seed: int) -> MAPResult:
     """
     structure = LinearStructure.of(held, reference=start.z)
     if held.discrepancy is not None and structure is not None:
-        z0 = conditional_mode(held, structure, start.z)
-        return replace(start, z=z0, theta=held.space.unpack(z0),
-                       log_prob=float(held.log_prob(z0)), notes=())
+        return conditional_start(held, structure, start)
     return find_map(held, seed=np.random.default_rng(seed), x0=start.z, n_screen=32,
                     global_search=False)
 
