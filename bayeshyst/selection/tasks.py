@@ -344,9 +344,10 @@ def _held_out_start(held: Posterior, start: MAPResult, seed: int) -> MAPResult:
     coordinates are kept and the block and the noise moved to the held-out data's
     conditional mode, as the calibration check's refit does.
     """
-    structure = LinearStructure.of(held, reference=start.z)
-    if held.discrepancy is not None and structure is not None:
-        return conditional_start(held, structure, start)
+    if held.discrepancy is not None:
+        structure = LinearStructure.of(held, reference=start.z)
+        if structure is not None:
+            return conditional_start(held, structure, start)
     return find_map(held, seed=np.random.default_rng(seed), x0=start.z, n_screen=32,
                     global_search=False)
 
