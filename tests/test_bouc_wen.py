@@ -60,6 +60,9 @@ BW_THETAS = {
     "n1.5_soft": (1.0, 0.3, 0.1, -0.09, 1.5),
     "n3.3": (1.0, 1.0, 0.5, 0.2, 3.3),
     "sharp": (0.5, 0.3, 2.0, 2.0, 1.2),
+    # beta + gamma -> 0: the rising branch nearly linear (saturation level ~50), the
+    # returning one stiff (as an MR-damper fit's least squares reached)
+    "edge": (1.0, 2.0, 0.05, -0.04999, 3.15),
 }
 DATA = SimpleNamespace(t=np.arange(401) / 5000.0, u=50.0 + 45.0 * np.sin(np.arange(401) / 40),
                        y=6.0 + 5.0 * np.sin(np.arange(401) / 40 - 0.2))

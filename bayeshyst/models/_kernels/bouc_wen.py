@@ -12,16 +12,17 @@ integer; for n = 1 the slope jumps by 2β). The integrator is a Taylor-series me
 order 5 (coefficients by the recurrence of ``P = |g|^n``: ``G P' = n P G'``), which needs
 one power per step instead of RK4's four; the step is limited to
 
-* ``C_L`` times the relaxation length (local ``1 / |∂f/∂g|`` and the walker's
-  ``ℓ = g*/(n α κ)``, ``κ = max(1, (β-γ)/(β+γ))``), so that the truncation error stays
-  ~1e-7 of ``g*`` per relaxation length;
+* ``C_L`` times the relaxation length (local ``1 / |∂f/∂g|`` and the branch's
+  ``ℓ = g_B / (n α)``, ``g_B = (α / |B|)^(1/n)`` the level at which ``|B| |g|^n``
+  matches ``α``), so that the truncation error stays ~1e-7 of ``g_B`` per relaxation
+  length;
 * a fraction (at most ``C_G``, less where ``|g|^n`` is strongly nonlinear, see
   ``TOL_BRANCH``) of the distance ``|g| / |f|`` to the branch point ``g = 0``, where
   the Taylor series stops converging. Steps shrink geometrically towards a zero
   crossing and grow geometrically after it;
 
-and the crossing itself is located analytically once ``|g| < TINY g*`` (error of order
-``TINY^(n+1) g*``, i.e. < 1e-12 g*). ``P`` is carried by its own series between steps
+and the crossing itself is located analytically once ``|g| < TINY min(g*, g_-)`` (error
+of order ``TINY^(n+1) g_-``, i.e. < 1e-12 g_-). ``P`` is carried by its own series between steps
 and recomputed (``exp(n log|g|)``: 24 ns here against 27 ns for ``pow``, and no faster
 for integer n) whenever that series would be inaccurate, after a crossing, and every
 ``RESYNC`` steps. Once ``h`` has saturated (classical model) the rest of an interval is
@@ -83,10 +84,12 @@ _FM = {"reassoc", "contract", "nsz", "arcp"}
 
 
 @njit(cache=True, fastmath=_FM)
-def _bw_interval(g, P, X, a0, a1, bp, bm, n, ell, gstar, cnt, c_l, cb):
+def _bw_interval(g, P, X, a0, a1, bp, bm, n, ellp, ellm, gcross, cnt, c_l, cb):
     """Advance ``g`` over input travel ``X``; returns ``(g, P, cnt, ok)``.
 
-    ``P`` is ``|g|^n`` or -1 (unknown); ``cnt`` the running step count (for RESYNC).
+    ``P`` is ``|g|^n`` or -1 (unknown); ``cnt`` the running step count (for RESYNC);
+    ``ellp``, ``ellm`` the relaxation lengths of the branches ``g > 0`` and ``g < 0``;
+    below ``TINY gcross`` a negative ``g`` steps onto its zero crossing analytically.
     """
     x = 0.0
     steps = 0
@@ -116,7 +119,7 @@ def _bw_interval(g, P, X, a0, a1, bp, bm, n, ell, gstar, cnt, c_l, cb):
             P = math.exp(n * math.log(G0))
         P0 = P
         F0 = a - B * P0
-        if g < 0.0 and G0 <= TINY * gstar:
+        if g < 0.0 and G0 <= TINY * gcross:
             # step onto the crossing: 0 = g + a d + a1 d^2/2 + C |g|^(n+1) / (a (n+1))
             if a <= 0.0:
                 return g, P, cnt, False
@@ -142,6 +145,12 @@ def _bw_interval(g, P, X, a0, a1, bp, bm, n, ell, gstar, cnt, c_l, cb):
         d = rem
         if d * fg > c_l:
             d = c_l / fg
+        # where |g| is still small against the branch's own saturation scale the local
+        # rate underestimates the rate a step can reach (n > 1): cap by that branch's
+        # relaxation length. (One length for both branches, the stiffer one's, made the
+        # steps of a branch with beta + gamma -> 0 as short as those after a reversal:
+        # an MR-damper least squares spent ~1 s per simulation there.)
+        ell = ellp if g > 0.0 else ellm
         if d > c_l * ell:
             d = c_l * ell
         # the non-analytic part of g near its zero is ~ ε G |x - x_c|^(n+1) with
@@ -198,9 +207,15 @@ def _bw_one(u, k, alpha, beta, gamma, n, delta, state, y, c_l):
     bp = beta + gamma
     bm = gamma - beta
     gstar = math.exp(math.log(alpha / bp) / n)
-    kappa = max(1.0, (beta - gamma) / bp)
-    # the stiffest linearised rate of the flow is n α κ / g* (at g = ±g*)
-    ell = gstar / (n * alpha * kappa)
+    # relaxation length of each branch: g* / (n α) where |g| grows towards g* (g > 0),
+    # and the travel over which B-|g|^n becomes comparable with α where g returns to zero
+    # (g < 0: (α / |B-|)^(1/n) / (n α); infinite when B- = 0, a linear branch)
+    gm = math.inf if bm == 0.0 else math.exp(math.log(alpha / -bm) / n)
+    ellp = gstar / (n * alpha)
+    ellm = gm / (n * alpha)
+    # the crossing formula neglects B-|g|^n against α: small against the g < 0 branch's
+    # own scale gm (not g*, which grows without bound as β + γ -> 0)
+    gcross = min(gstar, gm)
     cb = 1.0 / (n + 1.0)
     for j in range(6):
         cb *= abs(n + 1.0 - j) / (j + 1.0)
@@ -213,7 +228,7 @@ def _bw_one(u, k, alpha, beta, gamma, n, delta, state, y, c_l):
         if du != 0.0:
             s = 1.0 if du > 0.0 else -1.0
             g, P, cnt, ok = _bw_interval(s * h, P, abs(du), alpha + delta * up, delta * s,
-                                         bp, bm, n, ell, gstar, cnt, c_l, cb)
+                                         bp, bm, n, ellp, ellm, gcross, cnt, c_l, cb)
             if not ok:
                 return False
             h = s * g
