@@ -620,3 +620,17 @@ def test_sign_sets_the_loop_orientation():
 def test_sign_must_be_plus_or_minus_one(sign):
     with pytest.raises(ModelError, match="sign"):
         get("bouc_wen", sign=sign)
+
+
+def test_long_stroke_near_the_unsaturated_edge_is_simulated_accurately():
+    # beta + gamma -> 0 with a large alpha over a long stroke (an MR-damper least
+    # squares went there): the rising branch is almost linear and h reaches ~100, the
+    # returning branch is stiff. One relaxation length for both branches (the stiff
+    # one's) had made every step of the rising branch that short: the walker ran into
+    # the per-interval step cap and was reported failed.
+    u = _sine(50, 2.0, amp=25.0)
+    th = {"k": -0.4863, "alpha": 133.6, "beta": 0.0212, "gamma": -0.02119, "n": 3.1545}
+    y = BoucWen().simulate(u, np.arange(u.size), th)
+    h_ref = ivp_bw(u, th["alpha"], th["beta"], th["gamma"], th["n"])
+    y_ref = th["k"] * u - h_ref
+    assert np.max(np.abs(y - y_ref)) <= TOL * np.ptp(y_ref)
