@@ -45,6 +45,7 @@ from bayeshyst.params import LogNormal, Normal, Param, ParamSpace, TruncatedNorm
 
 __all__ = [
     "DEFAULT_FS",
+    "PARAMETRISATIONS",
     "AsymmetricBoucWen",
     "BoucWen",
     "BoucWenOscillator",
@@ -57,6 +58,11 @@ DEFAULT_FS = 10_000.0
 #: Upper end of the prior support of the BW exponent n (sharper loops are play-like and
 #: cost many integration steps; the piezo literature uses 1 <= n <= 3).
 N_MAX = 6.0
+#: Coordinates of the Bouc–Wen shape (:class:`BoucWen` ``parametrisation``):
+#: ``classical`` samples ``alpha, beta, gamma, n``; ``saturation`` samples ``alpha``,
+#: the saturation level ``h_sat`` of ``h``, the ratio ``kappa`` of the returning to the
+#: rising branch's coefficient and ``n``, whose stable region is a product of intervals.
+PARAMETRISATIONS = ("classical", "saturation")
 
 
 def _check_scale(value: float, what: str, hi: float) -> None:
@@ -106,6 +112,24 @@ def _bw_shape_params(out_span: float, alpha_med: float, alpha_unit: str,
     )
 
 
+def _saturation_shape_params(out_span: float, alpha_med: float, alpha_unit: str,
+                              y_unit: str) -> tuple[Param, ...]:
+    """Priors of ``α, h_sat, κ, n`` (the ``saturation`` parametrisation of :class:`BoucWen`)."""
+    return (
+        Param("alpha", LogNormal.from_median(alpha_med, 1.0), unit=alpha_unit,
+              description="hysteretic slope dh/du at h = 0"),
+        # the classical priors' saturation level at n = 1 (15 % of the output span), but
+        # in output units whatever n is
+        Param("h_sat", LogNormal.from_median(0.15 * out_span, 1.0), unit=y_unit,
+              description="saturation level of h, (alpha/(beta+gamma))^(1/n)"),
+        Param("kappa", LogNormal.from_median(1.0, 2.0), unit="1",
+              description="(beta-gamma)/(beta+gamma): the returning branch's coefficient "
+                          "over the rising one's (1: gamma = 0)"),
+        Param("n", TruncatedNormal(1.0, 1.0, 1.0, N_MAX), unit="1",
+              description="BW exponent (sharpness of the transition), n >= 1"),
+    )
+
+
 def _first(theta: Mapping[str, Any], name: str) -> float:
     v = np.asarray(theta[name], float)
     if v.size != 1:
@@ -142,11 +166,24 @@ class BoucWen(LinearInParams, HysteresisModel):
         adaptive: per sample interval as many as ``|Δu|`` needs, fewer once ``h`` has
         saturated, shorter towards a zero crossing of ``h`` (where ``|h|^n`` is not
         smooth), which is then located analytically.
+    parametrisation : {"classical", "saturation"}
+        The coordinates the shape is sampled in (:data:`PARAMETRISATIONS`; the
+        equations are the same). ``classical``: ``alpha, beta, gamma, n``.
+        ``saturation``: ``alpha``, ``h_sat = (α/(β+γ))^(1/n)`` (output unit), ``kappa =
+        (β-γ)/(β+γ)`` and ``n``, i.e. ``β = (1 + κ) α / (2 h_sat^n)``, ``γ = (1 - κ) α /
+        (2 h_sat^n)`` -- MODELS.md §6: "reparametrise if the sampler mixes badly".
+        Its stable region is every ``h_sat > 0, κ > 0``, so no prior mass lies outside,
+        and its coordinates do not change units with ``n``. Sharp loops need it: an MR
+        damper's force loop (a fast return after each reversal, then a flat plateau)
+        has ``β + γ`` a thousand times below ``β`` -- against the classical
+        coordinates' boundary ``γ > -β``, where the ensemble did not converge in
+        10 000 steps (R-hat 2.7, one proposal in six outside the stable region).
 
     Notes
     -----
     Parameters: ``k`` (output unit/V), ``alpha`` (output unit/V), ``beta``, ``gamma``
-    (1/(V output-unit^(n-1))), ``n`` (>= 1). State ``[h, u_prev]``; relaxed initial
+    (1/(V output-unit^(n-1))), ``n`` (>= 1) -- or ``k, alpha, h_sat, kappa, n`` with
+    ``parametrisation="saturation"``. State ``[h, u_prev]``; relaxed initial
     state ``h = 0`` at the first input.
 
     Stable region: ``α > 0, β + γ > 0, β - γ >= 0`` (and ``n >= 1``); there ``h`` is
@@ -164,6 +201,10 @@ class BoucWen(LinearInParams, HysteresisModel):
     n = 1); ``n ~ TruncatedNormal(1, 1)`` on ``[1, 6]`` (n = 1 is the usual piezo
     choice). The units of ``β, γ`` depend on ``n``, so their prior scale is exact only
     at n = 1 — part of the ``β``–``n`` trade-off described in the module docstring.
+    ``saturation``: the same ``k``, ``alpha`` and ``n``; ``h_sat ~ LogNormal(median 0.15
+    y_span, 1)`` (the classical priors' level at n = 1) and ``kappa ~ LogNormal(median 1,
+    2)`` (the classical ``γ ≈ 0`` at its median; from a linear return, κ -> 0, to
+    returns a thousand times steeper than the rise within 3.5 sd).
     """
 
     name: ClassVar[str] = "bouc_wen"
@@ -174,22 +215,62 @@ class BoucWen(LinearInParams, HysteresisModel):
     linear_affine: ClassVar[bool] = True
     step_scale: float = C_L
     sign: int = -1
+    parametrisation: str = "classical"
 
     def __post_init__(self) -> None:
         _check_scale(self.step_scale, "step_scale", 0.5)
+        if self.parametrisation not in PARAMETRISATIONS:
+            raise ModelError(f"{type(self).__name__}.parametrisation: expected one of "
+                             f"{', '.join(PARAMETRISATIONS)}, got {self.parametrisation!r}")
+        if self.parametrisation != "classical" and not self._reparametrisable:
+            raise ModelError(f"{type(self).__name__}: only the classical parametrisation "
+                             f"is implemented, got {self.parametrisation!r}")
         if isinstance(self.sign, bool) or self.sign not in (-1, 1):
             raise ModelError(f"{type(self).__name__}.sign: expected -1 (y = k u - h, the "
                              f"piezo form) or 1 (y = k u + h, force loops), got {self.sign!r}")
 
+    # subclasses whose kernels read the classical parameters themselves say False
+    _reparametrisable: ClassVar[bool] = True
+
     def _space(self, sc: DataScales, extra: tuple[Param, ...] = ()) -> ParamSpace:
         g = abs(sc.gain)
         gu = f"{sc.y_unit}/{sc.u_unit}"
+        shape = (_bw_shape_params(sc.y_span, 0.3 * g, gu, f"1/({sc.u_unit} {sc.y_unit}^(n-1))")
+                 if self.parametrisation == "classical"
+                 else _saturation_shape_params(sc.y_span, 0.3 * g, gu, sc.y_unit))
         return ParamSpace((
             Param("k", Normal(sc.gain, g), unit=gu, description="linear (piezo) gain"),
-            *_bw_shape_params(sc.y_span, 0.3 * g, gu,
-                              f"1/({sc.u_unit} {sc.y_unit}^(n-1))"),
+            *shape,
             *extra,
         ))
+
+    def classical(self, theta: Mapping[str, Any]) -> dict[str, Any]:
+        """``theta`` with ``beta`` and ``gamma`` (from ``h_sat, kappa`` when sampled so).
+
+        Parameters
+        ----------
+        theta : mapping
+            The model's parameters, scalars or batched (W,).
+
+        Returns
+        -------
+        dict
+            ``theta`` itself (as a dict) in the classical parametrisation; else a copy
+            with ``beta = (1 + κ) α / (2 h_sat^n)`` and ``gamma = (1 - κ) α / (2
+            h_sat^n)`` added (1/(V output-unit^(n-1))).
+        """
+        out = dict(theta)
+        if self.parametrisation == "classical":
+            return out
+        alpha, h_sat, kappa, n = (np.asarray(theta[p], dtype=float)
+                                  for p in ("alpha", "h_sat", "kappa", "n"))
+        with np.errstate(over="ignore", divide="ignore", invalid="ignore"):
+            # β + γ = α / h_sat^n; a power that overflows gives β + γ = 0, which the
+            # kernel flags as outside the stable region
+            b_rise = alpha / h_sat ** n
+        out["beta"] = 0.5 * (1.0 + kappa) * b_rise
+        out["gamma"] = 0.5 * (1.0 - kappa) * b_rise
+        return out
 
     def param_space(self, data: Any = None) -> ParamSpace:
         """``k``, ``alpha``, ``beta``, ``gamma`` and ``n`` with default priors scaled from ``data``.
@@ -205,13 +286,16 @@ class BoucWen(LinearInParams, HysteresisModel):
         Parameters
         ----------
         theta : mapping
-            Scalar ``alpha`` (output unit/V), ``beta``, ``gamma``, ``n``.
+            Scalar ``alpha`` (output unit/V), ``beta``, ``gamma``, ``n`` (or ``h_sat``,
+            which is the bound, in the ``saturation`` parametrisation).
 
         Returns
         -------
         float
             The bound (output unit); ``h`` approaches it on a long monotone input.
         """
+        if self.parametrisation == "saturation":
+            return _first(theta, "h_sat")
         a, b, c, n = (_first(theta, p) for p in ("alpha", "beta", "gamma", "n"))
         if not (a > 0 and b + c > 0):
             raise ParameterError(f"h_bound needs alpha > 0 and beta + gamma > 0, got "
@@ -271,8 +355,8 @@ class BoucWen(LinearInParams, HysteresisModel):
         ParameterError
             Outside the stable region, or where the loop folds back (``dy/du <= 0``).
         """
-        return bouc_wen_inverse(y, theta, sign=self.sign, delta=self._delta_scalar(theta),
-                                state0=state0)
+        return bouc_wen_inverse(y, self.classical(theta), sign=self.sign,
+                                delta=self._delta_scalar(theta), state0=state0)
 
     def _delta_scalar(self, theta: Mapping[str, Any]) -> float:
         return 0.0
@@ -290,7 +374,9 @@ class BoucWen(LinearInParams, HysteresisModel):
         hi = float(max(u.max(), np.max(state[:, 1], initial=-np.inf)))
         if not (math.isfinite(lo) and math.isfinite(hi)):
             lo, hi = float(u.min()), float(u.max())
-        bw_batch(u, theta["k"], theta["alpha"], theta["beta"], theta["gamma"], theta["n"],
+        bw = self.classical(theta)
+        bw_batch(u, theta["k"], theta["alpha"], np.ascontiguousarray(bw["beta"], dtype=float),
+                 np.ascontiguousarray(bw["gamma"], dtype=float), theta["n"],
                  np.ascontiguousarray(self._delta(theta), dtype=np.float64), lo, hi,
                  float(self.step_scale), state, y, failed)
         if self.sign == 1:

@@ -130,6 +130,7 @@ class AsymmetricBoucWenSgn(BoucWen):
     name: ClassVar[str] = "bouc_wen_asym_sgn"
     equation: ClassVar[str] = "review Eq. 49, ref. [94] (delta*u*sgn(du/dt) as printed)"
     rate_dependent: ClassVar[bool] = True
+    _reparametrisable: ClassVar[bool] = False  # its kernel reads beta and gamma
 
     def param_space(self, data: Any = None) -> ParamSpace:
         """The :class:`BoucWen` parameters plus ``delta`` (output unit/(V s)).
