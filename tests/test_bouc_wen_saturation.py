@@ -123,3 +123,18 @@ def test_overflowing_saturation_power_is_a_failed_walker_not_nan_parameters():
     traj = model.run_batch(u, np.arange(u.size) / 1000.0, theta)
     assert traj.failed.tolist() == [False, True]
     assert np.all(np.isfinite(traj.y[0])) and math.isnan(traj.y[1, 0])
+
+
+@pytest.mark.parametrize("theta", [
+    # the MR damper's posterior at 0 A (N, mm): a return ~1000 times steeper than the
+    # rise, n near 1 -- and a sharper, higher-n variant of it
+    {"k": 0.12, "alpha": 540.0, "h_sat": 146.5, "kappa": 1000.0, "n": 1.1},
+    {"k": 0.12, "alpha": 385.0, "h_sat": 95.0, "kappa": 2000.0, "n": 4.3}])
+def test_sharp_force_loop_matches_solve_ivp(theta):
+    from tests.test_bouc_wen import TOL, ivp_bw
+
+    u = _sine(amp=25.0, spp=50, periods=2.0)  # 3 mm of stroke per sample at the sine's centre
+    y = BoucWen(sign=1, parametrisation="saturation").simulate(u, np.arange(u.size), theta)
+    bw = _mapped(theta)
+    y_ref = theta["k"] * u + ivp_bw(u, bw["alpha"], bw["beta"], bw["gamma"], bw["n"])
+    assert np.max(np.abs(y - y_ref)) <= TOL * np.ptp(y_ref)

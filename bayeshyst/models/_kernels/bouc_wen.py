@@ -15,7 +15,8 @@ one power per step instead of RK4's four; the step is limited to
 * ``C_L`` times the relaxation length (local ``1 / |∂f/∂g|`` and the branch's
   ``ℓ = g_B / (n α)``, ``g_B = (α / |B|)^(1/n)`` the level at which ``|B| |g|^n``
   matches ``α``), so that the truncation error stays ~1e-7 of ``g_B`` per relaxation
-  length;
+  length -- less where ``|B| |g|^n > α`` (a sharp loop's return after a reversal), whose
+  power-law descent has larger Taylor coefficients (:func:`branch_scales`);
 * a fraction (at most ``C_G``, less where ``|g|^n`` is strongly nonlinear, see
   ``TOL_BRANCH``) of the distance ``|g| / |f|`` to the branch point ``g = 0``, where
   the Taylor series stops converging. Steps shrink geometrically towards a zero
@@ -25,8 +26,9 @@ and the crossing itself is located analytically once ``|g| < TINY min(g*, g_-)``
 of order ``TINY^(n+1) g_-``, i.e. < 1e-12 g_-). ``P`` is carried by its own series between steps
 and recomputed (``exp(n log|g|)``: 24 ns here against 27 ns for ``pow``, and no faster
 for integer n) whenever that series would be inaccurate, after a crossing, and every
-``RESYNC`` steps. Once ``h`` has saturated (classical model) the rest of an interval is
-skipped, so large input steps cost a bounded number of steps.
+``RESYNC`` steps. Once ``h`` is within ~1e-6 of its saturation level (classical model)
+the rest of an interval is its linearised relaxation, so large input steps cost a
+bounded number of steps.
 
 The MBW kernel is RK4 in ``u`` (its right-hand side is smooth). The oscillator is
 integrated in time: each step propagates the linear stage exactly (matrix exponential of
@@ -86,13 +88,44 @@ CARRY = 0.05
 _FM = {"reassoc", "contract", "nsz", "arcp"}
 
 
+@njit(cache=True)
+def branch_scales(a, bp, bm, n, c_l):
+    """Step guards of :func:`_bw_interval` for drive ``a`` and coefficients ``B+, B-``.
+
+    Returns ``(ellp, ellm, gcross, c_stiff, cb)``: the relaxation length of each branch,
+    ``g_B / (n a)`` with ``g_B = (a / |B|)^(1/n)`` the level at which ``|B| |g|^n``
+    matches ``a`` (infinite for ``B = 0``, a linear branch); the level below which a
+    negative ``g`` steps onto its zero crossing analytically, in units of ``TINY``
+    (small against the returning branch's own ``g_-``, not only ``g*``, which grows
+    without bound as ``β + γ -> 0``); the relaxation-rate step limit where ``|B| |g|^n
+    > a``; and the branch-point error constant ``|binom(n+1, 6)| / (n+1)``.
+
+    Where ``|B| |g|^n >> a`` the flow is ``G' = -|B| G^n``, whose solution ``G0 (1 +
+    (n-1) f_g ξ / n)^(-1/(n-1))`` has order-6 Taylor coefficient ``prod_j (1 + j (n-1))
+    / (720 n^6)`` in ``(f_g ξ)^6`` (``1/720`` for n = 1, the exponential): ``c_stiff``
+    gives it the error ``(c_l / 2)^6 / 720`` per step, which a linear relaxation has at
+    half of ``c_l``. (At ``c_l`` itself the descent's errors, which it does not damp as a
+    relaxation does, added up to 4e-7 of the stroke against ``solve_ivp`` on the oracle
+    case ``edge``; at half, 2e-8.)
+    """
+    gp = math.inf if bp <= 0.0 else math.exp(math.log(a / bp) / n)
+    gm = math.inf if bm >= 0.0 else math.exp(math.log(a / -bm) / n)
+    prod = 1.0
+    for j in range(6):
+        prod *= 1.0 + j * (n - 1.0)
+    c_stiff = 0.5 * c_l * min(1.0, n / math.exp(math.log(prod) / 6.0))
+    cb = 1.0 / (n + 1.0)
+    for j in range(6):
+        cb *= abs(n + 1.0 - j) / (j + 1.0)
+    return gp / (n * a), gm / (n * a), min(gp, gm), c_stiff, cb
+
+
 @njit(cache=True, fastmath=_FM)
-def _bw_interval(g, P, X, a0, a1, bp, bm, n, ellp, ellm, gcross, cnt, c_l, cb):
+def _bw_interval(g, P, X, a0, a1, bp, bm, n, ellp, ellm, gcross, cnt, c_l, c_stiff, cb):
     """Advance ``g`` over input travel ``X``; returns ``(g, P, cnt, ok)``.
 
     ``P`` is ``|g|^n`` or -1 (unknown); ``cnt`` the running step count (for RESYNC);
-    ``ellp``, ``ellm`` the relaxation lengths of the branches ``g > 0`` and ``g < 0``;
-    below ``TINY gcross`` a negative ``g`` steps onto its zero crossing analytically.
+    the other guards as :func:`branch_scales` returns them.
     """
     x = 0.0
     steps = 0
@@ -143,7 +176,7 @@ def _bw_interval(g, P, X, a0, a1, bp, bm, n, ellp, ellm, gcross, cnt, c_l, cb):
         inv = 1.0 / G0
         aF = abs(F0)
         fg = abs(B) * n * P0 * inv  # |∂f/∂g|, the local relaxation rate
-        if g > 0.0 and a1 == 0.0 and aF <= NEAR_EQ * a:
+        if g > 0.0 and a1 == 0.0 and bp > 0.0 and aF <= NEAR_EQ * a:
             # within ~1e-6 of the equilibrium g* the flow is its linearisation: the rest
             # of the interval relaxes exponentially (error ~ (n-1)/2 (g - g*)^2 / g*,
             # < 1e-12 g*), instead of a step per 0.2 relaxation lengths on a saturated
@@ -152,9 +185,13 @@ def _bw_interval(g, P, X, a0, a1, bp, bm, n, ellp, ellm, gcross, cnt, c_l, cb):
             g = gs + (G0 - gs) * math.exp(-fg * rem)
             P = -1.0
             break
+        # > 1: |B| |g|^n dominates the drive (stiff); a = 0 where a reflected piece of
+        # the rate-dependent variant starts at a root of its drive
+        eps = abs(B) * P0 / abs(a) if a != 0.0 else math.inf
+        c_rate = c_stiff if eps > 1.0 else c_l
         d = rem
-        if d * fg > c_l:
-            d = c_l / fg
+        if d * fg > c_rate:
+            d = c_rate / fg
         # where |g| is still small against the branch's own saturation scale the local
         # rate underestimates the rate a step can reach (n > 1): cap by that branch's
         # relaxation length. (One length for both branches, the stiffer one's, made the
@@ -165,17 +202,22 @@ def _bw_interval(g, P, X, a0, a1, bp, bm, n, ellp, ellm, gcross, cnt, c_l, cb):
             d = c_l * ell
         # the non-analytic part of g near its zero is ~ ε G |x - x_c|^(n+1) with
         # ε = |B| P / a; truncating its Taylor series at order 5 with r = step / branch
-        # distance costs cb ε r^6 G (cb = |binom(n+1, 6)| / (n+1)): keep that < TOL_BRANCH.
-        # (Where |B| |g|^n >> a, after a reversal from a sharp loop's plateau, this floor
-        # of 2 % of G / |f| is also what keeps the power-law descent accurate: with only
-        # the relaxation-rate limit the order-5 steps lose ~1e-6 of G each.)
+        # distance costs cb ε r^6 G (cb = |binom(n+1, 6)| / (n+1)): keep that < TOL_BRANCH
         if d * aF > 0.02 * G0:  # else no branch limit can bind (r >= 0.02 below)
+            dist = G0 / aF  # the distance to the crossing, extrapolated linearly
+            if eps > 1.0 and a != 0.0:
+                # stiff: the path slows down as |g| falls, so the crossing is at least
+                # g_B / (2 a) away, and the non-analytic part, which lives where |g| <~
+                # g_B, is at most G (the linear extrapolation had held the steps of a
+                # sharp loop's return to 2 % of G / |f|: ~500 steps per reversal)
+                dist = max(dist, math.exp(math.log(abs(a) / abs(B)) / n) / (2.0 * abs(a)))
+                eps = 1.0
             r = C_G
-            q = cb * abs(B) * P0
-            while q * (r * r * r) * (r * r * r) > TOL_BRANCH * abs(a) and r > 0.02:
+            q = cb * eps
+            while q * (r * r * r) * (r * r * r) > TOL_BRANCH and r > 0.02:
                 r *= 0.7
-            if d * aF > r * G0:
-                d = r * G0 / aF
+            if d > r * dist:
+                d = r * dist
         # Taylor coefficients c_k of G = |g| and p_k of P = G^n (k G0 p_k =
         # sum_j (n j - (k - j)) c_j p_(k-j)); c_(k+1) = f_k / (k + 1)
         Bs = sg * B
@@ -219,19 +261,7 @@ def _bw_one(u, k, alpha, beta, gamma, n, delta, state, y, c_l):
     """One walker of :func:`bw_batch`; returns False on failure."""
     bp = beta + gamma
     bm = gamma - beta
-    gstar = math.exp(math.log(alpha / bp) / n)
-    # relaxation length of each branch: g* / (n α) where |g| grows towards g* (g > 0),
-    # and the travel over which B-|g|^n becomes comparable with α where g returns to zero
-    # (g < 0: (α / |B-|)^(1/n) / (n α); infinite when B- = 0, a linear branch)
-    gm = math.inf if bm == 0.0 else math.exp(math.log(alpha / -bm) / n)
-    ellp = gstar / (n * alpha)
-    ellm = gm / (n * alpha)
-    # the crossing formula neglects B-|g|^n against α: small against the g < 0 branch's
-    # own scale gm (not g*, which grows without bound as β + γ -> 0)
-    gcross = min(gstar, gm)
-    cb = 1.0 / (n + 1.0)
-    for j in range(6):
-        cb *= abs(n + 1.0 - j) / (j + 1.0)
+    ellp, ellm, gcross, c_stiff, cb = branch_scales(alpha, bp, bm, n, c_l)
     h = state[0]
     up = state[1]
     P = -1.0
@@ -241,7 +271,8 @@ def _bw_one(u, k, alpha, beta, gamma, n, delta, state, y, c_l):
         if du != 0.0:
             s = 1.0 if du > 0.0 else -1.0
             g, P, cnt, ok = _bw_interval(s * h, P, abs(du), alpha + delta * up, delta * s,
-                                         bp, bm, n, ellp, ellm, gcross, cnt, c_l, cb)
+                                         bp, bm, n, ellp, ellm, gcross, cnt, c_l,
+                                         c_stiff, cb)
             if not ok:
                 return False
             h = s * g

@@ -37,22 +37,13 @@ import numpy as np
 from numba import njit, prange
 
 from bayeshyst.models._kernels import batch_kernel
-from bayeshyst.models._kernels.bouc_wen import _bw_interval, bw_valid
+from bayeshyst.models._kernels.bouc_wen import _bw_interval, branch_scales, bw_valid
 
 __all__ = ["bw_sgn_batch", "lag_foh_batch"]
 
 
 @njit(cache=True)
-def _branch_const(n):
-    """``|binom(n+1, 6)| / (n+1)``: the branch-point error constant of :func:`_bw_interval`."""
-    cb = 1.0 / (n + 1.0)
-    for j in range(6):
-        cb *= abs(n + 1.0 - j) / (j + 1.0)
-    return cb
-
-
-@njit(cache=True)
-def _piece(g, length, a0, a1, beta, gamma, n, c_l, cb, cnt):
+def _piece(g, length, a0, a1, beta, gamma, n, c_l, cnt):
     """Advance ``g`` over travel ``length`` where ``a = a0 + a1 x`` keeps one sign."""
     mid = a0 + 0.5 * a1 * length
     if mid > 0.0:
@@ -69,23 +60,17 @@ def _piece(g, length, a0, a1, beta, gamma, n, c_l, cb, cnt):
     a_hi = max(a0f, a0f + a1f * length)
     if not a_hi > 0.0:
         return g, cnt, False
-    # step guards as in the classical kernel, for the largest drive of the piece
-    if bp > 0.0:
-        gstar = math.exp(math.log(a_hi / bp) / n)
-        kappa = max(1.0, -bm / bp)
-    else:  # beta = gamma, reflected: no saturation on this branch; use the other
-        gstar = math.exp(math.log(a_hi / -bm) / n)
-        kappa = 1.0
-    ell = gstar / (n * a_hi * kappa)
-    gf, _, cnt, ok = _bw_interval(sig * g, -1.0, length, a0f, a1f, bp, bm, n, ell, gstar,
-                                  cnt, c_l, cb)
+    # step guards as in the classical kernel, for the largest drive of the piece (a
+    # reflected beta = gamma has B+ = 0: no saturation on that branch, an infinite length)
+    ellp, ellm, gcross, c_stiff, cb = branch_scales(a_hi, bp, bm, n, c_l)
+    gf, _, cnt, ok = _bw_interval(sig * g, -1.0, length, a0f, a1f, bp, bm, n, ellp, ellm,
+                                  gcross, cnt, c_l, c_stiff, cb)
     return sig * gf, cnt, ok
 
 
 @njit(cache=True)
 def _bw_sgn_one(u, t, k, alpha, beta, gamma, n, delta, state, y, c_l):
     """One walker of :func:`bw_sgn_batch`; returns False on failure."""
-    cb = _branch_const(n)
     h = state[0]
     up = state[1]
     tp = state[2]
@@ -110,11 +95,11 @@ def _bw_sgn_one(u, t, k, alpha, beta, gamma, n, delta, state, y, c_l):
             cnt = 0
             if a0 * end < 0.0:
                 xr = -a0 / a1  # a changes sign inside: split there
-                g, cnt, ok = _piece(g, xr, a0, a1, beta, gamma, n, c_l, cb, cnt)
+                g, cnt, ok = _piece(g, xr, a0, a1, beta, gamma, n, c_l, cnt)
                 if ok:
-                    g, cnt, ok = _piece(g, X - xr, 0.0, a1, beta, gamma, n, c_l, cb, cnt)
+                    g, cnt, ok = _piece(g, X - xr, 0.0, a1, beta, gamma, n, c_l, cnt)
             else:
-                g, cnt, ok = _piece(g, X, a0, a1, beta, gamma, n, c_l, cb, cnt)
+                g, cnt, ok = _piece(g, X, a0, a1, beta, gamma, n, c_l, cnt)
             if not (ok and math.isfinite(g)):
                 return False
             h = s * g
