@@ -416,7 +416,7 @@ def test_what_fires_on_measured_data_is_the_same_for_every_seed(shared_data_dir,
             else load_measured(key, cut, mr_current=current))
     decisions = []
     for seed in (0, 1, 2):
-        post = Posterior(data, "bouc_wen")
+        post = Posterior(data, undeclared_effect.BASE_MODELS[key])
         res = sample_posterior(post, SamplerSettings(max_steps=10_000, seed=seed))
         assert res.converged, str(res.convergence)
         analysis = analyse_residual(post, res, res.draws(200, seed=seed), seed=seed)
