@@ -165,7 +165,8 @@ def judge(rnd: int, test: EffectTest, current: DiagnosisFit, cand: DiagnosisFit,
             means.setdefault(p.label.split("[")[0], []).append(p.mean)
         bad = implausible(means, st.plausible)
         if bad:
-            ok, reason = False, "implausible for a piezo stage: " + "; ".join(bad)
+            # each reading says why it is implausible (the ranges are the device's)
+            ok, reason = False, "implausible: " + "; ".join(bad)
     tied: list[str] = []
     if ok and test.effect not in SCAN_JUDGED:
         tied = tied_effects(test.effect, current.analysis.tests)
