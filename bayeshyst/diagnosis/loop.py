@@ -29,6 +29,10 @@ Beyond the catalogue (:mod:`bayeshyst.diagnosis.verdict` has the rules):
   discrepancy over the loop's coordinates, :mod:`bayeshyst.discrepancy` -- is a
   candidate, tried *before* any time-domain effect (creep, rate, delay, drift, a change
   point);
+* a time-domain effect whose score test explains nothing beyond the measured columns
+  the scan kept (``EffectTest.p_beyond_columns``: on one sine a rate is a function of a
+  velocity column, a slow trend one of a drifting temperature) is not tried but
+  reported as tied with them; the column's own candidates take that structure;
 * with fewer than ``MIN_GATE_UNITS`` cycles gate 2 cannot decide, and the step says so
   and falls back to the score test's Bayes factor (or, for the shape, to the scan);
 * an accepted effect ties with the effects whose Bayes factors are within 3 nats of its
@@ -78,6 +82,8 @@ from bayeshyst.diagnosis.verdict import (
     PLAUSIBLE,
     SLOW_IN_TIME,
     TIME_DOMAIN,
+    column_tie_notes,
+    column_tied,
     experiment_for,
 )
 from bayeshyst.discrepancy import DISC
@@ -454,8 +460,15 @@ def diagnose(
     rounds, steps, found = [current.analysis], [], []
     warnings = list(current.warnings)
     shape_ties: dict[str, float] = {}  # effect -> p beyond the loop position, first seen
+    column_ties: dict[str, tuple[float, tuple[str, ...]]] = {}  # ... beyond the columns
     for rnd in range(1, st.max_rounds + 1):
         candidates = list(current.analysis.fired())
+        # structure a measured column explains is the column's (aux, a smooth term in
+        # it), not a time-domain effect's that explains nothing beyond it
+        tied_cols = column_tied(candidates, current.analysis.alpha)
+        for t in tied_cols:
+            column_ties.setdefault(t.effect, (t.p_beyond_columns, t.beyond_columns))
+        candidates = [t for t in candidates if all(t is not u for u in tied_cols)]
         shape = shape_candidate(current, st.alpha)
         if shape is not None and disc is None:
             # residual structure in where-on-the-loop is the model's own shape: a
@@ -540,7 +553,9 @@ def diagnose(
                            # an effect kept in a later round (on top of the shape
                            # correction) is a finding, no longer a tie with the shape
                            _shape_tie_notes({e: p for e, p in shape_ties.items()
-                                             if e not in found}))
+                                             if e not in found})
+                           + column_tie_notes({e: v for e, v in column_ties.items()
+                                               if e not in found}))
 
 
 def _shape_tie_notes(shape_ties: dict[str, float]) -> tuple[str, ...]:

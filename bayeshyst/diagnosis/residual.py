@@ -32,7 +32,12 @@ from scipy import stats
 
 from bayeshyst.data.record import Dataset
 from bayeshyst.diagnosis.catalogue import EFFECTS
-from bayeshyst.diagnosis.drivers import DriverScan, loop_position_basis, scan_drivers
+from bayeshyst.diagnosis.drivers import (
+    DriverScan,
+    driver_blocks,
+    loop_position_basis,
+    scan_drivers,
+)
 from bayeshyst.diagnosis.effects import (
     ColoredNoise,
     DelayEffect,
@@ -109,6 +114,14 @@ class EffectTest(TableRecord):
         the nuisance regressors: whether the effect explains anything a branch-shape
         error of the model could not (times the variants, as the p-value). Large for a
         creep, lag or delay under one sine, where the two are one coordinate.
+    p_beyond_columns : float
+        p-value of the same test with the driver scan's blocks of the measured columns it
+        kept (``beyond_columns``) among the nuisance regressors: whether the effect
+        explains anything a smooth dependence on those columns could not. NaN when the
+        scan kept no column. Large for a delay on an MR damper whose viscous force
+        follows its velocity column (on a sine, a rate is a function of the velocity).
+    beyond_columns : tuple of str
+        The columns ``p_beyond_columns`` was computed beyond.
     evidence : dict
         Arrays for the evidence plot: ``x`` (explaining variable), ``partial_residual``
         (residual minus what the fit's own directions explain), ``component`` (the
@@ -134,6 +147,8 @@ class EffectTest(TableRecord):
     variant: str = ""
     n_variants: int = 1
     p_beyond_shape: float = math.nan
+    p_beyond_columns: float = math.nan
+    beyond_columns: tuple[str, ...] = ()
     coef: np.ndarray = field(default_factory=lambda: np.zeros(0), repr=False)
     cov: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)), repr=False)
     evidence: dict[str, Any] = field(default_factory=dict, repr=False)
@@ -166,7 +181,8 @@ class EffectTest(TableRecord):
             "per_frequency_rms": dict(self.per_frequency_rms), "estimates": dict(self.estimates),
             "significant": self.significant, "skipped": self.skipped,
             "ar_order": self.ar_order, "variant": self.variant, "n_variants": self.n_variants,
-            "p_beyond_shape": self.p_beyond_shape,
+            "p_beyond_shape": self.p_beyond_shape, "p_beyond_columns": self.p_beyond_columns,
+            "beyond_columns": list(self.beyond_columns),
         }
 
     def __str__(self) -> str:
@@ -456,7 +472,22 @@ def analyse_residual(
 
     qz = orthonormal_basis(z_all)
     loop = loop_position_basis(data, [s.s0 for s in sigs])
+    # the scan first: the measured columns it keeps are nuisance for what a time-domain
+    # effect is credited with (as the loop position is, below)
+    scan, lines = None, ()
+    if n_permutations > 0:
+        scan = scan_drivers(data, resid, [s.w for s in sigs], alpha=LEVEL_SHARES[1] * level,
+                            n_permutations=n_permutations, seed=seed)
+        lines = spectral_lines(data, resid, alpha=LEVEL_SHARES[2] * level)
+    columns = () if scan is None else tuple(d.driver for d in scan.selected
+                                             if d.kind == "external")
+    col_basis = None
+    if columns:
+        blocks = driver_blocks(data, [s.w for s in sigs], [s.s0 for s in sigs])
+        col_basis = whiten(np.column_stack([b.columns for b in blocks if b.name in columns]),
+                           segs, ar.phi)
     beyond: dict[str, float] = {}
+    beyond_cols: dict[str, float] = {}
     raw: dict[str, tuple[FTest, np.ndarray, int, str, np.ndarray]] = {}
     for name, variants in structural.items():
         tests_v = [f_test(rw, zw, whiten(x, segs, ar.phi)) for _, x, _ in variants]
@@ -477,6 +508,9 @@ def analyse_residual(
         shaped = f_test(rw, np.column_stack([zw, whiten(loop, segs, ar.phi)]),
                         whiten(x, segs, ar.phi))
         beyond[name] = min(1.0, k * shaped.p_value)
+        if col_basis is not None:
+            by_cols = f_test(rw, np.column_stack([zw, col_basis]), whiten(x, segs, ar.phi))
+            beyond_cols[name] = min(1.0, k * by_cols.p_value)
     lag = None
     if ColoredNoise.name in names and ColoredNoise.name not in skipped:
         nominal = [structural[n][[v[0] for v in structural[n]].index(raw[n][3])][1]
@@ -525,12 +559,9 @@ def analyse_residual(
             name, stat, t.statistic, t.df1, t.df2, t.p_value, float(adj[name]),
             t.log_bayes_factor, t.partial_r2, rms, 100.0 * rms / ptp, per_f, est,
             bool(adj[name] < alpha), ar_order=order, variant=variant, n_variants=n_var,
-            p_beyond_shape=beyond.get(name, math.nan), coef=t.coef, cov=t.cov,
+            p_beyond_shape=beyond.get(name, math.nan),
+            p_beyond_columns=beyond_cols.get(name, math.nan),
+            beyond_columns=columns if name in beyond_cols else (), coef=t.coef, cov=t.cov,
             evidence=evidence))
-    scan, lines = None, ()
-    if n_permutations > 0:
-        scan = scan_drivers(data, resid, [s.w for s in sigs], alpha=LEVEL_SHARES[1] * level,
-                            n_permutations=n_permutations, seed=seed)
-        lines = spectral_lines(data, resid, alpha=LEVEL_SHARES[2] * level)
     return ResidualAnalysis(tuple(tests), resid, times, _cycles(data, resid), means, ar.order,
                             float(alpha), scan, lines)

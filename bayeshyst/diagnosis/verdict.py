@@ -40,6 +40,8 @@ __all__ = [
     "SLOW_IN_TIME",
     "TIE_NATS",
     "TIME_DOMAIN",
+    "column_tie_notes",
+    "column_tied",
     "experiment_for",
     "implausible",
     "separates_lags",
@@ -141,6 +143,36 @@ def shape_tied(scan: DriverScan | None) -> bool:
         if d.driver in lagged and "loop position" in d.tied_with:
             return True
     return False
+
+
+def column_tied(tests: Sequence[Any], level: float) -> list[Any]:
+    """The time-domain effects that explain nothing beyond the measured columns kept.
+
+    A test whose ``p_beyond_columns`` (the score test with the scan's blocks of the
+    columns it kept among the nuisance regressors) is not below ``level``: on these data
+    the structure it fires on is a smooth dependence on a measured column (on one sine a
+    rate is a function of the velocity, a slow trend one of a drifting temperature), and
+    the column's own candidate (``aux``, ``unexplained(feature=column)``) is the more
+    direct reading. NaN (no column kept) ties nothing.
+    """
+    return [t for t in tests if t.effect in TIME_DOMAIN and math.isfinite(t.p_beyond_columns)
+            and t.p_beyond_columns >= level]
+
+
+def column_tie_notes(ties: Mapping[str, tuple[float, Sequence[str]]]) -> tuple[str, ...]:
+    """One sentence per set of columns that effects are tied with (``effect -> (p, columns)``)."""
+    by_columns: dict[tuple[str, ...], list[str]] = {}
+    for effect, (p, columns) in ties.items():
+        by_columns.setdefault(tuple(columns), []).append(f"{effect} (p = {p:.2g})")
+    notes = []
+    for columns, names in by_columns.items():
+        cols = ", ".join(columns)
+        notes.append(f"cannot tell {', '.join(names)} from a dependence on {cols} on these "
+                     f"data ({'they explain' if len(names) > 1 else 'it explains'} nothing "
+                     f"beyond {'that column' if len(columns) == 1 else 'those columns'}); "
+                     f"what would: a record in which {cols} varies independently of the "
+                     f"input and its rate")
+    return tuple(notes)
 
 
 def implausible(means: Mapping[str, Sequence[float] | float],
