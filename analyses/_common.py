@@ -24,10 +24,12 @@ either way).
 from __future__ import annotations
 
 import argparse
+import contextlib
+import logging
 import math
 import sys
 import time
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -184,6 +186,30 @@ class Progress:
         if not self.quiet:
             print(f"{self.prog} [{self.elapsed:7.1f} s] {message}", file=sys.stderr,
                   flush=True)
+
+    @contextlib.contextmanager
+    def follow(self, logger: str, level: int = logging.INFO) -> Iterator[None]:
+        """Within the block, the library logger ``logger``'s records at ``level`` and above
+        are progress lines too (e.g. the diagnosis loop's gate decisions, which a run of
+        hours otherwise shows only at its end)."""
+        if self.quiet:
+            yield
+            return
+        target, progress = logging.getLogger(logger), self
+
+        class _Forward(logging.Handler):
+            def emit(self, record: logging.LogRecord) -> None:
+                progress(record.getMessage())
+
+        handler, old_level = _Forward(level), target.level
+        target.addHandler(handler)
+        if target.getEffectiveLevel() > level:
+            target.setLevel(level)
+        try:
+            yield
+        finally:
+            target.removeHandler(handler)
+            target.setLevel(old_level)
 
 
 def run(prog: str, body: Callable[[argparse.Namespace], int],

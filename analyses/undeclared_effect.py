@@ -325,13 +325,17 @@ def _analyse(args: argparse.Namespace) -> int:
 
         log(f"{key}: diagnosing {model} on {data.name} ({len(data)} record(s), "
             f"{data.n_samples} samples; {'; '.join(r['cut'] for r in describe_cut(data))})")
-        result = diagnose(data, model, args.likelihood, effects=effects,
-                          alpha=args.alpha, threshold=args.threshold,
-                          max_rounds=cfg["max_rounds"], max_candidates=cfg["max_candidates"],
-                          sampler=cfg["sampler"], n_draws=cfg["n_draws"],
-                          max_refits=cfg["max_refits"], plausible=plausible,
-                          checkpoint_dir=None if args.no_checkpoint else folder / "checkpoints",
-                          on_fit=on_fit)
+        # the gate's decisions as they are made: a round of a measured set can take hours
+        with log.follow("bayeshyst.diagnosis.loop"):
+            result = diagnose(data, model, args.likelihood, effects=effects,
+                              alpha=args.alpha, threshold=args.threshold,
+                              max_rounds=cfg["max_rounds"],
+                              max_candidates=cfg["max_candidates"],
+                              sampler=cfg["sampler"], n_draws=cfg["n_draws"],
+                              max_refits=cfg["max_refits"], plausible=plausible,
+                              checkpoint_dir=(None if args.no_checkpoint
+                                              else folder / "checkpoints"),
+                              on_fit=on_fit)
         write_diagnosis_outputs(result, folder, data_name=data.name,
                                 figures=None if args.no_figures or args.quick
                                 else diagnosis_figures(result))

@@ -173,6 +173,24 @@ def test_model_selection_table_ranks_by_elpd(selection):
     _no_nan_or_tmp(out)
 
 
+def test_progress_follows_a_library_logger_only_within_the_block(capsys):
+    import logging
+
+    lib = logging.getLogger("bayeshyst.diagnosis.loop")
+    before = lib.level
+    log = Progress("t")
+    with log.follow("bayeshyst.diagnosis.loop"):
+        lib.info("round %d: %s accepted", 1, "creep")
+        lib.debug("not at INFO")
+    lib.info("after the block")
+    err = capsys.readouterr().err.splitlines()
+    assert len(err) == 1 and re.fullmatch(r"t \[ *\d+\.\d s\] round 1: creep accepted", err[0])
+    assert lib.level == before and not any(type(h).__name__ == "_Forward" for h in lib.handlers)
+    with Progress("t", quiet=True).follow("bayeshyst.diagnosis.loop"):
+        lib.info("quiet")
+    assert capsys.readouterr().err == ""
+
+
 def test_model_selection_skips_measured_sets_when_shared_data_absent(tmp_path, monkeypatch,
                                                                       capsys):
     monkeypatch.setenv(ENV_VAR, str(tmp_path / "absent"))
@@ -289,13 +307,17 @@ def test_feedforward_beats_uncompensated_on_the_true_plant(feedforward):
 
 # ------------------------------------------------------------------- undeclared effect
 @pytest.mark.shared_data
-def test_undeclared_effect_numbers_match_the_diagnosis(shared_data_dir, tmp_path):
+def test_undeclared_effect_numbers_match_the_diagnosis(shared_data_dir, tmp_path, capsys):
     out = tmp_path / "out"
-    assert undeclared_effect.main(["--quick", "--quiet", "--out", str(out)]) == 0
+    assert undeclared_effect.main(["--quick", "--out", str(out)]) == 0
     summary = json.loads((out / "summary.json").read_text())
     (entry,) = summary["datasets"]
     assert entry["dataset"] == "piezo_150v"
     diag = json.loads((out / entry["folder"] / "summary.json").read_text())
+    # every gate decision was a progress line when it was made, in the summary's order
+    decided = re.findall(r"\] round (\d+): (\S+) (accepted|rejected)", capsys.readouterr().err)
+    assert decided == [(str(s["round"]), s["effect"], "accepted" if s["accepted"] else "rejected")
+                       for s in diag["steps"]]
     assert entry["rmse_before"] == pytest.approx(diag["before"]["rmse"], rel=1e-12)
     assert entry["rmse_after"] == pytest.approx(diag["after"]["rmse"], rel=1e-12)
     accepted = [s for s in diag["steps"] if s["accepted"]]
