@@ -81,10 +81,10 @@ from bayeshyst.diagnosis.residual import (
 from bayeshyst.diagnosis.verdict import (
     PLAUSIBLE,
     SLOW_IN_TIME,
-    TIME_DOMAIN,
     column_tie_notes,
     column_tied,
     experiment_for,
+    tied_beyond,
 )
 from bayeshyst.discrepancy import DISC
 from bayeshyst.errors import DataError, ParameterError
@@ -476,9 +476,7 @@ def diagnose(
             # with what it explains beyond the loop position; the shape correction itself
             # is the last resort, before coloured noise
             level = current.analysis.alpha
-            # (a p-value beyond the shape that was not computed is no evidence of a tie)
-            tied = [t for t in candidates if t.effect in TIME_DOMAIN
-                    and math.isfinite(t.p_beyond_shape) and t.p_beyond_shape >= level]
+            tied = tied_beyond(candidates, "p_beyond_shape", level)
             for t in tied:
                 shape_ties.setdefault(t.effect, t.p_beyond_shape)
             candidates = [t for t in candidates if all(t is not u for u in tied)]

@@ -486,11 +486,13 @@ def analyse_residual(
         blocks = driver_blocks(data, [s.w for s in sigs], [s.s0 for s in sigs])
         col_basis = whiten(np.column_stack([b.columns for b in blocks if b.name in columns]),
                            segs, ar.phi)
+    loop_w = whiten(loop, segs, ar.phi)  # the same nuisance for every effect
     beyond: dict[str, float] = {}
     beyond_cols: dict[str, float] = {}
     raw: dict[str, tuple[FTest, np.ndarray, int, str, np.ndarray]] = {}
     for name, variants in structural.items():
-        tests_v = [f_test(rw, zw, whiten(x, segs, ar.phi)) for _, x, _ in variants]
+        xws = [whiten(x, segs, ar.phi) for _, x, _ in variants]
+        tests_v = [f_test(rw, zw, xw) for xw in xws]
         best = int(np.argmax([t.statistic for t in tests_v]))
         t = tests_v[best]
         k = len(variants)
@@ -505,11 +507,10 @@ def analyse_residual(
         # the effect's contribution beyond what the fit's own directions can absorb
         raw[name] = (t, project_out(qz, x @ t.coef), k, label, ax)
         # and beyond what a branch-shape error could: the loop position among the nuisance
-        shaped = f_test(rw, np.column_stack([zw, whiten(loop, segs, ar.phi)]),
-                        whiten(x, segs, ar.phi))
+        shaped = f_test(rw, np.column_stack([zw, loop_w]), xws[best])
         beyond[name] = min(1.0, k * shaped.p_value)
         if col_basis is not None:
-            by_cols = f_test(rw, np.column_stack([zw, col_basis]), whiten(x, segs, ar.phi))
+            by_cols = f_test(rw, np.column_stack([zw, col_basis]), xws[best])
             beyond_cols[name] = min(1.0, k * by_cols.p_value)
     lag = None
     if ColoredNoise.name in names and ColoredNoise.name not in skipped:

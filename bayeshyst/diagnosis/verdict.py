@@ -46,6 +46,7 @@ __all__ = [
     "implausible",
     "separates_lags",
     "shape_tied",
+    "tied_beyond",
     "tied_effects",
 ]
 
@@ -155,8 +156,18 @@ def column_tied(tests: Sequence[Any], level: float) -> list[Any]:
     the column's own candidate (``aux``, ``unexplained(feature=column)``) is the more
     direct reading. NaN (no column kept) ties nothing.
     """
-    return [t for t in tests if t.effect in TIME_DOMAIN and math.isfinite(t.p_beyond_columns)
-            and t.p_beyond_columns >= level]
+    return tied_beyond(tests, "p_beyond_columns", level)
+
+
+def tied_beyond(tests: Sequence[Any], p_beyond: str, level: float) -> list[Any]:
+    """The time-domain tests whose p-value beyond a nuisance is not below ``level``.
+
+    ``p_beyond`` names the test's attribute: ``"p_beyond_shape"`` (the loop position
+    among the nuisance regressors) or ``"p_beyond_columns"`` (the measured columns the
+    scan kept). A p-value that was not computed (NaN) is no evidence of a tie.
+    """
+    return [t for t in tests if t.effect in TIME_DOMAIN
+            and math.isfinite(getattr(t, p_beyond)) and getattr(t, p_beyond) >= level]
 
 
 def column_tie_notes(ties: Mapping[str, tuple[float, Sequence[str]]]) -> tuple[str, ...]:
