@@ -25,7 +25,12 @@ import pytest
 from bayeshyst.data import excitation
 from bayeshyst.data.record import Dataset, Record
 from bayeshyst.diagnosis.residual import EffectTest
-from bayeshyst.diagnosis.verdict import TIME_DOMAIN, column_tie_notes, column_tied
+from bayeshyst.diagnosis.verdict import (
+    TIME_DOMAIN,
+    column_tie_notes,
+    column_tied,
+    shape_tie_notes,
+)
 
 PI3 = "pi_play(n_operators=3)"
 
@@ -131,3 +136,15 @@ def test_column_tie_rule_and_notes():
     assert note.startswith("cannot tell drift (p = 0.4), change_point (p = 0.2) from a "
                            "dependence on temperature_c on these data (they explain")
     assert "varies independently of the input" in note
+
+
+def test_shape_tie_notes_group_effects_by_the_experiment_that_separates_them():
+    # oracle: experiment_for's table: creep is told from a branch shape by holds, a delay
+    # and rate dependence by the same (any pair with the branch shape), so all three share
+    # one sentence; one effect alone reads in the singular
+    (note,) = shape_tie_notes({"creep": 0.3, "delay": 0.05})
+    assert note.startswith("cannot tell creep (p = 0.3), delay (p = 0.05) from the base "
+                           "model's branch shape on these data (they explain nothing beyond "
+                           "the loop position); what would: steps with holds")
+    (single,) = shape_tie_notes({"drift": 0.5})
+    assert "(it explains nothing beyond the loop position)" in single

@@ -25,6 +25,7 @@ from bayeshyst.diagnosis.records import (
 )
 from bayeshyst.diagnosis.residual import EffectTest
 from bayeshyst.diagnosis.verdict import (
+    BRANCH_SHAPE,
     FALLBACK_LOG_BF,
     LAG_LIKE,
     MIN_ELPD_GAIN,
@@ -44,8 +45,6 @@ __all__ = ["BRANCH_SHAPE", "DISTURBANCE", "SCAN_JUDGED", "SHAPE_DISCREPANCY", "U
            "unexplained_candidate"]
 
 
-#: Name of the base model's own misfit among the loop's candidates.
-BRANCH_SHAPE = "branch shape"
 #: The discrepancy that stands for it: a smooth function of where on the loop a sample is.
 SHAPE_DISCREPANCY = "hsgp"
 

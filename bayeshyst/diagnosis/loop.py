@@ -83,7 +83,7 @@ from bayeshyst.diagnosis.verdict import (
     SLOW_IN_TIME,
     column_tie_notes,
     column_tied,
-    experiment_for,
+    shape_tie_notes,
     tied_beyond,
 )
 from bayeshyst.discrepancy import DISC
@@ -550,19 +550,9 @@ def diagnose(
                            current, tuple(rounds), st, tuple(warnings),
                            # an effect kept in a later round (on top of the shape
                            # correction) is a finding, no longer a tie with the shape
-                           _shape_tie_notes({e: p for e, p in shape_ties.items()
+                           shape_tie_notes({e: p for e, p in shape_ties.items()
                                              if e not in found})
                            + column_tie_notes({e: v for e, v in column_ties.items()
                                                if e not in found}))
 
 
-def _shape_tie_notes(shape_ties: dict[str, float]) -> tuple[str, ...]:
-    """One sentence per experiment that would separate effects from the branch shape."""
-    by_experiment: dict[str, list[str]] = {}
-    for effect, p in shape_ties.items():
-        by_experiment.setdefault(experiment_for(effect, BRANCH_SHAPE), []).append(
-            f"{effect} (p = {p:.2g})")
-    return tuple(f"cannot tell {', '.join(names)} from the base model's branch shape on "
-                 f"these data ({'they explain' if len(names) > 1 else 'it explains'} nothing "
-                 f"beyond the loop position); what would: {experiment}"
-                 for experiment, names in by_experiment.items())

@@ -32,6 +32,7 @@ import numpy as np
 from bayeshyst.diagnosis.drivers import DriverScan
 
 __all__ = [
+    "BRANCH_SHAPE",
     "FALLBACK_LOG_BF",
     "LAG_LIKE",
     "MIN_ELPD_GAIN",
@@ -45,6 +46,7 @@ __all__ = [
     "experiment_for",
     "implausible",
     "separates_lags",
+    "shape_tie_notes",
     "shape_tied",
     "tied_beyond",
     "tied_effects",
@@ -85,10 +87,14 @@ PLAUSIBLE: Mapping[str, tuple[float, float, str]] = MappingProxyType({
 })
 
 
+#: Name of the base model's own misfit among the loop's candidates.
+BRANCH_SHAPE = "branch shape"
+
+
 def experiment_for(a: str, b: str) -> str:
     """The experiment that separates effects (or drivers) ``a`` and ``b``."""
     pair = {a, b}
-    if "creep" in pair or "branch shape" in pair:
+    if "creep" in pair or BRANCH_SHAPE in pair:
         return ("steps with holds of several seconds (creep keeps moving while the input "
                 "holds; a lag, a delay or a branch shape does not) and several excitation "
                 "frequencies")
@@ -170,20 +176,38 @@ def tied_beyond(tests: Sequence[Any], p_beyond: str, level: float) -> list[Any]:
             and math.isfinite(getattr(t, p_beyond)) and getattr(t, p_beyond) >= level]
 
 
+def _tie_sentence(names: Sequence[str], nuisance: str, beyond: str, experiment: str) -> str:
+    """'cannot tell A, B from <nuisance> ... beyond <beyond>; what would: <experiment>'."""
+    return (f"cannot tell {', '.join(names)} from {nuisance} on these data "
+            f"({'they explain' if len(names) > 1 else 'it explains'} nothing beyond "
+            f"{beyond}); what would: {experiment}")
+
+
 def column_tie_notes(ties: Mapping[str, tuple[float, Sequence[str]]]) -> tuple[str, ...]:
     """One sentence per set of columns that effects are tied with (``effect -> (p, columns)``)."""
     by_columns: dict[tuple[str, ...], list[str]] = {}
     for effect, (p, columns) in ties.items():
         by_columns.setdefault(tuple(columns), []).append(f"{effect} (p = {p:.2g})")
-    notes = []
-    for columns, names in by_columns.items():
-        cols = ", ".join(columns)
-        notes.append(f"cannot tell {', '.join(names)} from a dependence on {cols} on these "
-                     f"data ({'they explain' if len(names) > 1 else 'it explains'} nothing "
-                     f"beyond {'that column' if len(columns) == 1 else 'those columns'}); "
-                     f"what would: a record in which {cols} varies independently of the "
-                     f"input and its rate")
-    return tuple(notes)
+    return tuple(
+        _tie_sentence(names, f"a dependence on {', '.join(columns)}",
+                      "that column" if len(columns) == 1 else "those columns",
+                      f"a record in which {', '.join(columns)} varies independently of the "
+                      f"input and its rate")
+        for columns, names in by_columns.items())
+
+
+def shape_tie_notes(ties: Mapping[str, float]) -> tuple[str, ...]:
+    """One sentence per experiment that would separate effects from the branch shape.
+
+    ``ties`` maps an effect to the p-value of its test beyond the loop position.
+    """
+    by_experiment: dict[str, list[str]] = {}
+    for effect, p in ties.items():
+        by_experiment.setdefault(experiment_for(effect, BRANCH_SHAPE), []).append(
+            f"{effect} (p = {p:.2g})")
+    return tuple(_tie_sentence(names, "the base model's branch shape", "the loop position",
+                               experiment)
+                 for experiment, names in by_experiment.items())
 
 
 def implausible(means: Mapping[str, Sequence[float] | float],
