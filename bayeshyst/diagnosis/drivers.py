@@ -427,6 +427,7 @@ def scan_drivers(
     n_permutations: int = 999,
     max_drivers: int = 4,
     seed: int = 0,
+    blocks: Sequence[DriverBlock] | None = None,
 ) -> DriverScan:
     """Which observed drivers the residual depends on, with a calibrated threshold.
 
@@ -446,6 +447,9 @@ def scan_drivers(
         Most drivers kept.
     seed : int
         Seed of the sign patterns: same seed, same result.
+    blocks : sequence of DriverBlock, optional
+        ``driver_blocks(data, w, starts)`` when the caller has built them already (it
+        needs the kept columns' design afterwards).
 
     Returns
     -------
@@ -453,7 +457,8 @@ def scan_drivers(
     """
     starts = [int(rec.scored.start or 0) for rec in data]
     r = np.concatenate([np.asarray(x, float) for x in residual])
-    blocks = driver_blocks(data, w, starts)
+    if blocks is None:
+        blocks = driver_blocks(data, w, starts)
     units = scan_units(data)
     n_units = len(units)
     rng = np.random.default_rng(seed)

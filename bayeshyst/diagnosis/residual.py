@@ -476,14 +476,14 @@ def analyse_residual(
     # effect is credited with (as the loop position is, below)
     scan, lines = None, ()
     if n_permutations > 0:
+        blocks = driver_blocks(data, [s.w for s in sigs], [s.s0 for s in sigs])
         scan = scan_drivers(data, resid, [s.w for s in sigs], alpha=LEVEL_SHARES[1] * level,
-                            n_permutations=n_permutations, seed=seed)
+                            n_permutations=n_permutations, seed=seed, blocks=blocks)
         lines = spectral_lines(data, resid, alpha=LEVEL_SHARES[2] * level)
     columns = () if scan is None else tuple(d.driver for d in scan.selected
                                              if d.kind == "external")
     col_basis = None
     if columns:
-        blocks = driver_blocks(data, [s.w for s in sigs], [s.s0 for s in sigs])
         col_basis = whiten(np.column_stack([b.columns for b in blocks if b.name in columns]),
                            segs, ar.phi)
     loop_w = whiten(loop, segs, ar.phi)  # the same nuisance for every effect
