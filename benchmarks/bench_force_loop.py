@@ -81,11 +81,13 @@ def main(argv: list[str] | None = None) -> int:
              "| ESS/s | failed / evaluations | ESS/s vs baseline |",
              "|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
-        ratio = r["ess_per_s"] / base["ess_per_s"] if base["ess_per_s"] > 0 else float("inf")
+        # a baseline with no effective draws has no finite ratio: say so, not "inf"
+        ratio = (f"{r['ess_per_s'] / base['ess_per_s']:.0f}x" if base["ess_per_s"] > 0
+                 else "n/a (baseline ESS 0)")
         lines.append(f"| `{r['spec']}` | {r['steps']} | {r['time_s']:.1f} | "
                      f"{'yes' if r['converged'] else 'no'} | {r['rhat']:.3f} | {r['ess']:.0f} | "
                      f"{r['ess_per_s']:.2f} | {r['failed']} / {r['evaluations']} | "
-                     f"{'1 (baseline)' if r is base else f'{ratio:.0f}x'} |")
+                     f"{'1 (baseline)' if r is base else ratio} |")
     text = "\n".join(lines)
     print(text)
     if args.write:

@@ -211,6 +211,43 @@ def test_model_selection_skips_measured_sets_when_shared_data_absent(tmp_path, m
     assert not out.exists()
 
 
+def test_mr_damper_is_compared_on_the_force_form_unless_models_are_given():
+    # oracle: MODELS_BY_DATASET's documented table; --models applies to every set
+    full = model_selection_study.default_models("mr_damper", quick=False)
+    assert full[0] == model_selection_study.MR_BOUC_WEN and "gp_memory" in full
+    assert model_selection_study.default_models("mr_damper", quick=True) == (
+        model_selection_study.MR_BOUC_WEN, "bouc_wen")
+    for key in ("virtual", "piezo_150v", "micromanipulator"):
+        assert model_selection_study.default_models(key, quick=False) == \
+            model_selection_study.FULL_MODELS
+
+
+@pytest.mark.shared_data
+def test_model_selection_on_the_mr_damper_ranks_the_force_form_first(shared_data_dir,
+                                                                     tmp_path):
+    # oracle: the orientation of the measured loop. The damper's force leads its
+    # displacement (steep after each reversal, then a plateau), which the piezo form
+    # k u - h cannot draw for any parameters: whatever the sampler's state after 200
+    # steps, the force form must predict each held-out cycle better, by many se
+    out = tmp_path / "out"
+    assert model_selection_study.main(["--quick", "--quiet", "--datasets", "mr_damper",
+                                       "--mr-current", "0", "--no-figures",
+                                       "--out", str(out)]) == 0
+    rows = _rows(out / "table.csv")
+    freqs = sorted({float(r["frequency_hz"]) for r in rows})
+    _check_ranking(rows, list(model_selection_study.default_models("mr_damper", True)), freqs)
+    assert len(freqs) == 2  # quick mode: the lowest and the highest frequency
+    for f in freqs:
+        by = {r["model"]: r for r in rows if float(r["frequency_hz"]) == f}
+        force, piezo = by[model_selection_study.MR_BOUC_WEN], by["bouc_wen"]
+        assert force["best"] == "True"
+        assert -float(piezo["delta_elpd"]) > 4 * float(piezo["delta_se"])
+        assert float(force["nrmse_percent"]) < 0.5 * float(piezo["nrmse_percent"])
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["models"]["mr_damper"] == list(
+        model_selection_study.default_models("mr_damper", True))
+
+
 @pytest.mark.shared_data
 def test_model_selection_on_measured_piezo(shared_data_dir, tmp_path):
     out = tmp_path / "out"
