@@ -24,13 +24,11 @@ from typing import Any, ClassVar
 import numpy as np
 
 from bayeshyst.errors import ModelError, ParameterError
-from bayeshyst.models._kernels.bouc_wen import (
-    C_L,
+from bayeshyst.models._kernels.bouc_wen import C_L, bw_batch, mbw_batch
+from bayeshyst.models._kernels.bouc_wen_oscillator import (
     OSC_PER_PERIOD,
     OSC_TRAVEL,
-    bw_batch,
     bw_oscillator_batch,
-    mbw_batch,
 )
 from bayeshyst.models.base import (
     DataScales,
