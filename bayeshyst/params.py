@@ -40,6 +40,7 @@ __all__ = [
     "Param",
     "ParamSpace",
     "Prior",
+    "ProbitTransform",
     "Transform",
     "TruncatedNormal",
     "Uniform",
@@ -184,6 +185,59 @@ class LogitTransform(Transform):
         # log(sigmoid(z) * sigmoid(-z)), written with log_expit so that it stays finite
         # for |z| in the hundreds instead of underflowing to log(0).
         return math.log(self.upper - self.lower) + special.log_expit(z) + special.log_expit(-z)
+
+
+@dataclass(frozen=True)
+class ProbitTransform(Transform):
+    """``x = lower + (upper - lower) * Phi(z)`` for a bounded support (``Phi``: normal CDF).
+
+    The logit's alternative for a parameter whose posterior often lies against a bound
+    (a Bouc–Wen exponent at ``n = 1``, a delay at 0). Where the likelihood is flat up
+    to the bound, the posterior in ``z`` has the tail of ``|dx/dz|``: ``exp(z)`` for the
+    logit, a standard normal's ``exp(-z^2 / 2)`` here. An exponential tail sends walkers
+    on long excursions that a Gaussian or t proposal fitted to the bulk does not reach
+    (the MR damper's base fit at 0.5 A: ``z_n`` down to -10, an autocorrelation time of
+    ~280 steps, not converged in 7 000); a Gaussian one is covered.
+
+    Parameters
+    ----------
+    lower, upper : float
+        Bounds of the support, ``lower < upper``.
+    """
+
+    lower: float
+    upper: float
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.lower) and math.isfinite(self.upper)):
+            raise ParameterError(f"probit bounds must be finite, got ({self.lower}, {self.upper})")
+        if not self.lower < self.upper:
+            raise ParameterError(
+                f"probit bounds need lower < upper, got ({self.lower}, {self.upper})"
+            )
+
+    def forward(self, x: np.ndarray) -> np.ndarray:
+        """``z = Phi^-1((x - lower) / (upper - lower))``; ``-inf`` / ``inf`` at the bounds.
+
+        Computed from the nearer bound, so that a value close to ``upper`` keeps its
+        digits (``1 - p`` is not formed).
+        """
+        x = np.asarray(x, dtype=float)
+        w = self.upper - self.lower
+        p_lo, p_hi = (x - self.lower) / w, (self.upper - x) / w
+        return np.where(p_lo <= 0.5, special.ndtri(p_lo), -special.ndtri(p_hi))
+
+    def inverse(self, z: np.ndarray) -> np.ndarray:
+        """``x = lower + (upper - lower) * Phi(z)``, from the nearer bound."""
+        z = np.asarray(z, dtype=float)
+        w = self.upper - self.lower
+        return np.where(z <= 0.0, self.lower + w * special.ndtr(z),
+                        self.upper - w * special.ndtr(-z))
+
+    def log_jacobian(self, z: np.ndarray) -> np.ndarray:
+        """``log(upper - lower) - z^2 / 2 - log(2 pi) / 2`` (finite for every finite z)."""
+        z = np.asarray(z, dtype=float)
+        return math.log(self.upper - self.lower) - 0.5 * z * z - _LOG_SQRT_2PI
 
 
 def _transform_for_support(lower: float, upper: float) -> Transform:
@@ -628,6 +682,18 @@ class ParamSpace:
     def labels(self) -> list[str]:
         """One label per element of ``z`` (``w[0]``, ``w[1]``, ...)."""
         return [lab for p in self.params for lab in p.labels()]
+
+    @property
+    def declared_transforms(self) -> str:
+        """The free parameters whose coordinate is not their prior's default, as text.
+
+        A prior implies its default transform, so the table (``str``) names what is
+        sampled up to these; a fit's identity and a checkpoint's fingerprint add them
+        (a chain sampled in another coordinate is not the same run). Empty when every
+        coordinate is the default.
+        """
+        return "; ".join(f"{p.name}: {p.transform!r}" for p in self.params
+                         if p.transform != p.prior.default_transform())
 
     def __len__(self) -> int:
         return len(self.params)

@@ -21,6 +21,7 @@ from bayeshyst.params import (
     Normal,
     Param,
     ParamSpace,
+    ProbitTransform,
     TruncatedNormal,
     Uniform,
     UpperLogTransform,
@@ -71,6 +72,39 @@ def test_transform_round_trip_and_jacobian(tr, z):
     h = 1e-5
     fd = (tr.inverse(np.array([z + h])) - tr.inverse(np.array([z - h]))) / (2 * h)
     np.testing.assert_allclose(tr.log_jacobian(np.array([z])), np.log(np.abs(fd)), atol=1e-6)
+
+
+@given(z=st.floats(-4.0, 4.0))
+@settings(max_examples=60, deadline=None)
+def test_probit_round_trip_and_jacobian(z):
+    # |z| <= 4: beyond it, x - lower (or upper - x) is a few ulps of the bounds' scale and
+    # the round trip is only as exact as those ulps (the lower-bound-0 case below is not)
+    test_transform_round_trip_and_jacobian.hypothesis.inner_test(ProbitTransform(-1.0, 4.0), z)
+
+
+def test_probit_is_the_normal_cdf_and_makes_a_uniform_prior_standard_normal():
+    # oracle: scipy's normal cdf; and for x ~ Uniform(a, b), z = Phi^-1((x - a)/(b - a)) is
+    # N(0, 1) exactly, so log p(x(z)) + log|dx/dz| is the standard normal log density
+    tr, prior = ProbitTransform(2.0, 7.0), Uniform(2.0, 7.0)
+    z = np.linspace(-30.0, 30.0, 121)
+    np.testing.assert_allclose(tr.inverse(z), 2.0 + 5.0 * stats.norm.cdf(z), rtol=1e-14)
+    np.testing.assert_allclose(prior.logpdf(tr.inverse(z[np.abs(z) < 8])) +
+                               tr.log_jacobian(z[np.abs(z) < 8]),
+                               stats.norm.logpdf(z[np.abs(z) < 8]), rtol=1e-12)
+    np.testing.assert_allclose(tr.log_jacobian(z), math.log(5.0) + stats.norm.logpdf(z),
+                               rtol=1e-12)
+    # a bound at 0 keeps full relative precision deep in the tail (a delay near 0)
+    t0 = ProbitTransform(0.0, 0.01)
+    zt = np.array([-30.0, -12.0, -6.0])
+    np.testing.assert_allclose(t0.forward(t0.inverse(zt)), zt, rtol=1e-12)
+    # near the upper bound the value is formed from it (1 - p never appears)
+    x_hi = 0.01 - np.array([1e-12, 1e-9, 1e-6])
+    np.testing.assert_allclose(t0.forward(x_hi), stats.norm.isf((0.01 - x_hi) / 0.01),
+                               rtol=1e-12)
+    assert t0.forward(np.array([0.0]))[0] == -np.inf and t0.forward(np.array([0.01]))[0] == np.inf
+    assert np.all(np.isfinite(tr.log_jacobian(np.array([-700.0, 700.0]))))
+    with pytest.raises(ParameterError, match="lower < upper"):
+        ProbitTransform(1.0, 1.0)
 
 
 def test_logit_jacobian_is_finite_far_out():

@@ -262,6 +262,30 @@ def test_checkpoint_of_another_run_is_refused(tmp_path):
         _small_run(checkpoint=ck, seed=6)
 
 
+def test_a_checkpoint_sampled_in_another_coordinate_is_refused(tmp_path, monkeypatch):
+    # the same model, priors and data, but the exponent sampled in the logit coordinate it
+    # had before: its z are other numbers, so resuming would reinterpret every draw
+    import bayeshyst.models.bouc_wen as bw
+    from bayeshyst.errors import ParameterError
+    from bayeshyst.params import LogitTransform
+    from bayeshyst.selection.tasks import fit_identity
+
+    _, rec, _ = pi_data(n_ops=2, n=400, warmup=50)
+    settings = SamplerSettings(seed=1, max_steps=60, first_chunk=60, min_ess=1e9,
+                               checkpoint=tmp_path / "run.h5")
+    probit = Posterior(rec, "bouc_wen")
+    assert probit.space.declared_transforms.startswith("n: ProbitTransform")
+    with monkeypatch.context() as m:
+        m.setattr(bw, "_N_TRANSFORM", LogitTransform(1.0, bw.N_MAX))
+        logit = Posterior(rec, "bouc_wen")
+        assert logit.space.declared_transforms == ""  # the prior's default coordinate
+        assert str(logit.space) == str(probit.space)  # the table cannot tell them apart
+        assert fit_identity(logit, settings) != fit_identity(probit, settings)
+        sample_posterior(logit, settings, start=find_map(logit, seed=0, n_starts=1))
+    with pytest.raises(ParameterError, match=r"different run.*transforms"):
+        sample_posterior(probit, settings, start=find_map(probit, seed=0, n_starts=1))
+
+
 class _Payload:
     """Unpickling this creates a file: the proof that a loader ran the file's code."""
 

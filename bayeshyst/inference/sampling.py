@@ -284,6 +284,10 @@ def _fingerprint(post: Posterior, settings: SamplerSettings, n_walkers: int,
         "beta": post.beta,
         "held_out": str(post.held_out),
         "space": str(post.space),
+        # only when there are some: checkpoints of other runs written before the key
+        # existed still resume; a Bouc–Wen run sampled in the logit exponent does not
+        **({"transforms": post.space.declared_transforms}
+           if post.space.declared_transforms else {}),
         "data_sha256": h.hexdigest(),
         "n_walkers_used": str(n_walkers),
         "initial_sha256": start,

@@ -39,7 +39,15 @@ from bayeshyst.models.base import (
 )
 from bayeshyst.models.output_driven_inverse import bouc_wen_inverse
 from bayeshyst.models.registry import register
-from bayeshyst.params import LogNormal, Normal, Param, ParamSpace, TruncatedNormal, Uniform
+from bayeshyst.params import (
+    LogNormal,
+    Normal,
+    Param,
+    ParamSpace,
+    ProbitTransform,
+    TruncatedNormal,
+    Uniform,
+)
 
 __all__ = [
     "DEFAULT_FS",
@@ -91,6 +99,12 @@ def sampling_rate(data: Any = None) -> float:
     return min(rates) if rates else DEFAULT_FS
 
 
+#: The exponent's coordinate: probit, not logit. Its posterior often lies against n = 1
+#: (a rounded loop; the MR damper at 0.5 A), where a logit coordinate has an exponential
+#: tail that walkers explore for hundreds of steps (ProbitTransform).
+_N_TRANSFORM = ProbitTransform(1.0, N_MAX)
+
+
 def _bw_shape_params(out_span: float, alpha_med: float, alpha_unit: str,
                      bg_unit: str) -> tuple[Param, ...]:
     """Priors of the BW shape parameters ``α, β, γ, n`` (see :class:`BoucWen` notes)."""
@@ -106,6 +120,7 @@ def _bw_shape_params(out_span: float, alpha_med: float, alpha_unit: str,
         Param("gamma", Normal(0.0, 0.25 * beta0), unit=bg_unit,
               description="u̇-weighted shape coefficient (stable for |gamma| <= beta)"),
         Param("n", TruncatedNormal(1.0, 1.0, 1.0, N_MAX), unit="1",
+              transform=_N_TRANSFORM,
               description="BW exponent (sharpness of the transition), n >= 1"),
     )
 
@@ -124,6 +139,7 @@ def _saturation_shape_params(out_span: float, alpha_med: float, alpha_unit: str,
               description="(beta-gamma)/(beta+gamma): the returning branch's coefficient "
                           "over the rising one's (1: gamma = 0)"),
         Param("n", TruncatedNormal(1.0, 1.0, 1.0, N_MAX), unit="1",
+              transform=_N_TRANSFORM,
               description="BW exponent (sharpness of the transition), n >= 1"),
     )
 

@@ -273,8 +273,9 @@ def _units_meta(data: Dataset) -> tuple[np.ndarray, tuple[str, ...]]:
 def fit_identity(post: Posterior, sampler: SamplerSettings) -> str:
     """What a fit is, as 16 hex digits.
 
-    The digits hash the model, likelihood, priors, offset, data values (not file names),
-    held-out cycles and the sampler settings but their seed.
+    The digits hash the model, likelihood, priors (and the coordinates that are not
+    their default, :attr:`~bayeshyst.params.ParamSpace.declared_transforms`), offset, data
+    values (not file names), held-out cycles and the sampler settings but their seed.
 
     Two commands that fit the same posterior with the same settings (the comparison's
     joint fit and the diagnosis' base fit of a report) get the same identity, hence the
@@ -283,8 +284,11 @@ def fit_identity(post: Posterior, sampler: SamplerSettings) -> str:
     """
     h = hashlib.sha256()
     fp = {k: v for k, v in sampler.fingerprint().items() if k != "seed"}
-    h.update(repr((repr(post.model), post.likelihood.name, str(post.space), post.offset,
-                   post.beta, post.held_out, sorted(fp.items()))).encode())
+    what = (repr(post.model), post.likelihood.name, str(post.space), post.offset,
+            post.beta, post.held_out, sorted(fp.items()))
+    if post.space.declared_transforms:  # (only then: other fits keep their identities)
+        what += (post.space.declared_transforms,)
+    h.update(repr(what).encode())
     for rec in post.data:
         for arr in (rec.t, rec.u, rec.y):
             h.update(np.ascontiguousarray(arr).tobytes())

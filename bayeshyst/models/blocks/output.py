@@ -15,7 +15,7 @@ from bayeshyst.models.blocks.base import (
     register_block,
     time_scales,
 )
-from bayeshyst.params import LogNormal, Normal, Param, ParamSpace, Uniform
+from bayeshyst.params import LogNormal, Normal, Param, ParamSpace, ProbitTransform, Uniform
 
 __all__ = ["AsymmetricOutput", "Delay", "Drift"]
 
@@ -124,7 +124,10 @@ class Delay(EffectBlock):
     def param_space(self, data: Any = None) -> ParamSpace:
         """The delay ``d`` (s), uniform on ``[0, max_delay_samples dt]`` for ``dt`` of ``data``."""
         top = self.max_delay_samples * time_scales(data).dt
+        # probit: with no delay in the data the posterior lies against d = 0, where a
+        # logit coordinate's exponential tail sends walkers on long excursions
         return ParamSpace((Param("d", Uniform(0.0, top), unit="s",
+                                 transform=ProbitTransform(0.0, top),
                                  description="time delay (fractional samples allowed)"),))
 
     def _initial_state(self, theta, w0, t0):
