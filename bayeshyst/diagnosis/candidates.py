@@ -134,7 +134,10 @@ def judge(rnd: int, test: EffectTest, current: DiagnosisFit, cand: DiagnosisFit,
         decided_by = "elpd"
         ok = bool(d > st.threshold * se and d > MIN_ELPD_GAIN)
         if ok:
-            reason = f"held-out elpd improves by {d:.1f} > {st.threshold:g} x se {se:.1f}"
+            # the se in the same form as the other outcomes': "> 2 x se 99.1" read as
+            # 2 se = 99.1
+            reason = (f"held-out elpd improves by {d:.1f} (se {se:.1f}), above "
+                      f"{st.threshold:g} x se")
         elif d > st.threshold * se:
             reason = (f"held-out elpd improves by {d:.1f} (se {se:.1f}), under the "
                       f"{MIN_ELPD_GAIN:g} nats below which a gain is negligible")
