@@ -222,6 +222,7 @@ def test_mr_damper_is_compared_on_the_force_form_unless_models_are_given():
             model_selection_study.FULL_MODELS
 
 
+@pytest.mark.slow  # ~20 s on one worker; the defaults' table is tested in the default run
 @pytest.mark.shared_data
 def test_model_selection_on_the_mr_damper_ranks_the_force_form_first(shared_data_dir,
                                                                      tmp_path):
