@@ -145,6 +145,14 @@ class UpperLogTransform(Transform):
         return np.asarray(z, dtype=float)
 
 
+def _check_bounds(lower: float, upper: float, kind: str) -> None:
+    """Finite ``lower < upper`` for a bounded transform, else a ParameterError naming it."""
+    if not (math.isfinite(lower) and math.isfinite(upper)):
+        raise ParameterError(f"{kind} bounds must be finite, got ({lower}, {upper})")
+    if not lower < upper:
+        raise ParameterError(f"{kind} bounds need lower < upper, got ({lower}, {upper})")
+
+
 @dataclass(frozen=True)
 class LogitTransform(Transform):
     """``x = lower + (upper - lower) * sigmoid(z)`` for a bounded support.
@@ -159,12 +167,7 @@ class LogitTransform(Transform):
     upper: float
 
     def __post_init__(self) -> None:
-        if not (math.isfinite(self.lower) and math.isfinite(self.upper)):
-            raise ParameterError(f"logit bounds must be finite, got ({self.lower}, {self.upper})")
-        if not self.lower < self.upper:
-            raise ParameterError(
-                f"logit bounds need lower < upper, got ({self.lower}, {self.upper})"
-            )
+        _check_bounds(self.lower, self.upper, "logit")
 
     def forward(self, x: np.ndarray) -> np.ndarray:
         """``z = logit((x - lower) / (upper - lower))``; ``-inf`` / ``inf`` at the bounds."""
@@ -209,12 +212,7 @@ class ProbitTransform(Transform):
     upper: float
 
     def __post_init__(self) -> None:
-        if not (math.isfinite(self.lower) and math.isfinite(self.upper)):
-            raise ParameterError(f"probit bounds must be finite, got ({self.lower}, {self.upper})")
-        if not self.lower < self.upper:
-            raise ParameterError(
-                f"probit bounds need lower < upper, got ({self.lower}, {self.upper})"
-            )
+        _check_bounds(self.lower, self.upper, "probit")
 
     def forward(self, x: np.ndarray) -> np.ndarray:
         """``z = Phi^-1((x - lower) / (upper - lower))``; ``-inf`` / ``inf`` at the bounds.
