@@ -23,7 +23,7 @@ from abc import ABC, abstractmethod
 from collections.abc import Iterable, Iterator, Mapping
 from dataclasses import dataclass, field, fields, replace
 from types import MappingProxyType
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 from scipy import special
@@ -65,7 +65,11 @@ class Transform(ABC):
 
     ``forward`` maps a constrained value ``x`` to ``z``; ``inverse`` maps back;
     ``log_jacobian(z)`` is ``log |dx/dz|`` evaluated at ``z`` (elementwise).
+    ``saturation`` is the ``|z|`` beyond which ``x`` is its bound to double precision
+    (infinite where no bound is reached at a finite ``z``).
     """
+
+    saturation: ClassVar[float] = math.inf
 
     @abstractmethod
     def forward(self, x: np.ndarray) -> np.ndarray:
@@ -165,6 +169,8 @@ class LogitTransform(Transform):
 
     lower: float
     upper: float
+    #: ``expit(-z) < eps / 2`` beyond it (z ~ 36.7)
+    saturation: ClassVar[float] = math.log(2.0 / np.finfo(float).eps)
 
     def __post_init__(self) -> None:
         _check_bounds(self.lower, self.upper, "logit")
@@ -210,6 +216,8 @@ class ProbitTransform(Transform):
 
     lower: float
     upper: float
+    #: ``Phi(-z) < eps / 2`` beyond it (z ~ 8.2)
+    saturation: ClassVar[float] = float(-special.ndtri(0.5 * np.finfo(float).eps))
 
     def __post_init__(self) -> None:
         _check_bounds(self.lower, self.upper, "probit")

@@ -26,7 +26,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy import optimize, special
+from scipy import optimize
 
 from bayeshyst.inference.linear import LinearStructure
 from bayeshyst.inference.posterior import NOISE, Posterior
@@ -36,7 +36,6 @@ from bayeshyst.params import (
     LogNormal,
     LogTransform,
     Normal,
-    ProbitTransform,
 )
 
 __all__ = ["gauss_newton_covariance", "least_squares_point", "residual_coordinates"]
@@ -58,20 +57,16 @@ def residual_coordinates(post: Posterior, structure: LinearStructure | None) -> 
 #: (``expit(-z) < eps / 2``): the residual cannot change past it, only the prior's
 #: Jacobian does, and a search along the flat residual walks off without limit (the
 #: Bouc–Wen exponent of an MR-damper fit went to z = -1.7e9, its log posterior from
-#: -15 495 to -1.7e9)
-SATURATED_LOGIT = math.log(2.0 / np.finfo(float).eps)
-#: The same for a probit coordinate (``Phi(-z) < eps / 2``, z ~ 8.1).
-SATURATED_PROBIT = float(-special.ndtri(0.5 * np.finfo(float).eps))
+#: -15 495 to -1.7e9). Every bounded transform declares its own (``saturation``).
+SATURATED_LOGIT = LogitTransform.saturation
 
 
 def _search_box(post: Posterior, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Bounds of the least squares in the coordinates ``idx``: bounded ones within saturation."""
     lo, hi = np.full(post.ndim, -np.inf), np.full(post.ndim, np.inf)
     for name in post.space.names:
-        transform = post.space[name].transform
-        edge = (SATURATED_LOGIT if isinstance(transform, LogitTransform) else
-                SATURATED_PROBIT if isinstance(transform, ProbitTransform) else None)
-        if edge is not None:
+        edge = post.space[name].transform.saturation
+        if math.isfinite(edge):
             sl = post.space.slice_of(name)
             lo[sl], hi[sl] = -edge, edge
     return lo[idx], hi[idx]

@@ -276,6 +276,7 @@ def _fingerprint(post: Posterior, settings: SamplerSettings, n_walkers: int,
         for arr in (rec.t, rec.u, rec.y):
             h.update(np.ascontiguousarray(arr).tobytes())
         h.update(str(rec.warmup).encode())
+    declared = post.space.declared_transforms
     start = "" if initial is None else hashlib.sha256(
         np.ascontiguousarray(initial).tobytes()).hexdigest()
     return {
@@ -286,8 +287,7 @@ def _fingerprint(post: Posterior, settings: SamplerSettings, n_walkers: int,
         "space": str(post.space),
         # only when there are some: checkpoints of other runs written before the key
         # existed still resume; a Bouc–Wen run sampled in the logit exponent does not
-        **({"transforms": post.space.declared_transforms}
-           if post.space.declared_transforms else {}),
+        **({"transforms": declared} if declared else {}),
         "data_sha256": h.hexdigest(),
         "n_walkers_used": str(n_walkers),
         "initial_sha256": start,

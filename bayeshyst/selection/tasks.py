@@ -286,8 +286,9 @@ def fit_identity(post: Posterior, sampler: SamplerSettings) -> str:
     fp = {k: v for k, v in sampler.fingerprint().items() if k != "seed"}
     what = (repr(post.model), post.likelihood.name, str(post.space), post.offset,
             post.beta, post.held_out, sorted(fp.items()))
-    if post.space.declared_transforms:  # (only then: other fits keep their identities)
-        what += (post.space.declared_transforms,)
+    declared = post.space.declared_transforms
+    if declared:  # (only then: other fits keep their identities)
+        what += (declared,)
     h.update(repr(what).encode())
     for rec in post.data:
         for arr in (rec.t, rec.u, rec.y):
