@@ -22,14 +22,9 @@ from scipy.integrate import solve_ivp
 
 from bayeshyst.data.record import Dataset, Record
 from bayeshyst.errors import ModelError, ParameterError, SimulationError
-from bayeshyst.models.bouc_wen import (
-    DEFAULT_FS,
-    AsymmetricBoucWen,
-    BoucWen,
-    BoucWenOscillator,
-    ModifiedBoucWen,
-    sampling_rate,
-)
+from bayeshyst.models.bouc_wen import AsymmetricBoucWen, BoucWen
+from bayeshyst.models.bouc_wen_variants import DEFAULT_FS, BoucWenOscillator, sampling_rate
+from bayeshyst.models.modified_bouc_wen import ModifiedBoucWen
 from bayeshyst.models.registry import get
 
 TOL = 1e-6  # of the stroke, vs solve_ivp at rtol 1e-10

@@ -4,7 +4,7 @@
   equally a stop-PI (:meth:`~bayeshyst.models.pi.PrandtlIshlinskii.inverse`,
   :attr:`~bayeshyst.models.pi.PIInverse.stop_theta`);
 * modified Bouc–Wen: the inverse MBW operator, review Eq. 55
-  (:meth:`~bayeshyst.models.bouc_wen.ModifiedBoucWen.inverse`);
+  (:meth:`~bayeshyst.models.modified_bouc_wen.ModifiedBoucWen.inverse`);
 * Bouc–Wen: the multiplicative structure ``u = (y_d + h) / k`` (review ref. [93]) with
   ``h`` driven by the output, and Coleman–Hodgdon Duhem solved for its input (ref. [84])
   (:mod:`bayeshyst.models.output_driven_inverse`);

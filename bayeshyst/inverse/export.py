@@ -7,7 +7,7 @@ into an :class:`InverseExport` at its MAP:
   a play-PI (Kuhnen 2003, review ref. [52]; :func:`~bayeshyst.models.pi.play_pi_inverse`),
   ``u = p0' v + sum_i w'_i F_{r'_i}[v]`` with ``v = y_d - offset``;
 * ``method="mbw"`` -- the modified Bouc–Wen (review ref. [99]) of polynomial order <= 2:
-  its closed-form inverse, Eq. 55 (:meth:`~bayeshyst.models.bouc_wen.ModifiedBoucWen.
+  its closed-form inverse, Eq. 55 (:meth:`~bayeshyst.models.modified_bouc_wen.ModifiedBoucWen.
   inverse`): the output polynomial's root, then the inverse MBW operator solved exactly
   on every monotone step;
 * ``method="table"`` -- any other rate-independent model: its major loop's ascending and
@@ -38,8 +38,8 @@ import numpy as np
 from bayeshyst.errors import ModelError, ParameterError
 from bayeshyst.inference.saved import SavedFit
 from bayeshyst.inverse.references import U_MARGIN, command_limits
-from bayeshyst.models.bouc_wen import ModifiedBoucWen
 from bayeshyst.models.compose import Composite, block_namespaces, leading_part, model_spec
+from bayeshyst.models.modified_bouc_wen import ModifiedBoucWen
 from bayeshyst.models.pi import PrandtlIshlinskii, play_pi_inverse
 from bayeshyst.params import ParamSpace
 from bayeshyst.tables import TableRecord

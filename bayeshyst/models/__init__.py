@@ -18,6 +18,7 @@ from bayeshyst.models import (  # noqa: F401  (importing registers the models)
     hammerstein,
     maxwell,
     maxwell_variants,
+    modified_bouc_wen,
     mrc,
     mrc_fractional,
     pi,
@@ -31,13 +32,12 @@ from bayeshyst.models import (  # noqa: F401  (importing registers the models)
 from bayeshyst.models._kernels import kernel_parallelism, serial_kernels_in_this_thread
 from bayeshyst.models.base import DataScales, HysteresisModel, Trajectory, data_scales
 from bayeshyst.models.bipolar import Butterfly, ButterflyBoucWen
-from bayeshyst.models.bouc_wen import (
-    AsymmetricBoucWen,
-    BoucWen,
+from bayeshyst.models.bouc_wen import AsymmetricBoucWen, BoucWen
+from bayeshyst.models.bouc_wen_variants import (
+    AsymmetricBoucWenSgn,
     BoucWenOscillator,
-    ModifiedBoucWen,
+    FrequencyFactorBoucWen,
 )
-from bayeshyst.models.bouc_wen_variants import AsymmetricBoucWenSgn, FrequencyFactorBoucWen
 from bayeshyst.models.compose import Composite, model_spec
 from bayeshyst.models.conditioned import Conditioned
 from bayeshyst.models.duhem import Duhem, ImprovedDuhem
@@ -45,6 +45,7 @@ from bayeshyst.models.fractional import FractionalDuhem
 from bayeshyst.models.hammerstein import CreepVibration, FractionalHammerstein
 from bayeshyst.models.maxwell import MaxwellSlip
 from bayeshyst.models.maxwell_variants import AsymmetricMaxwellSlip, DistributedMaxwellSlip
+from bayeshyst.models.modified_bouc_wen import ModifiedBoucWen
 from bayeshyst.models.mrc import MRCElectromechanical
 from bayeshyst.models.mrc_fractional import FractionalMRC
 from bayeshyst.models.pi import (

@@ -1,11 +1,14 @@
-"""Rate-dependent Bouc–Wen variants: Eq. 49 as printed, and the frequency-factor model [95].
+"""Rate-dependent Bouc–Wen variants: Eq. 49 as printed, the frequency-factor model, the oscillator.
 
 Review §9.2. :class:`AsymmetricBoucWenSgn` is the asymmetric Bouc–Wen model with the
 review's term ``δ u sgn(u̇)`` taken literally (the registered ``bouc_wen_asym`` reads it
 as ``δ u u̇`` and stays rate-independent); :class:`FrequencyFactorBoucWen` is the
 generalised model of ref. [95]: second-order actuator dynamics driven by the voltage
-through the frequency factor and by that hysteresis. Kernels:
-:mod:`bayeshyst.models._kernels.bouc_wen_variants`.
+through the frequency factor and by that hysteresis; :class:`BoucWenOscillator` is
+second-order dynamics whose restoring force carries a Bouc–Wen term driven by the
+displacement (Eq. 50–51). All are integrated in time. Kernels:
+:mod:`bayeshyst.models._kernels.bouc_wen_variants` and
+:mod:`bayeshyst.models._kernels.bouc_wen_oscillator`.
 """
 
 from __future__ import annotations
@@ -20,6 +23,11 @@ import numpy as np
 from bayeshyst.errors import ModelError, ParameterError
 from bayeshyst.models._kernels.blocks import second_order_batch
 from bayeshyst.models._kernels.bouc_wen import C_L
+from bayeshyst.models._kernels.bouc_wen_oscillator import (
+    OSC_PER_PERIOD,
+    OSC_TRAVEL,
+    bw_oscillator_batch,
+)
 from bayeshyst.models._kernels.bouc_wen_variants import bw_sgn_batch, lag_foh_batch
 from bayeshyst.models.base import (
     DataScales,
@@ -31,12 +39,22 @@ from bayeshyst.models.base import (
 )
 from bayeshyst.models.bouc_wen import BoucWen, _bw_shape_params, _check_scale
 from bayeshyst.models.registry import register
-from bayeshyst.params import HalfNormal, LogNormal, Normal, Param, ParamSpace
+from bayeshyst.params import HalfNormal, LogNormal, Normal, Param, ParamSpace, TruncatedNormal
 
-__all__ = ["DEFAULT_RATE_HZ", "AsymmetricBoucWenSgn", "FrequencyFactorBoucWen", "input_rate"]
+__all__ = [
+    "DEFAULT_FS",
+    "DEFAULT_RATE_HZ",
+    "AsymmetricBoucWenSgn",
+    "BoucWenOscillator",
+    "FrequencyFactorBoucWen",
+    "input_rate",
+    "sampling_rate",
+]
 
 #: Drive frequency assumed for the input rate scale when the data carry no times (Hz).
 DEFAULT_RATE_HZ = 1.0
+#: Sampling rate assumed by the oscillator's default priors when no data is given (Hz).
+DEFAULT_FS = 10_000.0
 
 
 def input_rate(data: Any = None) -> float:
@@ -60,6 +78,27 @@ def input_rate(data: Any = None) -> float:
     if travel > 0 and duration > 0 and math.isfinite(travel / duration):
         return travel / duration
     return 2.0 * data_scales(data).u_span * DEFAULT_RATE_HZ
+
+
+def sampling_rate(data: Any = None) -> float:
+    """Sampling rate (Hz) of ``data``: the lowest over its records; ``DEFAULT_FS`` if unknown.
+
+    Parameters
+    ----------
+    data : Record, Dataset, DataScales or None
+        Anything with ``.t`` arrays (or ``.fs``); other inputs give ``DEFAULT_FS``.
+    """
+    if data is None or isinstance(data, DataScales):
+        return DEFAULT_FS
+    records = list(data) if hasattr(data, "records") else [data]
+    rates = []
+    for r in records:
+        if hasattr(r, "fs"):
+            rates.append(float(r.fs))
+        elif hasattr(r, "t") and np.size(r.t) > 1:
+            rates.append(1.0 / float(np.median(np.diff(np.asarray(r.t, float)))))
+    rates = [f for f in rates if math.isfinite(f) and f > 0]
+    return min(rates) if rates else DEFAULT_FS
 
 
 def _delta_param(sc: DataScales, rate: float) -> Param:
@@ -326,3 +365,140 @@ class FrequencyFactorBoucWen(LinearInParams, HysteresisModel):
         one = self.run_batch(u, t, batch, covariates=covariates)
         phi = (one.y - const.y)[:, :, None]
         return LinearDesign(names, phi, const.y, const.failed | one.failed)
+
+
+@register
+@dataclass(frozen=True)
+class BoucWenOscillator(HysteresisModel):
+    r"""Second-order dynamics with a Bouc–Wen restoring term (generalised review Eq. 50–51).
+
+    .. math::  m \ddot x + c \dot x + k x = k_1 u - h, \quad
+               \dot h = \alpha_h \dot x - \beta_h |\dot x| |h|^{n-1} h
+                         - \gamma_h \dot x |h|^n, \quad y = x
+
+    (the BW term is driven by the displacement, so the loop widens and tilts with the
+    drive frequency). Sampled in the normalised form, dividing by ``m`` and writing
+    ``z = h / k``::
+
+        ẍ + 2 ζ ω_n ẋ + ω_n² x = ω_n² (G u - z),   ż = α ẋ - β |ẋ||z|^(n-1) z - γ ẋ |z|^n
+
+    with ``ω_n = 2π f_n = sqrt(k/m)``, ``ζ = c / (2 sqrt(k m))``, static gain
+    ``G = k_1 / k``, ``α = α_h / k`` (dimensionless), ``β = β_h k^(n-1)``,
+    ``γ = γ_h k^(n-1)`` (1/output-unit^n). The overall scale of ``(m, c, k, k_1, h)``
+    is not identifiable from ``u -> x``; this form removes it.
+
+    Parameters
+    ----------
+    steps_per_period : float
+        Not used any more: steps are no longer a fixed fraction of the natural period
+        (see Notes). Kept, and still checked to be >= 8, so that existing model specs
+        load unchanged.
+    bw_step : float
+        Largest displacement travel per step in BW relaxation lengths ``ℓ_z = z*/(n α)``
+        (default 2, at most 4): a guard behind the error control of ``z``, which takes
+        0.3-1 of them per step where ``z`` relaxes.
+
+    Notes
+    -----
+    Integration. Each step solves the linear stage exactly and integrates only ``z``,
+    which is what needs resolving; over a step from ``(x_0, ẋ_0, z_0)``:
+
+    * the Taylor series in time of ``(x, ẋ, z)`` to order 8 (``|z|^n`` by its power
+      recurrence ``G P' = n P G'``) gives ``z``; its local slope ``f = dz/dx = α -
+      (β sgn(ẋ z) + γ)|z|^n`` joins the linear part, ``z = z_0 + f (x - x_0) + r(τ)``,
+      and the step solves ``ẍ + 2ζω_n ẋ + ω_n²(1 + f) x = ω_n² (G u - z_0 + f x_0 - r)``
+      exactly: the closed-form matrix exponential of the 2x2 system
+      (:func:`~bayeshyst.models._kernels.blocks.second_order_phi`: under-, critically
+      and over-damped) on the deviation from the polynomial particular solution of the
+      first-order-hold input and of ``r`` (its Taylor polynomial, degree 8); for ``ω h <
+      0.5`` the same exact solution is summed as its Taylor series instead (no
+      cancellation). With ``f`` inside the propagator, a ringing that the step does not
+      resolve (resonance near or above the sampling rate: the first-order hold rings the
+      stage at every sample) rings at its right, stiffened, frequency; left in the
+      forcing it needed about one step per radian of that ringing.
+    * The step is the whole sample interval unless ``z`` needs less: the last two Taylor
+      terms of ``r`` within ``1e-7 z*`` (this follows the relaxation of ``z`` and any
+      ringing it feels), a travel ``<= bw_step ℓ_z``, ``0.85`` of the time to ``z = 0``
+      (the branch point of ``|z|^n``, n != 1; ``z`` leaves 0 with ``|z|^n`` dropped
+      only over a travel where that costs ``< 1e-7 z*``, then corrected) and ``ω h <=
+      2.5`` (``ω`` of the stiffened stage). Equal sub-steps fill the rest of an
+      interval.
+    * Steps end on the kinks of ``ż``: ``ẋ`` or ``z`` changing sign, found by Newton's
+      method on the exact solution of the step, including an ``ẋ`` that touches zero
+      and turns back inside a step.
+    * Where ``z`` cannot move by ``1e-7 z*`` over the rest of an interval (the travel,
+      bounded by the energy of the free oscillation, is that small, or ``z`` is loading
+      into saturation with no reversal possible) one exact step with ``z`` held covers
+      it.
+
+    Against ``solve_ivp`` (DOP853, rtol 1e-12) the displacement agrees to < 6e-8 of the
+    stroke on the tested cases (resonances resolved or not, light damping, loops that
+    saturate or cross ``z = 0`` every few samples) and to < 2e-7 on random prior draws
+    driven hard (1-3 relaxation lengths per sample). Typical cost: 1-1.5 steps per sample
+    when the travel per sample is a small part of ``ℓ_z`` and ``z`` seldom crosses 0,
+    about 12 steps per zero crossing of ``z`` (``|z|^n`` is not analytic there), about
+    ``ω_n T / 2`` steps per sample while ``z`` moves under a resonance above the
+    sampling rate. State ``[x, ẋ, z, u_prev, t_prev]``; relaxed initial state: at rest
+    at the static equilibrium ``x = G u_0, ẋ = 0, z = 0`` at the first sample
+    (``t_prev`` NaN means "no interval before the first sample").
+
+    Priors: ``fn ~ TruncatedNormal(fs/10, fs/10)`` on ``[fs/1000, fs/2]`` (below Nyquist;
+    ``fs`` from the data, :data:`DEFAULT_FS` without); ``zeta ~ LogNormal(median 0.1,
+    1)`` (lightly damped stages); ``gain ~ Normal(g, g)``; ``alpha ~ LogNormal(median
+    0.3, 1)`` (``z`` per displacement); ``beta, gamma, n`` as in :class:`BoucWen`
+    (``β0 = α_med / (0.15 y_span)``).
+    """
+
+    name: ClassVar[str] = "bouc_wen_oscillator"
+    equation: ClassVar[str] = "review Eq. 50-51 (BW driven by the displacement)"
+    rate_dependent: ClassVar[bool] = True
+    steps_per_period: float = 128.0
+    bw_step: float = OSC_TRAVEL
+
+    def __post_init__(self) -> None:
+        # steps_per_period no longer steers the integrator; it is still validated as
+        # before so that a spec which was invalid does not silently become valid
+        _check_scale(self.steps_per_period, "steps_per_period", 1e6)
+        if self.steps_per_period < 8:
+            raise ModelError(f"steps_per_period must be >= 8, got {self.steps_per_period}")
+        _check_scale(self.bw_step, "bw_step", 4.0)
+
+    def param_space(self, data: Any = None) -> ParamSpace:
+        """``fn`` (Hz), ``zeta``, ``gain`` and the BW shape ``alpha``, ``beta``, ``gamma``, ``n``.
+
+        Priors as in the class Notes, scaled from ``data`` (its sampling rate bounds ``fn``
+        below Nyquist); ``data`` as in :meth:`HysteresisModel.param_space`.
+        """
+        sc = data_scales(data)
+        fs = sampling_rate(data)
+        g = abs(sc.gain)
+        return ParamSpace((
+            Param("fn", TruncatedNormal(fs / 10, fs / 10, fs / 1000, fs / 2), unit="Hz",
+                  description="natural frequency (below Nyquist)"),
+            Param("zeta", LogNormal.from_median(0.1, 1.0), unit="1",
+                  description="damping ratio"),
+            Param("gain", Normal(sc.gain, g), unit=f"{sc.y_unit}/{sc.u_unit}",
+                  description="static gain k1/k"),
+            *_bw_shape_params(sc.y_span, 0.3, "1", f"1/{sc.y_unit}^n"),
+        ))
+
+    def _initial_state(self, theta: Mapping[str, np.ndarray], u0: float) -> np.ndarray:
+        width = theta["fn"].shape[0]
+        s = np.zeros((width, 5))
+        s[:, 0] = theta["gain"] * u0
+        s[:, 3] = u0
+        s[:, 4] = np.nan
+        return s
+
+    def _run(self, u, t, theta, state0):
+        state = np.array(state0, dtype=np.float64, copy=True, order="C")
+        if state.ndim != 2 or state.shape[1] != 5:
+            raise ParameterError(f"{self.name}: state must have 5 entries, got {state.shape}")
+        if u.shape[0] > 1 and np.any(np.diff(t) <= 0):
+            raise ParameterError(f"{self.name}: t must be strictly increasing")
+        y = np.empty((state.shape[0], u.shape[0]))
+        failed = np.zeros(state.shape[0], dtype=bool)
+        bw_oscillator_batch(u, t, theta["fn"], theta["zeta"], theta["gain"], theta["alpha"],
+                            theta["beta"], theta["gamma"], theta["n"], OSC_PER_PERIOD,
+                            float(self.bw_step), state, y, failed)
+        return y, state, failed
