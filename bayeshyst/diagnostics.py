@@ -35,7 +35,7 @@ from bayeshyst.files import atomic_path
 from bayeshyst.inference.held_out import held_out_log_predictive
 from bayeshyst.inference.linear import LinearStructure
 from bayeshyst.inference.posterior import NOISE, Posterior
-from bayeshyst.inference.sampling import ParamSummary, SamplingResult, summarise_draws
+from bayeshyst.inference.sampling_result import ParamSummary, SamplingResult, summarise_draws
 from bayeshyst.inference.saved import CONSTRAINT_VAR, FIT_ATTR, SEGMENT_VAR, fit_description
 from bayeshyst.params import ParamSpace
 

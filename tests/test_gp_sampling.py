@@ -40,7 +40,7 @@ from bayeshyst.inference.convergence import ConvergenceReport, ess_bulk, ess_tai
 from bayeshyst.inference.optimize import MAPResult
 from bayeshyst.inference.posterior import EvalCounts, Posterior
 from bayeshyst.inference.protocols import Predictor, SamplingTarget
-from bayeshyst.inference.sampling import SamplingResult
+from bayeshyst.inference.sampling_result import SamplingResult
 from bayeshyst.inference.settings import SamplerSettings
 from bayeshyst.models.base import DataScales, HysteresisModel
 from bayeshyst.selection.predictor import ParametricPredictor

@@ -36,7 +36,7 @@ from bayeshyst.diagnosis.verdict import (
     shape_tied,
     tied_effects,
 )
-from bayeshyst.inference.sampling import ParamSummary
+from bayeshyst.inference.sampling_result import ParamSummary
 from bayeshyst.models.blocks.smooth import TIME
 from bayeshyst.selection import paired_difference
 

@@ -17,7 +17,7 @@ from bayeshyst.diagnosis.residual import EffectTest, ResidualAnalysis
 from bayeshyst.diagnosis.verdict import PLAUSIBLE
 from bayeshyst.inference.fit import FitResult, TrackingError
 from bayeshyst.inference.posterior import Posterior
-from bayeshyst.inference.sampling import ParamSummary, SamplingResult
+from bayeshyst.inference.sampling_result import ParamSummary, SamplingResult
 from bayeshyst.inference.settings import SamplerSettings
 from bayeshyst.models.base import HysteresisModel
 from bayeshyst.tables import TableRecord, frame

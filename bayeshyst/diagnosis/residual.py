@@ -56,7 +56,7 @@ from bayeshyst.diagnosis.stats import (
     whiten,
 )
 from bayeshyst.inference.posterior import Posterior, cycle_units
-from bayeshyst.inference.sampling import SamplingResult
+from bayeshyst.inference.sampling_result import SamplingResult
 from bayeshyst.tables import TableRecord, frame
 
 __all__ = ["CycleResidual", "EffectTest", "ResidualAnalysis", "analyse_residual", "best_point"]

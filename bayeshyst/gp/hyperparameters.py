@@ -12,7 +12,7 @@ every model: independent ensembles, the adaptive independence and
 differential-evolution moves (there is no linear block; the moves then act on every
 coordinate), the R-hat, ESS and autocorrelation criteria of
 :class:`~bayeshyst.inference.settings.SamplerSettings`, and a
-:class:`~bayeshyst.inference.sampling.SamplingResult`.
+:class:`~bayeshyst.inference.sampling_result.SamplingResult`.
 
 The start is the GP's own optimum (the one :meth:`bayeshyst.gp.GPHysteresis.fit`
 kept, whose free run reproduces the training records), polished in ``z`` where the
@@ -36,7 +36,7 @@ from bayeshyst.gp.kernel import BOUNDS, log_marginal_likelihood
 from bayeshyst.inference.convergence import ess_bulk, rhat
 from bayeshyst.inference.optimize import MAPResult
 from bayeshyst.inference.posterior import EvalCounts
-from bayeshyst.inference.sampling import SamplingResult
+from bayeshyst.inference.sampling_result import SamplingResult
 from bayeshyst.params import LogitTransform, Param, ParamSpace, Uniform
 
 __all__ = ["HyperparameterReport", "HyperparameterTarget"]

@@ -455,7 +455,7 @@ class GPHysteresis(FreeRun, RegressorMixin, BaseEstimator):
         Returns
         -------
         HyperparameterReport
-            The shared :class:`~bayeshyst.inference.sampling.SamplingResult`
+            The shared :class:`~bayeshyst.inference.sampling_result.SamplingResult`
             (``.sampling``) seen per hyperparameter; also ``hyperparameter_report_``.
             ``converged_`` is updated.
 

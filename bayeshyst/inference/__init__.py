@@ -21,7 +21,7 @@ _EXPORTS = {
     "Predictor": "protocols",
     "SamplerSettings": "settings",
     "SavedFit": "saved",
-    "SamplingResult": "sampling",
+    "SamplingResult": "sampling_result",
     "SamplingTarget": "protocols",
     "calibrate_fit": "fit",
     "conjugate_posterior": "conjugate",

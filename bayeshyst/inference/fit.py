@@ -25,7 +25,8 @@ from bayeshyst.inference.calibration import (
 from bayeshyst.inference.discrepancy_fit import DiscrepancyScales, attach_discrepancy
 from bayeshyst.inference.optimize import find_map
 from bayeshyst.inference.posterior import Posterior
-from bayeshyst.inference.sampling import SamplingResult, sample_posterior
+from bayeshyst.inference.sampling import sample_posterior
+from bayeshyst.inference.sampling_result import SamplingResult
 from bayeshyst.inference.settings import SamplerSettings
 from bayeshyst.likelihoods import Likelihood
 from bayeshyst.models.base import HysteresisModel

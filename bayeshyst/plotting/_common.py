@@ -23,7 +23,7 @@ from matplotlib.figure import Figure
 
 from bayeshyst.errors import ParameterError
 from bayeshyst.files import atomic_path
-from bayeshyst.inference.sampling import SamplingResult
+from bayeshyst.inference.sampling_result import SamplingResult
 
 __all__ = ["DPI", "RED", "axes_figure", "check_result", "fmt", "label", "new_figure",
            "png_path", "positive_int", "probability", "save_and_free", "save_figure",

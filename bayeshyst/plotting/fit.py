@@ -25,7 +25,7 @@ from matplotlib.figure import Figure
 from bayeshyst.data.record import Dataset
 from bayeshyst.errors import ParameterError
 from bayeshyst.inference.posterior import Posterior
-from bayeshyst.inference.sampling import SamplingResult
+from bayeshyst.inference.sampling_result import SamplingResult
 from bayeshyst.plotting._common import (
     RED,
     check_result,

@@ -23,7 +23,7 @@ from matplotlib.figure import Figure
 
 from bayeshyst.errors import ParameterError
 from bayeshyst.inference.convergence import hdi, rhat
-from bayeshyst.inference.sampling import SamplingResult
+from bayeshyst.inference.sampling_result import SamplingResult
 from bayeshyst.params import ParamSpace
 from bayeshyst.plotting._common import (
     RED,

@@ -1,7 +1,7 @@
 """A sampled parametric posterior as a :class:`~bayeshyst.inference.protocols.Predictor`.
 
 :class:`ParametricPredictor` wraps a :class:`~bayeshyst.inference.posterior.Posterior`
-and the :class:`~bayeshyst.inference.sampling.SamplingResult` of its draws and offers
+and the :class:`~bayeshyst.inference.sampling_result.SamplingResult` of its draws and offers
 what the GP offers (:class:`bayeshyst.gp.GPHysteresis`): predictions per record with
 mean and standard deviation, the log predictive density of each cycle of held-out
 data, and leave-one-cycle-out. The numbers are the ones the comparison computes for
@@ -24,7 +24,7 @@ from bayeshyst.diagnostics import loo, to_inference_data
 from bayeshyst.errors import DataError
 from bayeshyst.inference.posterior import NOISE, Posterior
 from bayeshyst.inference.protocols import Prediction, UnitLogDensity
-from bayeshyst.inference.sampling import SamplingResult
+from bayeshyst.inference.sampling_result import SamplingResult
 
 __all__ = ["ParametricPredictor", "noise_variance", "transfer_draws"]
 
