@@ -305,7 +305,7 @@ def find_map(
     """
     from bayeshyst.inference.least_squares import gauss_newton_covariance, least_squares_point
     from bayeshyst.inference.linear import LinearStructure
-    from bayeshyst.inference.moves import StructuredTarget
+    from bayeshyst.inference.structured_target import StructuredTarget
 
     if global_search not in (True, False, "auto"):
         raise ParameterError(f"global_search must be True, False or 'auto', got {global_search!r}")

@@ -42,7 +42,7 @@ from bayeshyst.inference.checkpoint import (
 )
 from bayeshyst.inference.convergence import ConvergenceReport, assess
 from bayeshyst.inference.linear import LinearStructure
-from bayeshyst.inference.moves import MoveStats, StructuredTarget, structured_moves
+from bayeshyst.inference.moves import structured_moves
 from bayeshyst.inference.optimize import (
     MAPResult,
     conditional_start,
@@ -52,6 +52,7 @@ from bayeshyst.inference.optimize import (
 from bayeshyst.inference.posterior import EvalCounts, Posterior
 from bayeshyst.inference.sampling_result import SamplingResult
 from bayeshyst.inference.settings import SamplerSettings
+from bayeshyst.inference.structured_target import MoveStats, StructuredTarget
 from bayeshyst.threads import single_threaded_blas
 
 __all__ = [
