@@ -494,8 +494,7 @@ class BoucWenOscillator(HysteresisModel):
         state = np.array(state0, dtype=np.float64, copy=True, order="C")
         if state.ndim != 2 or state.shape[1] != 5:
             raise ParameterError(f"{self.name}: state must have 5 entries, got {state.shape}")
-        if u.shape[0] > 1 and np.any(np.diff(t) <= 0):
-            raise ParameterError(f"{self.name}: t must be strictly increasing")
+        _check_times(self.name, u, t)
         y = np.empty((state.shape[0], u.shape[0]))
         failed = np.zeros(state.shape[0], dtype=bool)
         bw_oscillator_batch(u, t, theta["fn"], theta["zeta"], theta["gain"], theta["alpha"],
