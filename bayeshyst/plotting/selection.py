@@ -333,9 +333,10 @@ def diagnosis_residuals_figure(result: Any, *, fig: Figure | None = None) -> Fig
     """Residuals before and after the diagnosis, against time, one panel per record.
 
     Grey: the residual of the base model's posterior-mean prediction; blue: that of the
-    final (augmented) model, when the loop kept an effect. The legend gives each one's
-    RMS over the record's scored samples; the title names the effects found and, in
-    red, a fit that did not converge.
+    final (augmented) model, when the loop kept an effect. The title names both models
+    once, the effects found and, in red, a fit that did not converge; each panel's
+    legend gives the two RMS over the record's scored samples (model names in every
+    legend covered a third of the panel on composites with four blocks).
 
     Parameters
     ----------
@@ -359,9 +360,9 @@ def diagnosis_residuals_figure(result: Any, *, fig: Figure | None = None) -> Fig
     records = list(base.posterior.data)
     fig = new_figure(fig, 10.0, 2.4 * len(records) + 1.0)
     axes = fig.subplots(len(records), 1, squeeze=False)[:, 0]
-    fits = [(base, "before: " + result.base_model, "0.55")]
+    fits = [(base, "base model" if same else "before", "0.55")]
     if not same:
-        fits.append((final, "after: " + result.final_model, "C0"))
+        fits.append((final, "after", "C0"))
     for i, (ax, rec) in enumerate(zip(axes, records, strict=True)):
         y_unit = unit(rec.units.get("y", ""))
         for fit, name, color in fits:
@@ -373,15 +374,15 @@ def diagnosis_residuals_figure(result: Any, *, fig: Figure | None = None) -> Fig
         f = "" if rec.frequency_hz is None else f" ({rec.frequency_hz:g} Hz)"
         ax.set_title(f"{rec.name}{f}", fontsize=9)
         ax.set_ylabel(label("residual", rec.units.get("y", "")))
-        ax.legend(fontsize=7, loc="upper right")
+        ax.legend(fontsize=7, loc="upper right", framealpha=0.85)
         ax.grid(alpha=0.3)
         if i == len(records) - 1:
             ax.set_xlabel(t_label)
     found = ", ".join(result.effects_found) or "none"
-    title = (f"diagnosis of {result.base_model}: effects found: {found}\n"
+    models = (f"model: {result.base_model} (the base model was kept)" if same else
+              f"before: {result.base_model}\nafter: {result.final_model}")
+    title = (f"diagnosis: effects found: {found}\n{models}\n"
              "residual (measured − posterior-mean prediction) on the scored samples")
-    if same:
-        title += "; the base model was kept"
     if base.sampling.converged and final.sampling.converged:
         fig.suptitle(title, fontsize=10)
     else:
