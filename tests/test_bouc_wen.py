@@ -629,3 +629,23 @@ def test_long_stroke_near_the_unsaturated_edge_is_simulated_accurately():
     h_ref = ivp_bw(u, th["alpha"], th["beta"], th["gamma"], th["n"])
     y_ref = th["k"] * u - h_ref
     assert np.max(np.abs(y - y_ref)) <= TOL * np.ptp(y_ref)
+
+
+@pytest.mark.parametrize("name", ["bouc_wen", "bouc_wen_asym", "mbw", "bouc_wen_asym_sgn",
+                                  "bouc_wen_freq", "bouc_wen_oscillator"])
+def test_a_state_of_the_wrong_size_is_refused_by_name_and_a_right_one_kept(name):
+    # the Bouc-Wen family checks a given state in one place (models.base.checked_state):
+    # one entry too many is refused with the model's name and the size it needs, and a
+    # state of the right size is read, not written (the kernel updates its own copy)
+    m = get(name)
+    space = m.param_space()
+    theta = space.unpack(np.zeros(space.ndim))  # the unconstrained origin: a valid point
+    t = np.linspace(0.0, 0.02, 21)
+    u = 5.0 * np.sin(2 * np.pi * 50.0 * t)
+    first = m.run(u[:11], t[:11], theta)
+    size = np.shape(first.state)[-1]
+    with pytest.raises(ParameterError, match=f"{name}: state must have {size} entries"):
+        m.run(u[11:], t[11:], theta, state0=np.zeros(size + 1))
+    state0 = np.array(first.state, copy=True)
+    m.run(u[11:], t[11:], theta, state0=state0)
+    np.testing.assert_array_equal(state0, first.state)

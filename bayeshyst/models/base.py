@@ -36,6 +36,7 @@ __all__ = [
     "check_count",
     "check_covariates",
     "check_signal",
+    "checked_state",
     "data_scales",
     "kernel_buffers",
     "sample_period",
@@ -234,6 +235,34 @@ def batch_theta(owner: str, shapes: Mapping[str, tuple[int, ...]], theta: Mappin
         # keeps one compiled specialisation per kernel
         out[name] = arr if arr.flags.writeable and arr.flags.c_contiguous else arr.copy()
     return out, None if width is None else int(width)
+
+
+def checked_state(name: str, state0: np.ndarray, size: int) -> np.ndarray:
+    """A kernel's own copy of ``state0``, checked to hold ``size`` entries per walker.
+
+    Parameters
+    ----------
+    name : str
+        The model's name, for the message.
+    state0 : array_like, shape (W, size)
+        State before the first sample; not modified.
+    size : int
+        Entries of the model's state.
+
+    Returns
+    -------
+    ndarray, shape (W, size)
+        C-contiguous float64 copy, for the kernel to update in place.
+
+    Raises
+    ------
+    ParameterError
+        If ``state0`` is not two-dimensional with ``size`` columns.
+    """
+    state = np.array(state0, dtype=np.float64, copy=True, order="C")
+    if state.ndim != 2 or state.shape[1] != size:
+        raise ParameterError(f"{name}: state must have {size} entries, got {state.shape}")
+    return state
 
 
 def kernel_buffers(state0: np.ndarray,

@@ -32,6 +32,7 @@ from bayeshyst.models.base import (
     HysteresisModel,
     LinearDesign,
     LinearInParams,
+    checked_state,
     data_scales,
 )
 from bayeshyst.models.output_driven_inverse import bouc_wen_inverse
@@ -341,9 +342,7 @@ class BoucWen(LinearInParams, HysteresisModel):
         return 0.0
 
     def _run(self, u, t, theta, state0):
-        state = np.array(state0, dtype=np.float64, copy=True, order="C")
-        if state.ndim != 2 or state.shape[1] != 2:
-            raise ParameterError(f"{self.name}: state must have 2 entries, got {state.shape}")
+        state = checked_state(self.name, state0, 2)
         width = state.shape[0]
         y = np.empty((width, u.shape[0]))
         failed = np.zeros(width, dtype=bool)

@@ -34,6 +34,7 @@ from bayeshyst.models.base import (
     HysteresisModel,
     LinearDesign,
     LinearInParams,
+    checked_state,
     data_scales,
     sample_period,
 )
@@ -187,9 +188,7 @@ class AsymmetricBoucWenSgn(BoucWen):
         return s
 
     def _run(self, u, t, theta, state0):
-        state = np.array(state0, dtype=np.float64, copy=True, order="C")
-        if state.ndim != 2 or state.shape[1] != 3:
-            raise ParameterError(f"{self.name}: state must have 3 entries, got {state.shape}")
+        state = checked_state(self.name, state0, 3)
         _check_times(self.name, u, t)
         width = state.shape[0]
         y = np.empty((width, u.shape[0]))
@@ -316,9 +315,7 @@ class FrequencyFactorBoucWen(LinearInParams, HysteresisModel):
         return s
 
     def _run(self, u, t, theta, state0):
-        state = np.array(state0, dtype=np.float64, copy=True, order="C")
-        if state.ndim != 2 or state.shape[1] != 11:
-            raise ParameterError(f"{self.name}: state must have 11 entries, got {state.shape}")
+        state = checked_state(self.name, state0, 11)
         _check_times(self.name, u, t)
         t = np.ascontiguousarray(t, dtype=np.float64)
         width, n = state.shape[0], u.shape[0]
@@ -491,9 +488,7 @@ class BoucWenOscillator(HysteresisModel):
         return s
 
     def _run(self, u, t, theta, state0):
-        state = np.array(state0, dtype=np.float64, copy=True, order="C")
-        if state.ndim != 2 or state.shape[1] != 5:
-            raise ParameterError(f"{self.name}: state must have 5 entries, got {state.shape}")
+        state = checked_state(self.name, state0, 5)
         _check_times(self.name, u, t)
         y = np.empty((state.shape[0], u.shape[0]))
         failed = np.zeros(state.shape[0], dtype=bool)

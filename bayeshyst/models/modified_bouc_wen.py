@@ -17,7 +17,7 @@ import numpy as np
 
 from bayeshyst.errors import ModelError, ParameterError
 from bayeshyst.models._kernels.bouc_wen import mbw_batch
-from bayeshyst.models.base import HysteresisModel, LinearInParams, data_scales
+from bayeshyst.models.base import HysteresisModel, LinearInParams, checked_state, data_scales
 from bayeshyst.models.bouc_wen import _check_scale, _first
 from bayeshyst.models.registry import register
 from bayeshyst.params import LogNormal, Normal, Param, ParamSpace, Uniform
@@ -118,9 +118,7 @@ class ModifiedBoucWen(LinearInParams, HysteresisModel):
         return s
 
     def _run(self, u, t, theta, state0):
-        state = np.array(state0, dtype=np.float64, copy=True, order="C")
-        if state.ndim != 2 or state.shape[1] != 2:
-            raise ParameterError(f"{self.name}: state must have 2 entries, got {state.shape}")
+        state = checked_state(self.name, state0, 2)
         y = np.empty((state.shape[0], u.shape[0]))
         failed = np.zeros(state.shape[0], dtype=bool)
         mbw_batch(u, theta["rho"], theta["lam"], self._coeffs(theta), float(self.step_scale),
