@@ -265,8 +265,8 @@ def checked_state(name: str, state0: np.ndarray, size: int) -> np.ndarray:
     return state
 
 
-def kernel_buffers(state0: np.ndarray,
-                   n_samples: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def kernel_buffers(state0: np.ndarray, n_samples: int, *, size: int | None = None,
+                   owner: str = "model") -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Buffers of one batched kernel call, in the order ``_run`` returns them.
 
     Parameters
@@ -275,6 +275,11 @@ def kernel_buffers(state0: np.ndarray,
         State before the first sample; not modified.
     n_samples : int
         Number of samples ``N``.
+    size : int, optional
+        Entries the model's state must have (``S``); checked by :func:`checked_state`
+        when given.
+    owner : str
+        The model's name, for that check's message.
 
     Returns
     -------
@@ -285,7 +290,8 @@ def kernel_buffers(state0: np.ndarray,
     failed : ndarray of bool, shape (W,)
         All False.
     """
-    state = np.array(state0, dtype=np.float64, order="C")
+    state = (np.array(state0, dtype=np.float64, order="C") if size is None
+             else checked_state(owner, state0, size))
     return np.empty((state.shape[0], n_samples)), state, np.zeros(state.shape[0], dtype=bool)
 
 

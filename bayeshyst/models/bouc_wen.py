@@ -32,8 +32,8 @@ from bayeshyst.models.base import (
     HysteresisModel,
     LinearDesign,
     LinearInParams,
-    checked_state,
     data_scales,
+    kernel_buffers,
 )
 from bayeshyst.models.output_driven_inverse import bouc_wen_inverse
 from bayeshyst.models.registry import register
@@ -342,10 +342,7 @@ class BoucWen(LinearInParams, HysteresisModel):
         return 0.0
 
     def _run(self, u, t, theta, state0):
-        state = checked_state(self.name, state0, 2)
-        width = state.shape[0]
-        y = np.empty((width, u.shape[0]))
-        failed = np.zeros(width, dtype=bool)
+        y, state, failed = kernel_buffers(state0, u.shape[0], size=2, owner=self.name)
         # the asymmetric drive α + δu must stay positive over every input the run visits,
         # the state's previous input included (it starts the first interval)
         lo = float(min(u.min(), np.min(state[:, 1], initial=np.inf)))

@@ -36,6 +36,7 @@ from bayeshyst.models.base import (
     LinearInParams,
     checked_state,
     data_scales,
+    kernel_buffers,
     sample_period,
 )
 from bayeshyst.models.bouc_wen import BoucWen, _bw_shape_params, _check_scale
@@ -188,11 +189,8 @@ class AsymmetricBoucWenSgn(BoucWen):
         return s
 
     def _run(self, u, t, theta, state0):
-        state = checked_state(self.name, state0, 3)
+        y, state, failed = kernel_buffers(state0, u.shape[0], size=3, owner=self.name)
         _check_times(self.name, u, t)
-        width = state.shape[0]
-        y = np.empty((width, u.shape[0]))
-        failed = np.zeros(width, dtype=bool)
         bw_sgn_batch(u, np.ascontiguousarray(t, dtype=np.float64), theta["k"], theta["alpha"],
                      theta["beta"], theta["gamma"], theta["n"], theta["delta"],
                      float(self.step_scale), state, y, failed)
@@ -488,10 +486,8 @@ class BoucWenOscillator(HysteresisModel):
         return s
 
     def _run(self, u, t, theta, state0):
-        state = checked_state(self.name, state0, 5)
+        y, state, failed = kernel_buffers(state0, u.shape[0], size=5, owner=self.name)
         _check_times(self.name, u, t)
-        y = np.empty((state.shape[0], u.shape[0]))
-        failed = np.zeros(state.shape[0], dtype=bool)
         bw_oscillator_batch(u, t, theta["fn"], theta["zeta"], theta["gain"], theta["alpha"],
                             theta["beta"], theta["gamma"], theta["n"], OSC_PER_PERIOD,
                             float(self.bw_step), state, y, failed)

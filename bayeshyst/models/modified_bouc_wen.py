@@ -17,7 +17,7 @@ import numpy as np
 
 from bayeshyst.errors import ModelError, ParameterError
 from bayeshyst.models._kernels.bouc_wen import mbw_batch
-from bayeshyst.models.base import HysteresisModel, LinearInParams, checked_state, data_scales
+from bayeshyst.models.base import HysteresisModel, LinearInParams, data_scales, kernel_buffers
 from bayeshyst.models.bouc_wen import _check_scale, _first
 from bayeshyst.models.registry import register
 from bayeshyst.params import LogNormal, Normal, Param, ParamSpace, Uniform
@@ -118,9 +118,7 @@ class ModifiedBoucWen(LinearInParams, HysteresisModel):
         return s
 
     def _run(self, u, t, theta, state0):
-        state = checked_state(self.name, state0, 2)
-        y = np.empty((state.shape[0], u.shape[0]))
-        failed = np.zeros(state.shape[0], dtype=bool)
+        y, state, failed = kernel_buffers(state0, u.shape[0], size=2, owner=self.name)
         mbw_batch(u, theta["rho"], theta["lam"], self._coeffs(theta), float(self.step_scale),
                   state, y, failed)
         return y, state, failed
