@@ -32,7 +32,6 @@ from bayeshyst.inference.linear import LinearStructure
 from bayeshyst.inference.posterior import NOISE, Posterior
 from bayeshyst.params import (
     Identity,
-    LogitTransform,
     LogNormal,
     LogTransform,
     Normal,
@@ -53,16 +52,14 @@ def residual_coordinates(post: Posterior, structure: LinearStructure | None) -> 
     return np.array([i for i in range(post.ndim) if i not in noise], dtype=int)
 
 
-#: ``|z|`` beyond which a logit coordinate is its bound to double precision
-#: (``expit(-z) < eps / 2``): the residual cannot change past it, only the prior's
-#: Jacobian does, and a search along the flat residual walks off without limit (the
-#: Bouc–Wen exponent of an MR-damper fit went to z = -1.7e9, its log posterior from
-#: -15 495 to -1.7e9). Every bounded transform declares its own (``saturation``).
-SATURATED_LOGIT = LogitTransform.saturation
-
-
 def _search_box(post: Posterior, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Bounds of the least squares in the coordinates ``idx``: bounded ones within saturation."""
+    """Bounds of the least squares in the coordinates ``idx``: bounded ones within saturation.
+
+    Past its transform's ``saturation`` a bounded coordinate is its bound to double
+    precision: the residual cannot change there, only the prior's Jacobian does, and a
+    search along the flat residual walks off without limit (the Bouc–Wen exponent of an
+    MR-damper fit went to z = -1.7e9, its log posterior from -15 495 to -1.7e9).
+    """
     lo, hi = np.full(post.ndim, -np.inf), np.full(post.ndim, np.inf)
     for name in post.space.names:
         edge = post.space[name].transform.saturation
