@@ -190,6 +190,7 @@ def dataset_summary(key: str, data: Any, result: Any, folder: str) -> dict[str, 
     """What the combined summary says about one data set."""
     before, after = result.base.overall, result.final.overall
     steps = [{"round": s.index, "effect": s.effect, "accepted": bool(s.accepted),
+              "outcome": s.outcome,
               "model_after": s.model_after, "delta_elpd": s.delta_elpd,
               "delta_elpd_se": s.delta_elpd_se, "p_adjusted": s.test.p_adjusted,
               "rmse_before": s.before.rmse, "rmse_after": s.after.rmse,
@@ -255,7 +256,7 @@ def report_text(entries: list[dict[str, Any]], quick: bool) -> str:
         if not e["steps"]:
             lines.append("   no candidate effect fired on the base model's residual")
         for s in e["steps"]:
-            verdict = "ACCEPTED" if s["accepted"] else "rejected"
+            verdict = "ACCEPTED" if s["accepted"] else s["outcome"]
             lines.append(f"   round {s['round']}: +{s['effect']}: {verdict}; Δelpd "
                          f"{_f(s['delta_elpd'], '.1f')} ± {_f(s['delta_elpd_se'], '.1f')} "
                          f"(p_adj {_f(s['p_adjusted'], '.2g')}); RMSE "

@@ -160,7 +160,7 @@ def _stub_fit(elpd, rmse, names=("k",)):
 
     err = TrackingError(None, rmse, 2 * rmse, 1.0, 2.0, 100)
     return NS(pointwise_elpd=np.asarray(elpd, float), overall=err, per_frequency=(err,),
-              posterior=NS(n_units=len(elpd), space=NS(names=names)),
+              posterior=NS(n_units=len(elpd), space=NS(names=names), data=None),
               sampling=NS(converged=True, summary=lambda: ()), label="m", spec="m",
               model=NS(name="m"), analysis=NS(tests=(), drivers=None))
 
@@ -263,9 +263,12 @@ def test_no_pair_without_the_pattern_that_calls_for_one(case):
     assert pair_for(tried, untried, current, _PAIRABLE) is None
 
 
-def _stubbed_loop(monkeypatch, pair_gain):
+def _stubbed_loop(monkeypatch, pair_gain, gains=None, unconverged=frozenset()):
     """``diagnose`` with its fits replaced by stubs whose cycle-wise elpd is ``_PAIR_BASE`` plus
-    the gains above (a pair's: ``pair_gain``), so the loop's wiring is what is tested."""
+    the gains above (a pair's: ``pair_gain``; ``gains`` overrides single effects'), so the
+    loop's wiring is what is tested. Fits holding a block named in ``unconverged`` report
+    that their sampler did not converge."""
+    gains = {**_GAIN, **(gains or {})}
     from types import SimpleNamespace as NS
 
     import bayeshyst.diagnosis.loop as loop
@@ -289,13 +292,14 @@ def _stubbed_loop(monkeypatch, pair_gain):
         if {"delay", "creep"} <= blocks:
             gain = np.asarray(pair_gain)
         elif "delay" in blocks:
-            gain = np.asarray(_GAIN["delay"])
+            gain = np.asarray(gains["delay"])
         elif "second_order" in blocks:
-            gain = np.asarray(_GAIN["rate_dependence"])
+            gain = np.asarray(gains["rate_dependence"])
         err = TrackingError(None, 1.0, 2.0, 1.0, 2.0, 100)
         fit = NS(model=model, likelihood=likelihood, pointwise_elpd=_PAIR_BASE + gain,
                  posterior=NS(n_units=_PAIR_BASE.size, data=data_, space=NS(names=("k",))),
-                 sampling=NS(converged=True, summary=lambda: ()), overall=err,
+                 sampling=NS(converged=not blocks & set(unconverged), summary=lambda: ()),
+                 overall=err,
                  per_frequency=[err, err], warnings=())
         analysis = NS(tests=fired if not blocks else (), fired=lambda: () if blocks else fired,
                       drivers=None, lines=(), time=[data_.records[0].t], alpha=0.01,
@@ -322,3 +326,82 @@ def test_a_pair_that_does_not_pass_the_gate_is_recorded_and_the_loop_stops(monke
     result = _stubbed_loop(monkeypatch, _GAIN["delay"])  # creep adds nothing to the delay
     assert [(s.effect, s.accepted) for s in result.steps][-1] == ("delay+creep", False)
     assert result.effects_found == () and result.final is result.base
+
+
+# ------------------------------------------------ unconverged fits and unresolved resonances
+@pytest.mark.parametrize("converged", [True, False])
+def test_a_gate_on_an_unconverged_fit_decides_nothing_and_the_round_goes_on(monkeypatch,
+                                                                          converged):
+    # oracle: a delay that gains 300 nats on each of 10 cycles passes the 2-se gate when
+    # its fit converged; unconverged, the same numbers decide nothing: not kept, not
+    # "rejected", the round's next candidate is fitted, and the verdict says so
+    everywhere = {"delay": np.full(10, 300.0)}
+    result = _stubbed_loop(monkeypatch, _GAIN["delay"], gains=everywhere,
+                           unconverged=() if converged else ("delay",))
+    first = result.steps[0]
+    assert first.effect == "delay"
+    if converged:
+        assert first.accepted and first.outcome == "accepted"
+        assert result.effects_found[:1] == ("delay",)
+        return
+    assert not first.accepted and first.outcome == "not decided", first.reason
+    assert first.reason.startswith("not decided") and "unconverged" in first.reason
+    # the next candidate was fitted; the unconverged delay is no pairing partner
+    assert [s.effect for s in result.steps[1:]] == ["rate_dependence",
+                                                   "rate_dependence+creep"]
+    assert "delay" not in result.effects_found
+    assert "not decided, because its fit did not converge" in result.verdict
+    assert any(w.startswith("delay: not decided") for w in result.warnings)
+    assert first.to_dict()["outcome"] == "not decided" and "not decided" in str(first)
+
+
+def _resonance(lo, hi):
+    from bayeshyst.inference.sampling_result import ParamSummary
+
+    return ParamSummary("second_order.f_n", "Hz", 0.5 * (lo + hi), 0.25 * (hi - lo), lo, hi)
+
+
+def _two_rates():
+    # records sampled at 50 and 200 Hz: no record carries anything above 100 Hz
+    from bayeshyst.data.record import Dataset, Record
+
+    recs = []
+    for fs in (50.0, 200.0):
+        t = np.arange(200) / fs
+        u = np.sin(2 * np.pi * 1.0 * t)
+        recs.append(Record(t, u, u.copy(), name=f"r{fs:g}"))
+    return Dataset(tuple(recs), name="rates")
+
+
+@pytest.mark.parametrize("lo, hi, flagged", [(234.0, 260.0, True), (101.0, 150.0, True),
+                                             (80.0, 120.0, False), (30.0, 50.0, False)])
+def test_a_resonance_is_unresolved_only_when_its_whole_interval_is_above_nyquist(lo, hi,
+                                                                               flagged):
+    from bayeshyst.diagnosis.verdict import unresolved
+    from bayeshyst.inference.sampling_result import ParamSummary
+
+    other = ParamSummary("second_order.zeta", "1", 0.05, 0.01, 0.03, 0.07)
+    words = unresolved([_resonance(lo, hi), other], _two_rates())
+    assert bool(words) == flagged
+    if flagged:
+        (w,) = words
+        assert "second_order.f_n" in w and "at most 100 Hz" in w and f"{2 * hi:.3g} Hz" in w
+
+
+def test_a_gate_passed_by_an_unresolved_resonance_is_a_warning_not_a_finding():
+    # oracle: 12 cycles gaining 50 nats each pass the gate; the block's f_n interval
+    # (234-260 Hz) lies above the 100 Hz Nyquist frequency of the faster record
+    from types import SimpleNamespace as NS
+
+    from bayeshyst.diagnosis.candidates import judge
+    from bayeshyst.diagnosis.records import DiagnosisSettings
+
+    jitter = 1e-3 * np.sin(np.arange(12))
+    for (lo, hi), kept in (((234.0, 260.0), False), ((30.0, 50.0), True)):
+        current = _stub_fit(np.full(12, -50.0), 1.0)
+        current.posterior.data = _two_rates()
+        cand = _stub_fit(np.full(12, 0.0) + jitter, 0.5)
+        cand.sampling = NS(converged=True, summary=lambda lo=lo, hi=hi: (_resonance(lo, hi),))
+        step = judge(1, _test("rate_dependence", 40.0), current, cand, DiagnosisSettings())
+        assert step.accepted == kept, step.reason
+        assert step.reason.startswith("unresolved") == (not kept), step.reason

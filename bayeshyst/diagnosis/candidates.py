@@ -30,11 +30,14 @@ from bayeshyst.diagnosis.verdict import (
     LAG_LIKE,
     MIN_ELPD_GAIN,
     MIN_GATE_UNITS,
+    NOT_A_FINDING,
+    NOT_CONVERGED,
     experiment_for,
     implausible,
     separates_lags,
     shape_tied,
     tied_effects,
+    unresolved,
 )
 from bayeshyst.inference.sampling_result import ParamSummary
 from bayeshyst.models.blocks.smooth import TIME
@@ -126,7 +129,12 @@ SCAN_JUDGED = (BRANCH_SHAPE, DISTURBANCE, UNEXPLAINED)
 
 def judge(rnd: int, test: EffectTest, current: DiagnosisFit, cand: DiagnosisFit,
            st: DiagnosisSettings) -> DiagnosisStep:
-    """Keep the augmented fit or not: held-out elpd, or the fallback when it cannot decide."""
+    """Keep the augmented fit or not: held-out elpd, or the fallback when it cannot decide.
+
+    A passed gate is no finding when the added block's reading is implausible or
+    unresolved (:mod:`bayeshyst.diagnosis.verdict`); an augmented fit that did not
+    converge decides nothing (``decided_by`` :data:`NOT_CONVERGED`).
+    """
     d, se = paired_difference(cand.pointwise_elpd, current.pointwise_elpd)
     n_units = current.posterior.n_units
     better = cand.overall.rmse < current.overall.rmse
@@ -166,9 +174,20 @@ def judge(rnd: int, test: EffectTest, current: DiagnosisFit, cand: DiagnosisFit,
         for p in added:
             means.setdefault(p.label.split("[")[0], []).append(p.mean)
         bad = implausible(means, st.plausible)
+        hidden = unresolved(added, current.posterior.data) if not bad else []
         if bad:
             # each reading says why it is implausible (the ranges are the device's)
             ok, reason = False, "implausible: " + "; ".join(bad)
+        elif hidden:
+            ok, reason = False, "unresolved: " + "; ".join(hidden)
+    if not cand.sampling.converged:
+        # kept or rejected, the verdict would rest on draws that are not yet the
+        # posterior (MR damper 0.5 A: a delay on the shape correction, R-hat 1.018 after
+        # 10 000 steps, "rejected" at -117 +- 56 nats): it is not decided
+        ok, decided_by = False, NOT_CONVERGED
+        reason = (f"not decided: the augmented fit did not converge within its budget, so "
+                  f"its gate ({reason}) rests on an unconverged posterior; a larger step "
+                  f"budget would decide")
     tied: list[str] = []
     if ok and test.effect not in SCAN_JUDGED:
         tied = tied_effects(test.effect, current.analysis.tests)
@@ -214,12 +233,14 @@ def pair_for(tried: Sequence[tuple[EffectTest, DiagnosisFit, DiagnosisStep]],
     some cycles -- without such cycles a partner is no remedy. Its partner is the
     tried candidate that gained most on those cycles, if one gained there at all, else
     the first candidate of the round not tried yet. Both must be in ``pairable``
-    (blocks of the catalogue: not the noise model, which changes the likelihood) and
-    plausible. The pair is then fitted and gated like any candidate.
+    (blocks of the catalogue: not the noise model, which changes the likelihood),
+    plausible, resolved and, when tried, converged. The pair is then fitted and gated
+    like any candidate.
     """
     def usable(step: DiagnosisStep) -> bool:
         return (step.effect in pairable and not step.accepted
-                and not step.reason.startswith("implausible"))
+                and not step.reason.startswith(NOT_A_FINDING)
+                and step.decided_by != NOT_CONVERGED)
 
     firsts = [i for i, (_, _, step) in enumerate(tried)
               if usable(step) and step.decided_by == "elpd"

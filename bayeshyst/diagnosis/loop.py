@@ -36,7 +36,10 @@ Beyond the catalogue (:mod:`bayeshyst.diagnosis.verdict` has the rules):
 * with fewer than ``MIN_GATE_UNITS`` cycles gate 2 cannot decide, and the step says so
   and falls back to the score test's Bayes factor (or, for the shape, to the scan);
 * an accepted effect ties with the effects whose Bayes factors are within 3 nats of its
-  own, and an implausible physical reading makes it a warning, not a finding;
+  own, and an implausible physical reading, or a resonance above every record's
+  Nyquist frequency, makes it a warning, not a finding;
+* a candidate whose fit did not converge is *not decided* (neither kept nor rejected,
+  and said so in the verdict); the round goes on to the next candidate;
 * the verdict says what is left: "the base model explains the data" only when nothing
   fires and nothing observed explains the residual.
 """
@@ -79,6 +82,8 @@ from bayeshyst.diagnosis.residual import (
     best_point,
 )
 from bayeshyst.diagnosis.verdict import (
+    NOT_A_FINDING,
+    NOT_CONVERGED,
     PLAUSIBLE,
     SLOW_IN_TIME,
     column_tie_notes,
@@ -303,8 +308,8 @@ def _credited(effect: str, fitted: Fitted, unexplained: EffectTest | None,
             fitted = (cand, step, fitted[2], fitted[3])
     else:
         steps.append(step)
-    _log.info("round %d: %s %s (%s)", rnd, fitted[1].effect,
-              "accepted" if fitted[1].accepted else "rejected", fitted[1].reason)
+    _log.info("round %d: %s %s (%s)", rnd, fitted[1].effect, fitted[1].outcome,
+              fitted[1].reason)
     return fitted, ran
 
 
@@ -396,7 +401,8 @@ def diagnose(
         Most effects added.
     max_candidates : int
         Fired effects refitted per round before giving up on the round; one rejected only
-        because its physical reading is implausible (``plausible``) does not count.
+        because its physical reading is implausible (``plausible``) or unresolved (a
+        resonance above every record's Nyquist frequency) does not count.
     sampler : SamplerSettings, optional
         How every fit is sampled (:func:`~bayeshyst.inference.sampling.sample_posterior`);
         each fit's seed derives from ``sampler.seed`` and what the fit is
@@ -521,12 +527,14 @@ def diagnose(
                 continue  # already fitted as a challenger this round
             cand, step, new_spec, new_disc = attempt(test)
             tried.append((test, cand, step, new_spec, new_disc))
-            if not step.accepted and step.reason.startswith("implausible"):
+            if not step.accepted and step.reason.startswith(NOT_A_FINDING):
                 # the structure is real, this explanation of it is not: the next
                 # candidate gets its turn without using up the round's budget
                 warnings.append(f"{test.effect}: {step.reason}")
             else:
                 refitted += 1
+                if step.decided_by == NOT_CONVERGED:
+                    warnings.append(f"{test.effect}: {step.reason}")
             (cand, step, new_spec, new_disc), ran = _credited(
                 test.effect, (cand, step, new_spec, new_disc), unexplained,
                 lambda u=unexplained: attempt(u), st.threshold, steps, rnd)

@@ -14,7 +14,7 @@ import numpy as np
 
 from bayeshyst.diagnosis.catalogue import EFFECTS
 from bayeshyst.diagnosis.residual import EffectTest, ResidualAnalysis
-from bayeshyst.diagnosis.verdict import PLAUSIBLE
+from bayeshyst.diagnosis.verdict import NOT_CONVERGED, PLAUSIBLE
 from bayeshyst.inference.fit import FitResult, TrackingError
 from bayeshyst.inference.posterior import Posterior
 from bayeshyst.inference.sampling_result import ParamSummary, SamplingResult
@@ -185,9 +185,10 @@ class DiagnosisStep(TableRecord):
         What would tell them apart (empty without a tie).
     decided_by : str
         ``"elpd"`` (held-out cycles), ``"bic"`` (the score test's Bayes factor, when
-        the cycles are too few for the elpd gate) or ``"residual scan"`` (the driver
+        the cycles are too few for the elpd gate), ``"residual scan"`` (the driver
         scan's or the spectral test's own calibrated p-value, for the branch shape and a
-        disturbance).
+        disturbance) or ``"not converged"`` (nothing decided: the augmented fit did not
+        converge).
     """
 
     index: int
@@ -208,6 +209,13 @@ class DiagnosisStep(TableRecord):
     experiment: str = ""
     decided_by: str = "elpd"
 
+    @property
+    def outcome(self) -> str:
+        """``"accepted"``, ``"rejected"`` or ``"not decided"`` (the fit did not converge)."""
+        if self.accepted:
+            return "accepted"
+        return "not decided" if self.decided_by == NOT_CONVERGED else "rejected"
+
     def to_dataframe(self) -> Any:
         """One row: :meth:`to_dict` without the per-frequency and parameter lists."""
         return frame([self.to_dict()], drop=("per_frequency", "added_parameters"))
@@ -222,7 +230,8 @@ class DiagnosisStep(TableRecord):
             "rmse_before": self.before.rmse, "rmse_after": self.after.rmse,
             "max_error_before": self.before.max_error, "max_error_after": self.after.max_error,
             "delta_elpd": self.delta_elpd, "delta_elpd_se": self.delta_elpd_se,
-            "accepted": self.accepted, "reason": self.reason, "round": self.index,
+            "accepted": self.accepted, "outcome": self.outcome, "reason": self.reason,
+            "round": self.index,
             "model_before": self.model_before, "model_after": self.model_after,
             "nrmse_percent_before": self.before.nrmse_percent,
             "nrmse_percent_after": self.after.nrmse_percent,
@@ -238,7 +247,7 @@ class DiagnosisStep(TableRecord):
         }
 
     def __str__(self) -> str:
-        verdict = "ACCEPTED" if self.accepted else "rejected"
+        verdict = "ACCEPTED" if self.accepted else self.outcome
         lines = [f"round {self.index}: {self.effect} -> {self.model_after}: {verdict} "
                  f"({self.reason})",
                  f"  test: {self.test}",
@@ -356,6 +365,10 @@ class DiagnosisResult(TableRecord):
             left.append(f"tests still firing on the final residual: {', '.join(fired)}")
         ties = [f"cannot tell {s.effect} from {', '.join(s.tied_with)} ({s.experiment})"
                 for s in self.steps if s.accepted and s.tied_with] + list(self.ties)
+        undecided = [s.effect for s in self.steps if s.decided_by == NOT_CONVERGED]
+        if undecided:
+            ties.append(f"not decided, because its fit did not converge within the step "
+                        f"budget: {', '.join(undecided)}")
         tail = "; ".join(left) if left else "nothing detectable is left in the residual"
         return head + tail + ("; " + "; ".join(ties) if ties else "")
 

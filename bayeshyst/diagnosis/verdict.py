@@ -12,6 +12,12 @@
   with every other that fired.
 * **Plausibility.** An accepted effect whose physical reading is outside the range a
   piezo stage can have (:data:`PLAUSIBLE`, overridable) is a warning, not a finding.
+* **Resolution.** So is a resonance the data cannot see (:func:`unresolved`): a natural
+  frequency whose whole credible interval lies above the fastest record's Nyquist
+  frequency.
+* **Convergence.** A gate whose augmented fit did not converge decides nothing: the
+  step is *not decided* (:data:`NOT_CONVERGED`), not accepted and not rejected, and the
+  loop goes on to the next candidate.
 * **Negligible gains.** A held-out elpd gain under :data:`MIN_ELPD_GAIN` (4 nats) is
   not an improvement, however small its standard error.
 * **Gates that cannot decide.** The held-out elpd gate compares cycles; with fewer
@@ -30,6 +36,7 @@ from typing import Any
 import numpy as np
 
 from bayeshyst.diagnosis.drivers import DriverScan
+from bayeshyst.models.base import sample_period
 
 __all__ = [
     "BRANCH_SHAPE",
@@ -37,6 +44,8 @@ __all__ = [
     "LAG_LIKE",
     "MIN_ELPD_GAIN",
     "MIN_GATE_UNITS",
+    "NOT_A_FINDING",
+    "NOT_CONVERGED",
     "PLAUSIBLE",
     "SLOW_IN_TIME",
     "TIE_NATS",
@@ -50,6 +59,7 @@ __all__ = [
     "shape_tied",
     "tied_beyond",
     "tied_effects",
+    "unresolved",
 ]
 
 #: Bayes factors closer than this (nats) do not tell two effects apart.
@@ -85,6 +95,13 @@ PLAUSIBLE: Mapping[str, tuple[float, float, str]] = MappingProxyType({
     "second_order.f_n": (10.0, 1e6, "a piezo stage resonates between 10 Hz and 1 MHz"),
     "creep.c": (-0.5, 0.5, "creep moves the output by less than half its static value"),
 })
+#: How the reason of a gate that passed but is not a finding begins: a reading outside
+#: the device's range (:func:`implausible`) or outside what the data resolve
+#: (:func:`unresolved`). The structure is real; this explanation of it is not.
+NOT_A_FINDING = ("implausible", "unresolved")
+#: ``decided_by`` of a step whose augmented fit did not converge: neither kept nor
+#: rejected, because either decision would rest on draws that are not yet the posterior.
+NOT_CONVERGED = "not converged"
 
 
 #: Name of the base model's own misfit among the loop's candidates.
@@ -233,3 +250,36 @@ def implausible(means: Mapping[str, Sequence[float] | float],
             out.append(f"{name} = {', '.join(f'{v:.3g}' for v in bad)} is outside "
                        f"[{lo:g}, {hi:g}] ({why})")
     return out
+
+
+def unresolved(added: Sequence[Any], data: Any) -> list[str]:
+    """Natural frequencies the data cannot resolve, in words (empty when all are resolved).
+
+    A sampled record carries nothing above its Nyquist frequency ``fs / 2``. Below its
+    resonance, second-order dynamics ``wn^2 / (s^2 + 2 zeta wn s + wn^2)`` are a phase
+    lag ``2 zeta f / f_n`` and a gain roll-off ``(f / f_n)^2``, which a first-order lag
+    or a delay also give: a resonance whose whole credible interval lies above the
+    fastest record's Nyquist frequency is an extrapolation, not a reading, however
+    narrow its interval. On the MR damper at 0.25 A (records sampled at 5-200 Hz) the
+    gate kept second-order dynamics with ``f_n`` 248 Hz [234, 260] (+9.0 +- 3.2 nats);
+    at 0.75 A the same block's posterior split between 32 Hz and 190 Hz. The structure
+    such a block explains is a lag the data see; that it is a resonance they do not.
+
+    Parameters
+    ----------
+    added : sequence of ParamSummary
+        The added block's posterior summaries; natural frequencies are those whose name
+        ends in ``.f_n`` (Hz).
+    data : Dataset or Record
+        The fitted data (their sample times give the Nyquist frequency).
+    """
+    resonances = [p for p in added if p.label.endswith(".f_n")]
+    if not resonances:
+        return []
+    nyquist = 0.5 / sample_period(data)
+    return [f"{p.label} = {p.mean:.3g} Hz ({p.prob:.0%} interval {p.hdi_lo:.3g}-"
+            f"{p.hdi_hi:.3g} Hz) lies above every record's Nyquist frequency (at most "
+            f"{nyquist:.3g} Hz): the data see a lag below it, not a resonance; what would "
+            f"resolve it: records sampled faster than {2.0 * p.hdi_hi:.3g} Hz, excited "
+            f"near it"
+            for p in resonances if p.hdi_lo > nyquist]

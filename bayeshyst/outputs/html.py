@@ -126,10 +126,11 @@ def paragraph(*parts: Any, cls: str | None = None) -> Markup:
     return Markup(f"<p{c}>{join(parts, '')}</p>")
 
 
-def badge(ok: bool | None, yes: str = "converged", no: str = "NOT converged") -> Markup:
-    """A coloured word: green ``yes``, red ``no``, grey for unknown."""
+def badge(ok: bool | None, yes: str = "converged", no: str = "NOT converged",
+          unknown: str = "unknown") -> Markup:
+    """A coloured word: green ``yes``, red ``no``, grey ``unknown`` for None."""
     if ok is None:
-        return Markup(f'<span class="badge unknown">{text("unknown")}</span>')
+        return Markup(f'<span class="badge unknown">{text(unknown)}</span>')
     return Markup(f'<span class="badge {"ok" if ok else "bad"}">{text(yes if ok else no)}'
                   "</span>")
 

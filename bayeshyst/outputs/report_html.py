@@ -203,7 +203,9 @@ def _diagnosis_html(summary: dict[str, Any] | None, out: Path,
     parts += _remaining_html(summary.get("remaining"))
     rows = [[s["round"], s["effect"], s.get("bayes_factor_log"), s.get("p_adjusted"),
              s.get("delta_elpd"), s.get("delta_elpd_se"), s.get("rmse_before"),
-             s.get("rmse_after"), H.badge(s["accepted"], "kept", "rejected"),
+             s.get("rmse_after"),
+             H.badge(None if s.get("outcome") == "not decided" else s["accepted"], "kept",
+                     "rejected", "not decided"),
              s.get("reason") or ""] for s in summary["steps"]]
     if rows:
         parts.append(H.table(["round", "effect", "log BF", "p (Holm)", "Δelpd", "se",
