@@ -26,7 +26,9 @@ A suite of simulated cases with known ground truth, each diagnosed over several 
 
 Budgets are the diagnosis tests' (short chains, one candidate refitted per round, no
 exact LOO refits): what the loop *names* depends on the residual and its tests, not on
-converged posteriors, and the suite must run in minutes per case. Each (case, seed) is
+converged posteriors, and the suite must run in minutes per case, so its gates decide
+on the draws there are (``diagnose(..., decide_unconverged=True)``; by default a gate
+on an unconverged fit decides nothing). Each (case, seed) is
 written to ``OUT/runs/<case>_<seed>.json`` as it finishes and reused on a rerun with the
 same settings (resume after an interruption).
 
@@ -283,7 +285,7 @@ def _one(case: Case, seed: int, sampler: SamplerSettings, path: Path) -> dict[st
     data = case.make(seed)
     result = diagnose(data, case.model, sampler=dataclasses.replace(sampler, seed=seed),
                       n_draws=100, max_refits=0, max_candidates=1,
-                      max_rounds=case.max_rounds)
+                      max_rounds=case.max_rounds, decide_unconverged=True)
     row = {"key": key, "case": case.name, "group": case.group, "seed": seed,
            **score(case, result),
            "rmse_before": result.base.overall.rmse, "rmse_after": result.final.overall.rmse,

@@ -201,6 +201,9 @@ def dataset_summary(key: str, data: Any, result: Any, folder: str) -> dict[str, 
              for s in result.steps]
     accepted = [s for s in steps if s["accepted"]]
     converged = bool(result.base.sampling.converged and result.final.sampling.converged)
+    # the candidates whose gate decided nothing: the result stands, they are left open
+    undecided = [f"round {s['round']}: {s['effect']}" for s in steps
+                 if s["outcome"] == "not decided"]
     return {
         "dataset": key, "name": data.name, "folder": folder,
         "records": describe_cut(data), "output_unit": data[0].units.get("y", ""),
@@ -219,7 +222,10 @@ def dataset_summary(key: str, data: Any, result: Any, folder: str) -> dict[str, 
                                           result.final.per_frequency, strict=True)],
         "verdict": result.verdict, "ties": list(result.ties),
         "steps": steps, "converged": converged,
-        "status": "converged" if converged else "NOT converged",
+        "status": ("NOT converged" if not converged else
+                   f"converged; not decided: {', '.join(undecided)}" if undecided else
+                   "converged"),
+        "undecided": undecided,
         "warnings": list(result.warnings),
     }
 

@@ -180,7 +180,7 @@ def judge(rnd: int, test: EffectTest, current: DiagnosisFit, cand: DiagnosisFit,
             ok, reason = False, "implausible: " + "; ".join(bad)
         elif hidden:
             ok, reason = False, "unresolved: " + "; ".join(hidden)
-    if not cand.sampling.converged:
+    if not cand.sampling.converged and not st.decide_unconverged:
         # kept or rejected, the verdict would rest on draws that are not yet the
         # posterior (MR damper 0.5 A: a delay on the shape correction, R-hat 1.018 after
         # 10 000 steps, "rejected" at -117 +- 56 nats): it is not decided

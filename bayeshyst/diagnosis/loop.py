@@ -376,6 +376,7 @@ def diagnose(
     max_refits: int = 5,
     n_permutations: int = 999,
     plausible: Mapping[str, tuple[float, float, str]] | None = None,
+    decide_unconverged: bool = False,
     checkpoint_dir: str | Path | None = None,
     on_fit: Callable[[DiagnosisFit], None] | None = None,
 ) -> DiagnosisResult:
@@ -419,6 +420,11 @@ def diagnose(
         ``parameter -> (low, high, why)``: posterior means of an added block outside
         these ranges make the step a warning, not a finding (default
         :data:`~bayeshyst.diagnosis.verdict.PLAUSIBLE`).
+    decide_unconverged : bool
+        False (default): a candidate whose fit did not converge is *not decided*. True:
+        its gate decides on the draws there are (the step's ``converged`` and the fit's
+        warning still say so) -- for studies of what the loop names on short chains
+        (``analyses.hidden_effects``), whose decisions are provisional.
     checkpoint_dir : path, optional
         Each fit checkpoints here (``<identity>.h5``); a rerun resumes finished fits,
         and a fit another command made with the same data and settings into the same
@@ -440,7 +446,8 @@ def diagnose(
         max_candidates=int(max_candidates),
         sampler=SamplerSettings() if sampler is None else sampler, n_draws=int(n_draws),
         max_refits=int(max_refits), n_permutations=int(n_permutations),
-        plausible=PLAUSIBLE if plausible is None else MappingProxyType(dict(plausible)))
+        plausible=PLAUSIBLE if plausible is None else MappingProxyType(dict(plausible)),
+        decide_unconverged=bool(decide_unconverged))
     _check_settings(st)
     base_label = model if isinstance(model, str) else model.name
     base_model = get_model(model) if isinstance(model, str) else model

@@ -45,6 +45,7 @@ class DiagnosisSettings:
     max_refits: int = 5
     n_permutations: int = 999
     plausible: Mapping[str, tuple[float, float, str]] = field(default_factory=lambda: PLAUSIBLE)
+    decide_unconverged: bool = False
 
     @property
     def seed(self) -> int:
