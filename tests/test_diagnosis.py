@@ -112,9 +112,13 @@ def test_physical_estimates_of_hidden_effects():
 @pytest.mark.slow
 def test_two_hidden_effects_are_both_found_and_the_error_drops():
     data = virtual_data({**HIDDEN["rate_dependence"], **HIDDEN["drift"]})
+    # 300 steps do not converge the 32-coordinate Preisach fits: what is tested is what
+    # the loop names, as in the hidden-effect suite, so the gates decide on those draws
+    # (by default they would say "not decided" and keep nothing)
     result = diagnose(data, PREISACH, sampler=SamplerSettings(
         n_walkers=32, max_steps=300, first_chunk=150, seed=3),
-                      n_draws=100, max_refits=0, max_candidates=1, max_rounds=2)
+                      n_draws=100, max_refits=0, max_candidates=1, max_rounds=2,
+                      decide_unconverged=True)
     assert set(result.effects_found) == {"rate_dependence", "drift"}, str(result)
     accepted = [s for s in result.steps if s.accepted]
     for step in accepted:
