@@ -202,8 +202,7 @@ def dataset_summary(key: str, data: Any, result: Any, folder: str) -> dict[str, 
     accepted = [s for s in steps if s["accepted"]]
     converged = bool(result.base.sampling.converged and result.final.sampling.converged)
     # the candidates whose gate decided nothing: the result stands, they are left open
-    undecided = [f"round {s['round']}: {s['effect']}" for s in steps
-                 if s["outcome"] == "not decided"]
+    undecided = [f"round {s.index}: {s.effect}" for s in result.undecided]
     return {
         "dataset": key, "name": data.name, "folder": folder,
         "records": describe_cut(data), "output_unit": data[0].units.get("y", ""),

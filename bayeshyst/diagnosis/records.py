@@ -366,12 +366,16 @@ class DiagnosisResult(TableRecord):
             left.append(f"tests still firing on the final residual: {', '.join(fired)}")
         ties = [f"cannot tell {s.effect} from {', '.join(s.tied_with)} ({s.experiment})"
                 for s in self.steps if s.accepted and s.tied_with] + list(self.ties)
-        undecided = [s.effect for s in self.steps if s.decided_by == NOT_CONVERGED]
-        if undecided:
+        if self.undecided:
             ties.append(f"not decided, because its fit did not converge within the step "
-                        f"budget: {', '.join(undecided)}")
+                        f"budget: {', '.join(s.effect for s in self.undecided)}")
         tail = "; ".join(left) if left else "nothing detectable is left in the residual"
         return head + tail + ("; " + "; ".join(ties) if ties else "")
+
+    @property
+    def undecided(self) -> tuple[DiagnosisStep, ...]:
+        """The steps whose gate decided nothing (their fit did not converge)."""
+        return tuple(s for s in self.steps if s.decided_by == NOT_CONVERGED)
 
     def _round_labels(self) -> list[str]:
         labels = [self.base_model]
