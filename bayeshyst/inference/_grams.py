@@ -3,7 +3,7 @@
 Every likelihood the linear block needs is a function of the Gram matrices of
 ``X = [Phi, r]`` (the design and the reference residual) over the scored samples: for
 white noise their sum, for AR(1) noise the three lagged sums of
-:class:`~bayeshyst.inference.linear.LinearStats`. This module computes them -- stacked
+:class:`~bayeshyst.inference.conditional.LinearStats`. This module computes them -- stacked
 over walkers, for a design every walker shares, and with a fixed basis (the
 discrepancy's) that joins the design -- always as products whose shape does not depend
 on the batch, so a walker's Grams are the same to the bit whichever batch computes them.

@@ -34,7 +34,7 @@ import numpy as np
 from scipy.linalg import lapack
 
 from bayeshyst.inference._grams import grams, sample_rows, stacked
-from bayeshyst.inference.linear import LinearStats
+from bayeshyst.inference.conditional import LinearStats
 
 if TYPE_CHECKING:
     from bayeshyst.inference.linear import LinearStructure

@@ -48,7 +48,7 @@ def residual_coordinates(post: Posterior, structure: LinearStructure | None) -> 
     """
     if structure is not None:
         return structure.design_idx
-    noise = [i for i, lab in enumerate(_owners(post)) if lab.startswith(NOISE + ".")]
+    noise = [i for i, lab in enumerate(post.space.owners) if lab.startswith(NOISE + ".")]
     return np.array([i for i in range(post.ndim) if i not in noise], dtype=int)
 
 
@@ -69,13 +69,6 @@ def _search_box(post: Posterior, idx: np.ndarray) -> tuple[np.ndarray, np.ndarra
     return lo[idx], hi[idx]
 
 
-def _owners(post: Posterior) -> list[str]:
-    out = []
-    for name in post.space.names:
-        out += [name] * post.space[name].size
-    return out
-
-
 def _gaussian_prior_rows(post: Posterior, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray,
                                                                       np.ndarray]:
     """Centre and width in ``z`` of the coordinates ``idx`` whose prior is Gaussian there.
@@ -84,7 +77,7 @@ def _gaussian_prior_rows(post: Posterior, idx: np.ndarray) -> tuple[np.ndarray, 
     transform. Returns the centres and widths (0 and 1 for the other coordinates) and the
     mask of which coordinates they are.
     """
-    owners = _owners(post)
+    owners = post.space.owners
     mu, sd, mask = np.zeros(idx.size), np.ones(idx.size), np.zeros(idx.size, dtype=bool)
     for j, i in enumerate(idx):
         p = post.space[owners[i]]
@@ -270,7 +263,7 @@ def gauss_newton_covariance(post: Posterior, structure: LinearStructure | None,
     n = post.ndim
     z = np.asarray(z, dtype=float)
     hess = np.zeros((n, n))
-    owners = _owners(post)
+    owners = post.space.owners
     noise = np.array([i for i in range(n) if owners[i].startswith(NOISE + ".")], dtype=int)
     evals = 0
     if structure is not None:

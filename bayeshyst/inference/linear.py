@@ -29,121 +29,28 @@ exact Metropolis–Hastings ratio (:attr:`LinearStructure.exact` is False).
 
 from __future__ import annotations
 
-import math
 from collections import OrderedDict
-from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from scipy import special
-from scipy.linalg import lapack
 
 from bayeshyst.discrepancy import DISC
 from bayeshyst.inference._grams import BasisGrams, Grams, grams, grams_shared, stacked
+from bayeshyst.inference.conditional import (
+    LOG_2PI,
+    Conditional,
+    LinearStats,
+    one_for_all,
+    triangular,
+)
 from bayeshyst.inference.posterior import NOISE, OBS, Posterior
 from bayeshyst.models.base import LinearDesign
 from bayeshyst.params import Identity, Normal
 
 __all__ = ["Conditional", "LinearStats", "LinearStructure"]
 
-_LOG_2PI = math.log(2.0 * math.pi)
-_TRTRS = lapack.dtrtrs
-#: Linear blocks up to this size are solved for every walker in one stacked call.
-_SMALL = 16
 #: walkers whose Grams are kept (keyed by their design-determining coordinates)
 _CACHE_SIZE = 512
-
-@dataclass(frozen=True)
-class LinearStats:
-    """Gram matrices of ``[Phi, r_ref]`` for ``W`` walkers, summed over the records.
-
-    ``first`` holds the first scored sample of each record, ``lag0`` the others (None
-    when they are summed into ``first``: a white-noise likelihood whitens nothing, and
-    the held-out marginals then pass one array instead of two);
-    ``cross``/``prev`` the lag-one products (AR(1) only, else None). ``n`` scored
-    samples, ``n_first`` of them first samples (integers, or one per walker (W,) when
-    the walkers' Grams cover different samples, as in the held-out marginals).
-    ``failed`` marks walkers whose design could not be computed (outside the model's
-    support, failed simulation).
-    """
-
-    first: np.ndarray
-    lag0: np.ndarray | None
-    cross: np.ndarray | None
-    prev: np.ndarray | None
-    n: int | np.ndarray
-    n_first: int | np.ndarray
-    failed: np.ndarray
-
-    def take(self, idx: np.ndarray) -> LinearStats:
-        """The statistics of the walkers ``idx`` (broadcast ones stay broadcast)."""
-        n = np.arange(self.failed.shape[0])[idx].size
-
-        def pick(a: np.ndarray | None) -> np.ndarray | None:
-            if a is None:
-                return None
-            if a.strides[0] == 0:  # one walker's Grams for all: no copy
-                return np.broadcast_to(a[:1], (n, *a.shape[1:]))
-            return a[idx]
-
-        return LinearStats(pick(self.first), pick(self.lag0), pick(self.cross),
-                           pick(self.prev), self.n, self.n_first, self.failed[idx])
-
-
-@dataclass(frozen=True)
-class Conditional:
-    """The conditional posterior ``beta | z_n ~ N(mean, Lambda^-1)`` for ``W`` walkers.
-
-    ``chol`` is Lambda's lower Cholesky factor; ``ok`` is False where the conditional is
-    undefined (failed design, bad noise).
-    """
-
-    mean: np.ndarray
-    chol: np.ndarray
-    ok: np.ndarray
-
-    def log_density(self, beta: np.ndarray) -> np.ndarray:
-        """``log N(beta; mean, Lambda^-1)`` per walker (W,); -inf where not ok."""
-        d = np.where(self.ok[:, None], beta - self.mean, 0.0)
-        u = np.einsum("wji,wj->wi", self.chol, d)  # L^T d
-        p = self.mean.shape[1]
-        logdet = np.sum(np.log(np.abs(np.diagonal(self.chol, axis1=1, axis2=2))), axis=1)
-        out = -0.5 * p * _LOG_2PI + logdet - 0.5 * np.sum(u * u, axis=1)
-        return np.where(self.ok, out, -np.inf)
-
-    def draw(self, random: np.random.RandomState) -> np.ndarray:
-        """One draw per walker, ``mean + L^-T xi`` (W, P), from emcee's random state."""
-        w, p = self.mean.shape
-        xi = random.randn(w, p)
-        step = _triangular(self.chol, xi, transpose=True)
-        return self.mean + np.where(self.ok[:, None], step, 0.0)
-
-
-def _triangular(chol: np.ndarray, rhs: np.ndarray, *, transpose: bool) -> np.ndarray:
-    """``L^-1 b`` (or ``L^-T b``) per walker for lower factors ``chol`` (W, P, P), ``rhs`` (W, P).
-
-    Up to :data:`_SMALL` coefficients numpy's stacked solve (one call for all walkers;
-    the per-walker loop's overhead would dominate), above it LAPACK's ``trtrs`` walker
-    by walker: a general solve of a ~100 x 100 system cost 5x its factorisation, and
-    scipy's batched ``solve_triangular`` spent three times the solve in its argument
-    handling.
-    """
-    if chol.shape[1] <= _SMALL:  # numpy's stacked solve: one call for every walker
-        a = chol.transpose(0, 2, 1) if transpose else chol
-        return np.linalg.solve(a, rhs[:, :, None])[:, :, 0]
-    out = np.empty(rhs.shape)
-    # L in C order is U = L^T in Fortran order: solve with U (no copy), L b -> U^T b
-    trans = 0 if transpose else 1
-    for j in range(rhs.shape[0]):
-        out[j], _ = _TRTRS(chol[j].T, rhs[j], lower=0, trans=trans)
-    return out
-
-
-def _one_for_all(st: LinearStats) -> bool:
-    """Whether ``st`` is one walker's Grams broadcast to all (zero stride, same status)."""
-    arrays = [a for a in (st.first, st.lag0, st.cross, st.prev) if a is not None]
-    return (all(a.strides[0] == 0 for a in arrays)
-            and bool(np.all(st.failed == st.failed[0])))
 
 
 class LinearStructure:
@@ -195,9 +102,10 @@ class LinearStructure:
         #: coordinates the design depends on (the model's free nonlinear parameters); the
         #: discrepancy's amplitudes and lengths only scale its fixed basis columns, so they
         #: rescale cached Grams instead of asking for a new simulation
+        owner = space.owners
         self.design_idx = np.array([i for i in self.other_idx
-                                    if not _owner(space, i).startswith((NOISE + ".", DISC + "."))
-                                    and _owner(space, i) != offset], dtype=int)
+                                    if not owner[i].startswith((NOISE + ".", DISC + "."))
+                                    and owner[i] != offset], dtype=int)
         self.m_basis = post.discrepancy.size if self.has_basis else 0
         self.sigma_name = f"{NOISE}.sigma"
         self.phi_name = f"{NOISE}.phi"
@@ -285,7 +193,8 @@ class LinearStructure:
             return None
         if model.base.covariates:  # its design depends on each record's measured column
             return None
-        owners = {_owner(self.post.space, i) for i in self.design_idx}
+        owner = self.post.space.owners
+        owners = {owner[i] for i in self.design_idx}
         if any(o.startswith(STATIC + ".") for o in owners):
             return None
         theta = self._model_theta(self.post.space.sample_prior(np.random.default_rng(0), 1))
@@ -589,7 +498,7 @@ class LinearStructure:
     def conditional(self, st: LinearStats, z: np.ndarray) -> Conditional:
         """``beta | z_n`` for the walkers ``z`` (their noise) with Grams ``st``."""
         chol, half, ok = self._factor(st, z)
-        mean = self.beta_ref + _triangular(chol, half, transpose=True)
+        mean = self.beta_ref + triangular(chol, half, transpose=True)
         return Conditional(mean, chol, ok & np.all(np.isfinite(mean), axis=1))
 
     def _factor(self, st: LinearStats, z: np.ndarray
@@ -602,7 +511,7 @@ class LinearStructure:
         """
         sigma, phi = self.noise(z)
         w = z.shape[0]
-        if w > 1 and _one_for_all(st) and np.all(sigma == sigma[0]) and np.all(phi == phi[0]):
+        if w > 1 and one_for_all(st) and np.all(sigma == sigma[0]) and np.all(phi == phi[0]):
             # every walker has the same Grams (broadcast by _constant_for) and noise: one
             # factorisation serves them all
             chol, half, ok = self._factor(st.take(np.zeros(1, dtype=int)), z[:1])
@@ -635,7 +544,7 @@ class LinearStructure:
                 except np.linalg.LinAlgError:
                     ok[j] = False
                     chol[j] = np.eye(p)
-        half = _triangular(chol, h, transpose=False)
+        half = triangular(chol, h, transpose=False)
         return chol, half, ok
 
     def log_likelihood(self, st: LinearStats, z: np.ndarray,
@@ -654,7 +563,7 @@ class LinearStructure:
         s = np.where(ok, sigma, 1.0)
         with np.errstate(divide="ignore", invalid="ignore"):
             ll = (-st.n * np.log(s) - 0.5 * (st.n - st.n_first) * np.log1p(-phi * phi)
-                  - 0.5 * st.n * _LOG_2PI - 0.5 * quad / s**2)
+                  - 0.5 * st.n * LOG_2PI - 0.5 * quad / s**2)
         return np.where(ok & np.isfinite(ll), ll, -np.inf)
 
     def log_marginal(self, st: LinearStats, z: np.ndarray, *,
@@ -669,7 +578,7 @@ class LinearStructure:
         out = self._marginal_value(st, z, chol, half, ok_factor)
         if not conditional:
             return out
-        mean = self.beta_ref + _triangular(chol, half, transpose=True)
+        mean = self.beta_ref + triangular(chol, half, transpose=True)
         return out, Conditional(mean, chol, ok_factor & np.all(np.isfinite(mean), axis=1))
 
     def _marginal_value(self, st: LinearStats, z: np.ndarray, chol: np.ndarray,
@@ -686,87 +595,13 @@ class LinearStructure:
         logdet_lam = 2.0 * np.sum(np.log(np.abs(np.diagonal(chol, axis1=1, axis2=2))), axis=1)
         with np.errstate(divide="ignore", invalid="ignore"):
             out = (-st.n * np.log(s) - 0.5 * (st.n - st.n_first) * np.log1p(-phi * phi)
-                   - 0.5 * st.n * _LOG_2PI - 0.5 * m[:, p, p] / s**2
+                   - 0.5 * st.n * LOG_2PI - 0.5 * m[:, p, p] / s**2
                    - 0.5 * float(mu0 @ mu0) - float(np.sum(np.log(self.s0)))
                    - 0.5 * logdet_lam + half_quad)
         return np.where(ok & np.isfinite(out), out, -np.inf)
-
-    # ------------------------------------------------------------------ noise proposals
-    def sigma_proposal(self, st: LinearStats, z: np.ndarray, beta: np.ndarray,
-                       random: np.random.RandomState) -> tuple[np.ndarray, np.ndarray,
-                                                               np.ndarray]:
-        """Draw ``sigma'`` from ``sigma^2 ~ InvGamma(n/2, Q/2)``.
-
-        That is the likelihood's own shape in ``sigma``, so only the prior is left in the
-        MH ratio.
-
-        Returns the proposed ``sigma`` (W,), and the proposal's log density in the
-        parameter's ``z`` coordinate at the proposed and at the current value.
-        """
-        sigma, phi = self.noise(z)
-        m = self.whitened(st, phi)
-        v = np.concatenate([-(beta - self.beta_ref), np.ones((z.shape[0], 1))], axis=1)
-        quad = np.einsum("wi,wij,wj->w", v, m, v)
-        a = 0.5 * st.n
-        b = 0.5 * np.where(np.isfinite(quad) & (quad > 0), quad, np.nan)
-        g = random.standard_gamma(a, size=z.shape[0])
-        with np.errstate(divide="ignore", invalid="ignore"):
-            new = np.sqrt(b / g)
-        param = self.post.space[self.sigma_name]
-        return new, self._sigma_logq(new, a, b, param), self._sigma_logq(sigma, a, b, param)
-
-    @staticmethod
-    def _sigma_logq(sigma: np.ndarray, a: float, b: np.ndarray, param: Any) -> np.ndarray:
-        with np.errstate(divide="ignore", invalid="ignore"):
-            s2 = sigma * sigma
-            # density of sigma when sigma^2 ~ InvGamma(a, b): p(s2) * 2 sigma
-            log_q = (math.log(2.0) + np.log(sigma) + a * np.log(b) - special.gammaln(a)
-                     - (a + 1.0) * np.log(s2) - b / s2)
-            zc = param.transform.forward(sigma)
-            log_q = log_q + param.transform.log_jacobian(zc)
-        return np.where(np.isfinite(log_q), log_q, -np.inf)
-
-    def phi_proposal(self, st: LinearStats, z: np.ndarray, beta: np.ndarray,
-                     random: np.random.RandomState) -> tuple[np.ndarray, np.ndarray,
-                                                             np.ndarray]:
-        """Draw the AR(1) coefficient from its regression on the lagged residual.
-
-        Given the innovation scale ``s = sigma sqrt(1 - phi^2)`` the residuals after
-        the first follow ``e_k = phi e_{k-1} + N(0, s^2)``, whose likelihood in ``phi``
-        is ``N(b/c, s^2/c)`` (``b``, ``c``: lag-one and lagged sums of squares of the
-        residual at ``beta``). Returns the proposed ``phi`` (W,) and the proposal's log
-        density (in ``phi`` itself) at the proposed and at the current value; the move
-        keeps ``s`` fixed and corrects for the first sample and the priors.
-        """
-        sigma, phi = self.noise(z)
-        v = np.concatenate([-(beta - self.beta_ref), np.ones((z.shape[0], 1))], axis=1)
-        bb = np.einsum("wi,wij,wj->w", v, st.cross, v)
-        cc = np.einsum("wi,wij,wj->w", v, st.prev, v)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            s_innov = sigma * np.sqrt(1.0 - phi**2)
-            hat = bb / cc
-            sd = s_innov / np.sqrt(cc)
-        new = hat + sd * random.randn(z.shape[0])
-
-        def log_q(x: np.ndarray) -> np.ndarray:
-            with np.errstate(divide="ignore", invalid="ignore"):
-                out = -0.5 * ((x - hat) / sd) ** 2 - np.log(sd) - 0.5 * _LOG_2PI
-            return np.where(np.isfinite(out), out, -np.inf)
-
-        return new, log_q(new), log_q(phi)
 
     def __repr__(self) -> str:
         return (f"LinearStructure({', '.join(self.names)}: {self.p} linear, "
                 f"{self.other_idx.size} other coordinates, design "
                 f"{'constant' if self.design_idx.size == 0 else 'per walker'}, "
                 f"{self.kind}{'' if self.exact else ', stand-in priors'})")
-
-
-def _owner(space: Any, index: int) -> str:
-    """Name of the free parameter that owns ``z[index]``."""
-    for name in space.names:
-        sl = space.slice_of(name)
-        if sl.start <= index < sl.stop:
-            return name
-    raise IndexError(index)
-

@@ -45,6 +45,7 @@ import numpy as np
 from emcee.state import State
 from scipy import special
 
+from bayeshyst.inference.noise_proposals import phi_proposal, sigma_proposal
 from bayeshyst.inference.structured_target import MoveStats, StructuredTarget
 
 __all__ = ["DifferentialMove", "IndependenceMove", "LinearGibbsMove", "structured_moves"]
@@ -154,7 +155,7 @@ class LinearGibbsMove(_StructuredMove):
         sig_p, sig_sl = space[s.sigma_name], space.slice_of(s.sigma_name).start
         z_new = z.copy()
         if which == "sigma":
-            new, lq_new, lq_old = s.sigma_proposal(st, z, beta, random)
+            new, lq_new, lq_old = sigma_proposal(s, st, z, beta, random)
             with np.errstate(divide="ignore", invalid="ignore"):
                 z_new[:, sig_sl] = sig_p.transform.forward(new)
             correction = lq_new - lq_old  # in the z coordinate already
@@ -164,7 +165,7 @@ class LinearGibbsMove(_StructuredMove):
             # moves with s held (sigma follows), where its regression is the proposal
             phi_p, phi_sl = space[s.phi_name], space.slice_of(s.phi_name).start
             sigma, phi = s.noise(z)
-            new, lq_new, lq_old = s.phi_proposal(st, z, beta, random)
+            new, lq_new, lq_old = phi_proposal(s, st, z, beta, random)
             lo, hi = phi_p.prior.support
             inside = (new > lo) & (new < hi)
             new = np.where(inside, new, phi)

@@ -210,6 +210,11 @@ class ParamSpace:
         a, b = self._offsets[name]  # type: ignore[attr-defined]
         return slice(a, b)
 
+    @property
+    def owners(self) -> tuple[str, ...]:
+        """The free parameter that owns each coordinate of ``z`` (length ``ndim``)."""
+        return tuple(name for name in self.names for _ in range(self[name].size))
+
     def indices(self, names: Iterable[str]) -> np.ndarray:
         """The ``z`` indices (int array, in the given order) of free parameters ``names``."""
         parts = [np.arange(self.ndim)[self.slice_of(n)] for n in names]
