@@ -209,6 +209,15 @@ def test_concat_namespaces_and_sub_theta():
         ParamSpace.concat([a, a])
 
 
+def test_owners_name_the_parameter_of_each_coordinate():
+    space = _space().fix("a", 0.5)
+    # oracle: walk the slices one coordinate at a time
+    expected = [next(n for n in space.names if space.slice_of(n).start <= i
+                     < space.slice_of(n).stop) for i in range(space.ndim)]
+    assert list(space.owners) == expected
+    assert "a" not in space.owners and space.owners.count("w") == 3
+
+
 def test_pack_rejects_unknown_and_missing_and_wrong_fixed():
     space = _space().fix("b", 0.5)
     theta = space.unpack(np.zeros(space.ndim))
