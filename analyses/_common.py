@@ -37,7 +37,8 @@ from typing import Any
 import numpy as np
 
 from bayeshyst import cli as _cli
-from bayeshyst.data.record import Dataset, Record
+from bayeshyst.data.dataset import Dataset
+from bayeshyst.data.record import Record
 from bayeshyst.errors import DataError, ModelError, ParameterError
 from bayeshyst.files import atomic_path
 from bayeshyst.inference.settings import SamplerSettings

@@ -66,7 +66,8 @@ from analyses._common import (
     write_text,
 )
 from bayeshyst.data import excitation
-from bayeshyst.data.record import Dataset, Record
+from bayeshyst.data.dataset import Dataset
+from bayeshyst.data.record import Record
 from bayeshyst.data.virtual import AR1Noise, VirtualActuator
 from bayeshyst.errors import ParameterError
 from bayeshyst.inference.settings import SamplerSettings

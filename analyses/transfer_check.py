@@ -52,7 +52,8 @@ from analyses._common import (
     write_text,
 )
 from bayeshyst.data import measured
-from bayeshyst.data.record import Dataset, Record
+from bayeshyst.data.dataset import Dataset
+from bayeshyst.data.record import Record
 from bayeshyst.inference.fit import fit_model
 from bayeshyst.inference.settings import SamplerSettings
 from bayeshyst.inverse.validation import check_transfer

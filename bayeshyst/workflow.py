@@ -41,7 +41,8 @@ from typing import Any
 
 import numpy as np
 
-from bayeshyst.data.record import Dataset, Record
+from bayeshyst.data.dataset import Dataset
+from bayeshyst.data.record import Record
 from bayeshyst.diagnosis import DiagnosisResult, diagnose
 from bayeshyst.diagnosis.loop import DiagnosisFit
 from bayeshyst.errors import DataError, ParameterError

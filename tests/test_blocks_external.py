@@ -11,7 +11,8 @@ import numpy as np
 import pytest
 
 from bayeshyst import diagnostics
-from bayeshyst.data.record import Dataset, Record
+from bayeshyst.data.dataset import Dataset
+from bayeshyst.data.record import Record
 from bayeshyst.errors import DataError, ModelError
 from bayeshyst.inference.optimize import find_map
 from bayeshyst.inference.posterior import Posterior

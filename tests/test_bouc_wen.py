@@ -20,7 +20,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.integrate import solve_ivp
 
-from bayeshyst.data.record import Dataset, Record
+from bayeshyst.data.dataset import Dataset
+from bayeshyst.data.record import Record
 from bayeshyst.errors import ModelError, ParameterError, SimulationError
 from bayeshyst.models.bouc_wen import AsymmetricBoucWen, BoucWen
 from bayeshyst.models.bouc_wen_variants import DEFAULT_FS, BoucWenOscillator, sampling_rate

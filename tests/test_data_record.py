@@ -9,15 +9,8 @@ import pickle
 import numpy as np
 import pytest
 
-from bayeshyst.data.record import (
-    DEFAULT_UNITS,
-    MAGNITUDE_MAX,
-    MIN_SAMPLES,
-    Dataset,
-    Record,
-    check_fittable,
-    frequency_key,
-)
+from bayeshyst.data.dataset import Dataset, check_fittable
+from bayeshyst.data.record import DEFAULT_UNITS, MAGNITUDE_MAX, MIN_SAMPLES, Record, frequency_key
 from bayeshyst.errors import DataError
 
 

@@ -17,7 +17,8 @@ import numpy as np
 import pytest
 
 from bayeshyst.data import excitation
-from bayeshyst.data.record import Dataset, Record
+from bayeshyst.data.dataset import Dataset
+from bayeshyst.data.record import Record
 from bayeshyst.data.virtual import AR1Noise, VirtualActuator
 from bayeshyst.diagnosis import analyse_residual, diagnose
 from bayeshyst.diagnosis.verdict import SLOW_IN_TIME

@@ -23,7 +23,8 @@ import numpy as np
 import pytest
 
 from bayeshyst.data import excitation
-from bayeshyst.data.record import Dataset, Record
+from bayeshyst.data.dataset import Dataset
+from bayeshyst.data.record import Record
 from bayeshyst.diagnosis.residual import EffectTest
 from bayeshyst.diagnosis.verdict import (
     TIME_DOMAIN,

@@ -16,7 +16,8 @@ import pytest
 from scipy import stats
 from scipy.signal import lfilter
 
-from bayeshyst.data.record import Dataset, Record
+from bayeshyst.data.dataset import Dataset
+from bayeshyst.data.record import Record
 from bayeshyst.diagnosis._heldout import _RIDGE, _Grams
 from bayeshyst.diagnosis.drivers import driver_blocks, scan_drivers, scan_units
 from bayeshyst.diagnosis.spectrum import spectral_lines

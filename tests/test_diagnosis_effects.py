@@ -322,7 +322,7 @@ def test_delay_room_stops_at_half_the_shortest_period():
 # ------------------------------------------------------- effects with several variants
 def test_aux_and_change_point_regressors_are_their_blocks_derivatives():
     # the score regressors are d y / d (g, h) of the block at g = h = 0, per variant
-    from bayeshyst.data.record import Dataset
+    from bayeshyst.data.dataset import Dataset
     from bayeshyst.diagnosis.driven import AuxEffect, ChangePointEffect
     from bayeshyst.models.blocks import AuxInput, ChangePoint
 

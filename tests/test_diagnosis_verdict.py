@@ -67,7 +67,8 @@ def test_the_experiment_named_separates_the_pair():
 
 def test_one_sine_without_holds_cannot_separate_lags_and_more_frequencies_or_holds_can():
     from bayeshyst.data import excitation
-    from bayeshyst.data.record import Dataset, Record
+    from bayeshyst.data.dataset import Dataset
+    from bayeshyst.data.record import Record
     from bayeshyst.diagnosis.verdict import separates_lags
 
     def sine(f):
@@ -103,7 +104,7 @@ def _lagged_record(t, u, frequency_hz, seed, name, warmup):
 
 
 def _diagnose_lag(records, seed):
-    from bayeshyst.data.record import Dataset
+    from bayeshyst.data.dataset import Dataset
     from bayeshyst.diagnosis import diagnose
     from bayeshyst.inference.settings import SamplerSettings
 
@@ -273,7 +274,8 @@ def _stubbed_loop(monkeypatch, pair_gain, gains=None, unconverged=frozenset()):
 
     import bayeshyst.diagnosis.loop as loop
     from bayeshyst.data import excitation
-    from bayeshyst.data.record import Dataset, Record
+    from bayeshyst.data.dataset import Dataset
+    from bayeshyst.data.record import Record
     from bayeshyst.diagnosis.records import DiagnosisFit
     from bayeshyst.inference.fit import TrackingError
 
@@ -363,7 +365,8 @@ def _resonance(lo, hi):
 
 def _two_rates():
     # records sampled at 50 and 200 Hz: no record carries anything above 100 Hz
-    from bayeshyst.data.record import Dataset, Record
+    from bayeshyst.data.dataset import Dataset
+    from bayeshyst.data.record import Record
 
     recs = []
     for fs in (50.0, 200.0):

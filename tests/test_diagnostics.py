@@ -11,7 +11,7 @@ import pytest
 import bayeshyst.models as M
 from bayeshyst import diagnostics as D
 from bayeshyst.data import Record
-from bayeshyst.data.record import Dataset
+from bayeshyst.data.dataset import Dataset
 from bayeshyst.errors import ParameterError
 from bayeshyst.inference.optimize import find_map
 from bayeshyst.inference.posterior import Posterior

@@ -17,7 +17,7 @@ import pytest
 
 from bayeshyst import diagnostics
 from bayeshyst.cli import main
-from bayeshyst.data.record import Dataset
+from bayeshyst.data.dataset import Dataset
 from bayeshyst.inference.optimize import find_map
 from bayeshyst.inference.posterior import Posterior
 from bayeshyst.inference.sampling import sample_posterior

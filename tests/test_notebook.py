@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from bayeshyst.data.record import Dataset
+from bayeshyst.data.dataset import Dataset
 from bayeshyst.inference.fit import fit_model
 from bayeshyst.inference.settings import SamplerSettings
 from bayeshyst.tables import flat_rows, frame

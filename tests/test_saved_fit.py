@@ -14,7 +14,7 @@ import pytest
 
 from bayeshyst import diagnostics
 from bayeshyst import models as M
-from bayeshyst.data.record import Dataset
+from bayeshyst.data.dataset import Dataset
 from bayeshyst.errors import DataError, ModelError
 from bayeshyst.inference.optimize import find_map
 from bayeshyst.inference.posterior import Posterior

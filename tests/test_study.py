@@ -22,8 +22,8 @@ import pytest
 
 from bayeshyst.cli import main
 from bayeshyst.data import load
+from bayeshyst.data.dataset import Dataset
 from bayeshyst.data.io import write_csv
-from bayeshyst.data.record import Dataset
 from bayeshyst.errors import ModelError, ParameterError
 from bayeshyst.inference.settings import SamplerSettings
 from bayeshyst.outputs.study_outputs import write_study_outputs

@@ -1,7 +1,7 @@
 """Measurement data: validated records, file formats, segmentation, measured sets.
 
 * :class:`Record` / :class:`Dataset` -- validated once at construction
-  (:mod:`bayeshyst.data.record`);
+  (:mod:`bayeshyst.data.record`, :mod:`bayeshyst.data.dataset`);
 * :func:`load`, ``read_*`` / ``write_*`` -- CSV/text, ``.npz``, ``.mat`` with JSON
   sidecars (:mod:`bayeshyst.data.io`, parser in :mod:`bayeshyst.data.parsing`);
 * :func:`find_reversals`, :func:`split_cycles`, :func:`estimate_frequency`,
@@ -19,6 +19,7 @@
 from __future__ import annotations
 
 from bayeshyst.data import excitation
+from bayeshyst.data.dataset import Dataset
 from bayeshyst.data.io import load, read_csv, read_mat, read_npz, write_csv, write_npz
 from bayeshyst.data.measured import (
     load_micromanipulator_reference,
@@ -28,7 +29,7 @@ from bayeshyst.data.measured import (
     shared_data_root,
 )
 from bayeshyst.data.parsing import Table, read_table, sidecar_path
-from bayeshyst.data.record import DEFAULT_UNITS, MIN_SAMPLES, Dataset, Record, frequency_key
+from bayeshyst.data.record import DEFAULT_UNITS, MIN_SAMPLES, Record, frequency_key
 from bayeshyst.data.segment import (
     CycleSplit,
     cycle_labels,

@@ -1,6 +1,6 @@
 """Reading and writing measurement files (CSV/text, ``.npz``, ``.mat``) with JSON sidecars.
 
-Every reader returns a :class:`~bayeshyst.data.record.Dataset` (one Record per contiguous
+Every reader returns a :class:`~bayeshyst.data.dataset.Dataset` (one Record per contiguous
 block; see :func:`read_csv`) and reports a malformed file with a
 :class:`~bayeshyst.errors.DataError` naming the file, the column, the row (1-based file
 line for text files, the header being line 1; 0-based index for arrays) and what was
@@ -35,7 +35,7 @@ Fittable data
 -------------
 By default the readers also refuse what no model can be fitted to, once, here at the
 file: an input or output that is constant over the whole file, or magnitudes outside
-the range a fit handles (:func:`~bayeshyst.data.record.check_fittable`). ``fittable=False``
+the range a fit handles (:func:`~bayeshyst.data.dataset.check_fittable`). ``fittable=False``
 reads any finite data (to convert or plot it).
 """
 
@@ -53,6 +53,7 @@ from typing import Any
 
 import numpy as np
 
+from bayeshyst.data.dataset import Dataset, check_fittable
 from bayeshyst.data.parsing import (
     OPTIONAL_ROLES,
     REQUIRED_ROLES,
@@ -64,7 +65,7 @@ from bayeshyst.data.parsing import (
     role_labels,
     sidecar_path,
 )
-from bayeshyst.data.record import MIN_SAMPLES, Dataset, Record, check_fittable
+from bayeshyst.data.record import MIN_SAMPLES, Record
 from bayeshyst.data.units import header_units
 from bayeshyst.errors import DataError
 from bayeshyst.files import atomic_paths
@@ -260,7 +261,7 @@ def read_csv(
     name : str, optional
         Dataset name (default: the sidecar's ``name``, else the file stem).
     fittable : bool, default True
-        Refuse data no model can be fitted to (:func:`~bayeshyst.data.record.check_fittable`:
+        Refuse data no model can be fitted to (:func:`~bayeshyst.data.dataset.check_fittable`:
         a constant input or output, magnitudes outside the supported range). False
         reads any finite data, e.g. to convert or plot it.
 

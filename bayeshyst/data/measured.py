@@ -27,8 +27,9 @@ from typing import Any, Literal
 
 import numpy as np
 
+from bayeshyst.data.dataset import Dataset
 from bayeshyst.data.parsing import read_table
-from bayeshyst.data.record import Dataset, Record
+from bayeshyst.data.record import Record
 from bayeshyst.data.segment import find_reversals
 from bayeshyst.errors import DataError
 

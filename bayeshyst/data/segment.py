@@ -19,7 +19,8 @@ from typing import Literal
 
 import numpy as np
 
-from bayeshyst.data.record import MIN_SAMPLES, Dataset, Record
+from bayeshyst.data.dataset import Dataset
+from bayeshyst.data.record import MIN_SAMPLES, Record
 from bayeshyst.errors import DataError
 
 __all__ = [

@@ -65,8 +65,9 @@ from bayeshyst.data._virtual_kernels import (
     ThermalDrift,
     _check,
 )
+from bayeshyst.data.dataset import Dataset
 from bayeshyst.data.io import write_csv
-from bayeshyst.data.record import Dataset, Record
+from bayeshyst.data.record import Record
 from bayeshyst.errors import DataError, ParameterError
 
 __all__ = [

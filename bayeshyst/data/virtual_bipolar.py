@@ -32,7 +32,8 @@ import numpy as np
 from scipy import stats
 
 from bayeshyst.data._bipolar_kernels import bipolar_path
-from bayeshyst.data.record import Dataset, Record
+from bayeshyst.data.dataset import Dataset
+from bayeshyst.data.record import Record
 from bayeshyst.errors import DataError, ParameterError
 
 __all__ = ["BIPOLAR_UNITS", "BipolarActuator", "bipolar_records"]

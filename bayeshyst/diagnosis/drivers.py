@@ -65,7 +65,7 @@ from typing import Any
 
 import numpy as np
 
-from bayeshyst.data.record import Dataset
+from bayeshyst.data.dataset import Dataset
 from bayeshyst.diagnosis._heldout import _Grams, correlation_length, sign_patterns
 from bayeshyst.discrepancy import branch_coordinate
 from bayeshyst.inference.posterior import cycle_units

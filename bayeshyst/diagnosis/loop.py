@@ -56,7 +56,8 @@ from typing import Any
 
 import numpy as np
 
-from bayeshyst.data.record import Dataset, Record
+from bayeshyst.data.dataset import Dataset
+from bayeshyst.data.record import Record
 from bayeshyst.diagnosis.candidates import (
     BRANCH_SHAPE,
     DISTURBANCE,

@@ -30,7 +30,7 @@ from typing import Any, ClassVar
 import numpy as np
 from scipy import stats
 
-from bayeshyst.data.record import Dataset
+from bayeshyst.data.dataset import Dataset
 from bayeshyst.diagnosis.catalogue import EFFECTS
 from bayeshyst.diagnosis.drivers import (
     DriverScan,

@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 from scipy.stats import f as f_dist
 
-from bayeshyst.data.record import Dataset
+from bayeshyst.data.dataset import Dataset
 from bayeshyst.tables import TableRecord, frame
 
 __all__ = ["SpectralLine", "spectral_lines"]

@@ -23,7 +23,8 @@ from sklearn.gaussian_process import GaussianProcessRegressor
 from sklearn.utils import check_random_state
 from sklearn.utils.validation import check_is_fitted
 
-from bayeshyst.data.record import Dataset, Record
+from bayeshyst.data.dataset import Dataset
+from bayeshyst.data.record import Record
 from bayeshyst.data.segment import default_prominence
 from bayeshyst.errors import ParameterError
 from bayeshyst.gp.features import (

@@ -21,7 +21,8 @@ import numpy as np
 from scipy.special import logsumexp
 from sklearn.utils.validation import check_is_fitted
 
-from bayeshyst.data.record import Dataset, Record
+from bayeshyst.data.dataset import Dataset
+from bayeshyst.data.record import Record
 from bayeshyst.errors import DataError, ParameterError
 from bayeshyst.gp.features import SignalRecord
 from bayeshyst.gp.kernel import Conditioned, small_blas

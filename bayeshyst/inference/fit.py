@@ -14,7 +14,8 @@ from typing import Any
 
 import numpy as np
 
-from bayeshyst.data.record import Dataset, Record
+from bayeshyst.data.dataset import Dataset
+from bayeshyst.data.record import Record
 from bayeshyst.discrepancy import Discrepancy
 from bayeshyst.inference.calibration import (
     Calibration,

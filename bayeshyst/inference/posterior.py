@@ -19,7 +19,8 @@ from typing import Any
 
 import numpy as np
 
-from bayeshyst.data.record import Dataset, Record
+from bayeshyst.data.dataset import Dataset
+from bayeshyst.data.record import Record
 from bayeshyst.data.segment import cycle_labels
 from bayeshyst.discrepancy import DISC, Discrepancy, make_discrepancy
 from bayeshyst.errors import DataError, ParameterError, SimulationError

@@ -26,7 +26,8 @@ from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
-from bayeshyst.data.record import Dataset, Record
+from bayeshyst.data.dataset import Dataset
+from bayeshyst.data.record import Record
 from bayeshyst.inference.posterior import EvalCounts, Unit
 from bayeshyst.params import ParamSpace
 
@@ -154,7 +155,7 @@ class UnitLogDensity:
 class Predictor(Protocol):
     """A fitted model that predicts records and scores their cycles.
 
-    Every method takes a :class:`~bayeshyst.data.record.Dataset` or one
+    Every method takes a :class:`~bayeshyst.data.dataset.Dataset` or one
     :class:`~bayeshyst.data.record.Record` and works in the data's output units.
     """
 

@@ -28,7 +28,8 @@ from typing import Any
 import numpy as np
 
 from bayeshyst._version import __version__
-from bayeshyst.data.record import Dataset, Record
+from bayeshyst.data.dataset import Dataset
+from bayeshyst.data.record import Record
 from bayeshyst.discrepancy import Discrepancy
 from bayeshyst.errors import DataError, ModelError, ParameterError
 from bayeshyst.inference.posterior import Posterior

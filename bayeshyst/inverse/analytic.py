@@ -25,7 +25,8 @@ from typing import Any
 
 import numpy as np
 
-from bayeshyst.data.record import Dataset, Record
+from bayeshyst.data.dataset import Dataset
+from bayeshyst.data.record import Record
 from bayeshyst.errors import ModelError
 from bayeshyst.models import registry
 from bayeshyst.models.base import HysteresisModel

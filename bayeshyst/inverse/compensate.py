@@ -36,7 +36,8 @@ from typing import Any
 
 import numpy as np
 
-from bayeshyst.data.record import Dataset, Record
+from bayeshyst.data.dataset import Dataset
+from bayeshyst.data.record import Record
 from bayeshyst.data.virtual import VirtualActuator
 from bayeshyst.errors import DataError, ParameterError
 from bayeshyst.inference.fit import FitResult, fit_model

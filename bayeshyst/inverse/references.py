@@ -16,8 +16,8 @@ from pathlib import Path
 
 import numpy as np
 
+from bayeshyst.data.dataset import Dataset
 from bayeshyst.data.parsing import is_number
-from bayeshyst.data.record import Dataset
 from bayeshyst.data.units import ROLE_NAMES, conversion, split_header
 from bayeshyst.data.virtual import VirtualActuator
 from bayeshyst.errors import DataError, ParameterError

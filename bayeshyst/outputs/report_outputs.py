@@ -32,7 +32,7 @@ from typing import Any
 import numpy as np
 
 from bayeshyst._version import __version__
-from bayeshyst.data.record import Dataset
+from bayeshyst.data.dataset import Dataset
 from bayeshyst.files import atomic_path, json_text
 from bayeshyst.outputs.assemble import corner_figure_name, joint_tasks
 from bayeshyst.outputs.compare_outputs import write_comparison_outputs

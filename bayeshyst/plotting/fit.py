@@ -22,7 +22,7 @@ import numpy as np
 from matplotlib.collections import PolyCollection
 from matplotlib.figure import Figure
 
-from bayeshyst.data.record import Dataset
+from bayeshyst.data.dataset import Dataset
 from bayeshyst.errors import ParameterError
 from bayeshyst.inference.posterior import Posterior
 from bayeshyst.inference.sampling_result import SamplingResult

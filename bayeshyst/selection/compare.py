@@ -35,7 +35,8 @@ from typing import Any
 
 import numpy as np
 
-from bayeshyst.data.record import Dataset, Record
+from bayeshyst.data.dataset import Dataset
+from bayeshyst.data.record import Record
 from bayeshyst.errors import DataError, ModelError, ParameterError
 from bayeshyst.inference.settings import SamplerSettings
 from bayeshyst.likelihoods import get_likelihood

@@ -14,7 +14,8 @@ from typing import Any
 
 import numpy as np
 
-from bayeshyst.data.record import Dataset, frequency_label
+from bayeshyst.data.dataset import Dataset
+from bayeshyst.data.record import frequency_label
 from bayeshyst.inference.saved import load_fit
 from bayeshyst.selection.results import ComparisonResult
 from bayeshyst.tables import TableRecord, frame

@@ -19,7 +19,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.special import logsumexp
 
-from bayeshyst.data.record import Dataset, Record
+from bayeshyst.data.dataset import Dataset
+from bayeshyst.data.record import Record
 from bayeshyst.diagnostics import loo, to_inference_data
 from bayeshyst.errors import DataError
 from bayeshyst.inference.posterior import NOISE, Posterior

@@ -43,7 +43,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from scipy.special import logsumexp
 
-from bayeshyst.data.record import Dataset
+from bayeshyst.data.dataset import Dataset
 from bayeshyst.diagnostics import PARETO_K_BAD, loo, save_netcdf, to_inference_data, waic
 from bayeshyst.errors import DataError, ModelError, ParameterError, SimulationError
 from bayeshyst.gp import gp_from_spec

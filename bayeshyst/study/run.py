@@ -29,7 +29,8 @@ from typing import Any
 
 import numpy as np
 
-from bayeshyst.data.record import Dataset, frequency_label
+from bayeshyst.data.dataset import Dataset
+from bayeshyst.data.record import frequency_label
 from bayeshyst.errors import DataError, ParameterError
 from bayeshyst.files import atomic_path
 from bayeshyst.study.rows import failed_row, fit_record, read_record, write_record

@@ -376,7 +376,7 @@ def load_dataset(spec: DatasetSpec) -> Any:
         The file cannot be read or the measured set is not there (the message names it).
     """
     from bayeshyst.data import load
-    from bayeshyst.data.record import Dataset
+    from bayeshyst.data.dataset import Dataset
 
     if spec.error is not None:
         raise DataError(spec.error)

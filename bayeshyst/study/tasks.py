@@ -29,7 +29,7 @@ from typing import Any
 
 import numpy as np
 
-from bayeshyst.data.record import Dataset
+from bayeshyst.data.dataset import Dataset
 from bayeshyst.selection.tasks import (
     CompareSettings,
     TaskResult,
