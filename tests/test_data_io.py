@@ -14,9 +14,10 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from bayeshyst.data.dataset import Dataset
-from bayeshyst.data.io import load, read_csv, read_mat, read_npz, write_csv, write_npz
+from bayeshyst.data.io import load, read_csv, read_mat, read_npz
 from bayeshyst.data.parsing import read_table, sidecar_path
 from bayeshyst.data.record import MAGNITUDE_MAX, RESOLUTION_MIN, SPAN_MIN, Record
+from bayeshyst.data.writers import write_csv, write_npz
 from bayeshyst.errors import DataError
 
 BAD = Path(__file__).parent / "data" / "bad"

@@ -23,7 +23,7 @@ import pytest
 from bayeshyst.cli import main
 from bayeshyst.data import load
 from bayeshyst.data.dataset import Dataset
-from bayeshyst.data.io import write_csv
+from bayeshyst.data.writers import write_csv
 from bayeshyst.outputs import html as H
 from bayeshyst.outputs.report_outputs import SECTIONS
 from bayeshyst.workflow import DEMO_QUICK, bundled_data

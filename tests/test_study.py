@@ -23,7 +23,7 @@ import pytest
 from bayeshyst.cli import main
 from bayeshyst.data import load
 from bayeshyst.data.dataset import Dataset
-from bayeshyst.data.io import write_csv
+from bayeshyst.data.writers import write_csv
 from bayeshyst.errors import ModelError, ParameterError
 from bayeshyst.inference.settings import SamplerSettings
 from bayeshyst.outputs.study_outputs import write_study_outputs

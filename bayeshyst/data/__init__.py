@@ -3,7 +3,8 @@
 * :class:`Record` / :class:`Dataset` -- validated once at construction
   (:mod:`bayeshyst.data.record`, :mod:`bayeshyst.data.dataset`);
 * :func:`load`, ``read_*`` / ``write_*`` -- CSV/text, ``.npz``, ``.mat`` with JSON
-  sidecars (:mod:`bayeshyst.data.io`, parser in :mod:`bayeshyst.data.parsing`);
+  sidecars (:mod:`bayeshyst.data.io`, :mod:`bayeshyst.data.writers`, parser in
+  :mod:`bayeshyst.data.parsing`);
 * :func:`find_reversals`, :func:`split_cycles`, :func:`estimate_frequency`,
   :func:`split_by_frequency`, :func:`label_frequencies` -- cycles and frequency blocks
   (:mod:`bayeshyst.data.segment`);
@@ -20,7 +21,7 @@ from __future__ import annotations
 
 from bayeshyst.data import excitation
 from bayeshyst.data.dataset import Dataset
-from bayeshyst.data.io import load, read_csv, read_mat, read_npz, write_csv, write_npz
+from bayeshyst.data.io import load, read_csv, read_mat, read_npz
 from bayeshyst.data.measured import (
     load_micromanipulator_reference,
     load_mr_damper,
@@ -52,6 +53,7 @@ from bayeshyst.data.virtual import (
     loop_width,
 )
 from bayeshyst.data.virtual_bipolar import BIPOLAR_UNITS, BipolarActuator, bipolar_records
+from bayeshyst.data.writers import write_csv, write_npz
 
 __all__ = [
     "BIPOLAR_UNITS",

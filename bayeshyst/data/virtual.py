@@ -66,8 +66,8 @@ from bayeshyst.data._virtual_kernels import (
     _check,
 )
 from bayeshyst.data.dataset import Dataset
-from bayeshyst.data.io import write_csv
 from bayeshyst.data.record import Record
+from bayeshyst.data.writers import write_csv
 from bayeshyst.errors import DataError, ParameterError
 
 __all__ = [
