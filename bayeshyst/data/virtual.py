@@ -3,8 +3,9 @@
 Every test that needs ground truth (posterior coverage, model selection per frequency,
 residual diagnosis that must name a hidden effect, feedforward) simulates data here,
 switching effects on and off. The implementation is independent of
-:mod:`bayeshyst.models` (its kernels live in :mod:`bayeshyst.data._virtual_kernels`),
-so a model test compares two different codes.
+:mod:`bayeshyst.models` (its effects live in :mod:`bayeshyst.data._virtual_effects`,
+their kernels in :mod:`bayeshyst.data._virtual_kernels`), so a model test compares two
+different codes.
 
 Signal chain (each block switchable; defaults are typical of a 150 V piezo stack with
 :data:`STROKE_UM` = 40 um quasi-static stroke)::
@@ -55,7 +56,7 @@ import numpy as np
 
 from bayeshyst.data import _virtual_kernels as kern
 from bayeshyst.data import excitation
-from bayeshyst.data._virtual_kernels import (
+from bayeshyst.data._virtual_effects import (
     STROKE_UM,
     AR1Noise,
     LogCreep,
@@ -64,6 +65,7 @@ from bayeshyst.data._virtual_kernels import (
     SensorDelay,
     ThermalDrift,
     _check,
+    preisach_offset,
 )
 from bayeshyst.data.dataset import Dataset
 from bayeshyst.data.record import Record
@@ -269,7 +271,7 @@ class VirtualActuator:
         y = self.gain_um_per_v * u
         if self.hysteresis is not None:
             table, lo, step = self.hysteresis.everett()
-            y = y + kern.static_path(u, table, lo, step) - kern.preisach_offset(self.hysteresis)
+            y = y + kern.static_path(u, table, lo, step) - preisach_offset(self.hysteresis)
         return y
 
     def simulate(self, t: np.ndarray, u: np.ndarray, *,
@@ -337,7 +339,7 @@ class VirtualActuator:
         n_grid = round(q[-1]) + 1
         if self.hysteresis is not None:
             table, lo, step = self.hysteresis.everett()
-            offset = kern.preisach_offset(self.hysteresis)
+            offset = preisach_offset(self.hysteresis)
         else:
             table, lo, step, offset = _NO_TABLE, 0.0, 1.0, 0.0
         if self.creep is not None:
