@@ -59,6 +59,7 @@ range.
 
 from __future__ import annotations
 
+import hashlib
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
@@ -341,6 +342,21 @@ class Discrepancy:
         """Basis coefficients ``s * xi`` (W, m)."""
         xi = np.asarray(theta["xi"], float).reshape(-1, self.size)
         return self.column_scale(theta) * xi
+
+    def fingerprint(self) -> str:
+        """What this discrepancy is, as 16 hex digits: scalings, basis sizes, constraint.
+
+        Two discrepancies built on the same data at different anchors have the same
+        parameter space but different bases; a fit's identity (and so its checkpoint)
+        must tell them apart. The constraint enters through its projector ``V V^T``,
+        which does not depend on the signs or order the SVD gave the directions.
+        """
+        h = hashlib.sha256(repr((self.n_input, self.n_rate, self.u_centre, self.u_half,
+                                 self.rate_centre, self.rate_half, self.y_span)).encode())
+        if self.constraint is not None and self.constraint.shape[1]:
+            proj = self.constraint @ self.constraint.T
+            h.update((np.round(proj, 10) + 0.0).tobytes())  # + 0.0: no -0.0 bytes
+        return h.hexdigest()[:16]
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready description (what summary.json records)."""

@@ -456,3 +456,75 @@ def test_robust_command_hedges_over_whether_the_discrepancy_holds(pi, transfer):
     y_model = model.simulate(ff.u, t, theta)
     shift = c * (0.5 if transfer < 1.0 else 1.0)
     np.testing.assert_allclose(y_model, y_d - shift, atol=1e-3 * np.ptp(y_d))
+
+
+# ------------------------------------------------------------------ candidates on top
+
+
+def _loglik_with(post, z_from, names_from):
+    """``post``'s log-likelihood at a point copied by name from another space (the rest 0).
+
+    A composite's base-model parameters carry the prefix ``static.``.
+    """
+    z = np.zeros(post.ndim)
+    for n in post.space.names:
+        src = n.removeprefix("static.")
+        if src in names_from:
+            z[post.space.slice_of(n)] = z_from[names_from.slice_of(src)]
+    return float(post.log_likelihood_units(z[None])[0].sum())
+
+
+def test_a_candidate_on_top_of_the_correction_nests_the_current_fit(pi):
+    # oracle: nesting. A candidate fitted on top of a shape correction keeps that
+    # correction (the one kept off the *current* model's sensitivities), so at its added
+    # parameters' null value it has the current fit's log-likelihood for any coefficients.
+    # Re-anchored at the augmented model (the defect this guards against), the basis
+    # loses the new parameters' directions and the same coefficients give another delta.
+    from bayeshyst.diagnosis.loop import _candidate_discrepancy
+    from bayeshyst.models.blocks import Drift
+    from bayeshyst.models.compose import Composite
+
+    model, rec, _ = pi
+    data = Dataset((rec,))
+    post0 = Posterior(data, model)
+    rng = np.random.default_rng(3)
+    z0 = post0.space.sample_prior(rng, 1)[0]
+    z_model = np.concatenate([z0[post0.space.slice_of(n)] for n in post0.model_space.names])
+    disc = Discrepancy.for_data(data, anchor=Anchor(model, post0.model_space, z_model))
+    hyper = {"disc.amplitude": 0.05 * disc.y_span, "disc.branch_amplitude": 0.05 * disc.y_span,
+             "disc.length": 0.5}
+
+    def with_scales(post):
+        for n, v in hyper.items():
+            post = post.fix(n, v)
+        return post
+
+    base = with_scales(Posterior(data, model, discrepancy=disc))
+    assert _candidate_discrepancy(base, "hsgp") is base.discrepancy
+    assert _candidate_discrepancy(post0, "hsgp") == "hsgp"  # the shape candidate itself
+    assert _candidate_discrepancy(base, None) is None
+
+    cand_model = Composite(model, (Drift(),))
+    cand = with_scales(Posterior(data, cand_model,
+                                 discrepancy=_candidate_discrepancy(base, "hsgp")))
+    cand_space = Posterior(data, cand_model).model_space
+    z_cand = np.concatenate([z0[post0.space.slice_of(n.removeprefix("static."))]
+                             if n.removeprefix("static.") in post0.space.names
+                             else np.zeros(cand_space[n].size)  # drift at its null value
+                             for n in cand_space.names])
+    reanchored = with_scales(Posterior(data, cand_model, discrepancy=Discrepancy.for_data(
+        data, anchor=Anchor(cand_model, cand_space, z_cand))))
+    gaps = []
+    for _ in range(3):
+        z = base.space.sample_prior(rng, 1)[0]
+        z[base.space.slice_of("noise.sigma")] = z0[post0.space.slice_of("noise.sigma")]
+        for n in post0.model_space.names:
+            z[base.space.slice_of(n)] = z0[post0.space.slice_of(n)]
+        ll = _loglik_with(base, z, base.space)
+        assert _loglik_with(cand, z, base.space) == pytest.approx(ll, rel=1e-10, abs=1e-8)
+        gaps.append(abs(_loglik_with(reanchored, z, base.space) - ll))
+    assert min(gaps) > 1e-3  # the test can tell the two constructions apart
+    # and a fit's identity tells them apart too (same space, other basis)
+    assert cand.discrepancy.fingerprint() != reanchored.discrepancy.fingerprint()
+    assert Discrepancy.for_data(data, anchor=Anchor(model, post0.model_space, z_model)
+                                ).fingerprint() == disc.fingerprint()

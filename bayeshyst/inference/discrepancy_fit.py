@@ -102,6 +102,8 @@ def attach_discrepancy(post0: Posterior, start: MAPResult,
     start : MAPResult
         Its MAP (the anchor and the point the scales are optimised at).
     kind : {"hsgp", "none"} or Discrepancy
+        ``"hsgp"`` builds one anchored at ``start``; a Discrepancy is used as it is
+        (its constraint already fixed, e.g. the one of the fit a candidate augments);
         ``"none"`` returns ``post0`` unchanged.
     fix_noise : bool
         Hold the noise at its held-out optimum too (default). Sampled in-sample, sigma

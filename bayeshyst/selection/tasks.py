@@ -274,7 +274,8 @@ def fit_identity(post: Posterior, sampler: SamplerSettings) -> str:
     """What a fit is, as 16 hex digits.
 
     The digits hash the model, likelihood, priors (and the coordinates that are not
-    their default, :attr:`~bayeshyst.params.ParamSpace.declared_transforms`), offset, data
+    their default, :attr:`~bayeshyst.params.ParamSpace.declared_transforms`), offset, the
+    discrepancy's basis (:meth:`~bayeshyst.discrepancy.Discrepancy.fingerprint`), data
     values (not file names), held-out cycles and the sampler settings but their seed.
 
     Two commands that fit the same posterior with the same settings (the comparison's
@@ -289,6 +290,8 @@ def fit_identity(post: Posterior, sampler: SamplerSettings) -> str:
     declared = post.space.declared_transforms
     if declared:  # (only then: other fits keep their identities)
         what += (declared,)
+    if post.discrepancy is not None:  # its basis: the space alone does not tell it
+        what += (post.discrepancy.fingerprint(),)
     h.update(repr(what).encode())
     for rec in post.data:
         for arr in (rec.t, rec.u, rec.y):
