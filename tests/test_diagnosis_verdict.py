@@ -355,6 +355,9 @@ def test_a_gate_on_an_unconverged_fit_decides_nothing_and_the_round_goes_on(monk
     assert "not decided, because its fit did not converge" in result.verdict
     assert any(w.startswith("delay: not decided") for w in result.warnings)
     assert first.to_dict()["outcome"] == "not decided" and "not decided" in str(first)
+    # the outcome is said once: the reason's own prefix is not repeated in the verdict
+    rest = first.reason.removeprefix("not decided: ")
+    assert first.verdict() == f"not decided ({rest})" and "(not decided" not in str(first)
 
 
 def _resonance(lo, hi):

@@ -327,8 +327,7 @@ def _credited(effect: str, fitted: Fitted, unexplained: EffectTest | None,
             fitted = (cand, step, fitted[2], fitted[3])
     else:
         steps.append(step)
-    _log.info("round %d: %s %s (%s)", rnd, fitted[1].effect, fitted[1].outcome,
-              fitted[1].reason)
+    _log.info("round %d: %s %s", rnd, fitted[1].effect, fitted[1].verdict())
     return fitted, ran
 
 

@@ -217,6 +217,17 @@ class DiagnosisStep(TableRecord):
             return "accepted"
         return "not decided" if self.decided_by == NOT_CONVERGED else "rejected"
 
+    def verdict(self, accepted: str = "accepted") -> str:
+        """``"<outcome> (<reason>)"``, the reason without the outcome it may start with.
+
+        ``accepted`` is the word for an accepted step (``"ACCEPTED"`` in a report).
+        """
+        word = accepted if self.accepted else self.outcome
+        reason = self.reason
+        if reason.startswith(f"{self.outcome}: "):
+            reason = reason[len(self.outcome) + 2:]
+        return f"{word} ({reason})"
+
     def to_dataframe(self) -> Any:
         """One row: :meth:`to_dict` without the per-frequency and parameter lists."""
         return frame([self.to_dict()], drop=("per_frequency", "added_parameters"))
@@ -248,9 +259,8 @@ class DiagnosisStep(TableRecord):
         }
 
     def __str__(self) -> str:
-        verdict = "ACCEPTED" if self.accepted else self.outcome
-        lines = [f"round {self.index}: {self.effect} -> {self.model_after}: {verdict} "
-                 f"({self.reason})",
+        lines = [f"round {self.index}: {self.effect} -> {self.model_after}: "
+                 f"{self.verdict('ACCEPTED')}",
                  f"  test: {self.test}",
                  f"  RMSE {self.before.rmse:.4g} -> {self.after.rmse:.4g}, max "
                  f"{self.before.max_error:.4g} -> {self.after.max_error:.4g}; "
