@@ -360,3 +360,60 @@ def test_fit_sampler_names_a_fit_by_what_it_is_and_its_seed(tmp_path):
     # the de engine's walker floor applies to every command fitting that posterior
     de = fit_sampler(Posterior(rec, model), base.replace(moves="de", n_walkers=4), 1, tmp_path)
     assert de.n_walkers == 2 * Posterior(rec, model).ndim + 2
+
+
+@pytest.mark.parametrize("moves", ["structured", "de", "stretch"])
+def test_a_coordinate_every_starting_walker_shares_still_reaches_its_posterior(moves):
+    # oracle: the conjugate posterior of the PI weights at known sigma. Every walker
+    # starts at the same, deliberately wrong value of p0 (3 sd off its mean, as a
+    # candidate's new parameter set at a score test's estimate); ensemble moves move
+    # along walker differences, so without drawing it apart p0 would never move (emcee
+    # refuses such a start for its own moves; the structured ones skip that check, and
+    # stalled silently). The likelihood is tempered (beta = 1/2) so that the structured
+    # moves have no exact linear block and p0 is theirs to move; at known sigma that is
+    # the Gaussian posterior with sigma / sqrt(beta)
+    model, rec, _ = pi_data(n_ops=3, sigma=0.05)
+    fixed = Posterior(rec, model, beta=0.5).fix("noise.sigma", 0.05)
+    exact = conjugate_posterior(Posterior(rec, model).fix("noise.sigma", 0.05 / math.sqrt(0.5)))
+    start = find_map(fixed, seed=0, global_search=False, n_screen=64, n_starts=1)
+    rng = np.random.default_rng(3)
+    walkers = exact.mean + rng.standard_normal((64, exact.mean.size)) * exact.sd
+    walkers[:, 0] = exact.mean[0] + 3 * exact.sd[0]
+    res = sample_posterior(fixed, SamplerSettings(seed=4, max_steps=8000, first_chunk=1000,
+                                                  moves=moves),
+                           start=start, initial=walkers)
+    assert res.converged, res.convergence
+    p0 = res.flat_z[:, 0]
+    se = exact.sd[0] / np.sqrt(res.convergence.ess_bulk_min)
+    assert abs(p0.mean() - exact.mean[0]) < 5 * se
+    np.testing.assert_allclose(p0.std(ddof=1), exact.sd[0], rtol=0.1)
+
+
+def test_walkers_without_a_shared_coordinate_are_returned_as_given():
+    # the repair must not touch an ensemble that needs none (a checkpoint started from
+    # it keeps its identity); with one shared coordinate only that coordinate changes,
+    # and its new spread is the Laplace conditional's (oracle: a Gaussian posterior's
+    # conditional sd, 1 / sqrt(P_00))
+    from bayeshyst.inference.optimize import spread_shared_coordinates
+
+    model, rec, _ = pi_data(n_ops=3, sigma=0.05)
+    fixed = Posterior(rec, model).fix("noise.sigma", 0.05)
+    start = find_map(fixed, seed=0, global_search=False, n_screen=64, n_starts=1)
+    rng = np.random.default_rng(0)
+    chol = np.linalg.cholesky(start.covariance)
+    walkers = start.z + rng.standard_normal((4000, start.z.size)) @ chol.T
+    same, shared = spread_shared_coordinates(fixed, start, walkers,
+                                             np.arange(fixed.ndim), rng)
+    assert same is walkers and shared.size == 0
+    walkers[:, 1] = start.z[1]
+    out, shared = spread_shared_coordinates(fixed, start, walkers,
+                                            np.arange(fixed.ndim), rng)
+    assert shared.tolist() == [1] and out.shape == walkers.shape
+    np.testing.assert_array_equal(np.delete(out, 1, axis=1), np.delete(walkers, 1, axis=1))
+    cond_sd = 1 / np.sqrt(np.linalg.inv(start.covariance)[1, 1])
+    # 4000 draws: the sd's relative se is 1.1 %; 5 % is over 4 se
+    np.testing.assert_allclose(out[:, 1].std(ddof=1), cond_sd, rtol=0.05)
+    # and a coordinate left to an exact Gibbs draw is not touched
+    walkers[:, 2] = start.z[2]
+    out, shared = spread_shared_coordinates(fixed, start, walkers, np.array([0, 2]), rng)
+    assert shared.tolist() == [2] and np.all(out[:, 1] == start.z[1])

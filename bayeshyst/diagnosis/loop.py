@@ -167,7 +167,8 @@ def _warm_walkers(post: Posterior, previous: DiagnosisFit, added: dict[str, Any]
     """The previous fit's final ensembles carried into ``post``: the starting walkers.
 
     So the augmented posterior is not sampled from scratch; None where none has finite
-    density (the sampler then starts alone).
+    density (the sampler then starts alone). The added parameters are at one estimate
+    in every walker: the sampler draws such shared coordinates apart before it starts.
     """
     last = previous.sampling.chains[:, -1].reshape(-1, previous.posterior.ndim)
     walkers = _carried(post, previous, added, last, seed + 1)

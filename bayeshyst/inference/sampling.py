@@ -48,6 +48,7 @@ from bayeshyst.inference.optimize import (
     conditional_start,
     find_map,
     initial_ensemble,
+    spread_shared_coordinates,
 )
 from bayeshyst.inference.posterior import EvalCounts, Posterior
 from bayeshyst.inference.sampling_result import SamplingResult
@@ -146,6 +147,24 @@ def _fingerprint(post: Posterior, settings: SamplerSettings, n_walkers: int,
         "initial_sha256": start,
         **settings.fingerprint(),
     }
+
+
+def _unshared(post: Posterior, start: MAPResult, initial: np.ndarray, idx: np.ndarray,
+              rng: np.random.Generator) -> np.ndarray:
+    """The given walkers, with the coordinates they all share drawn apart.
+
+    :func:`~bayeshyst.inference.optimize.spread_shared_coordinates` on those with finite
+    density; ``initial`` itself when none is shared (its checkpoint identity unchanged).
+    """
+    pool = np.asarray(initial, dtype=float).reshape(-1, post.ndim)
+    pool = pool[np.isfinite(post.log_prob_batch(pool))]
+    spread, shared = spread_shared_coordinates(post, start, pool, idx, rng)
+    if shared.size == 0:
+        return initial
+    _log.info("%s: the starting walkers shared %s; drawn apart from the Laplace "
+              "conditional (an ensemble cannot leave a subspace it starts in)",
+              post.model.name, ", ".join(post.space.labels[i] for i in shared))
+    return spread
 
 
 def _initial_positions(post: Posterior, start: MAPResult, initial: np.ndarray | None,
@@ -406,7 +425,9 @@ def sample_posterior(
         Starting walkers (e.g. an earlier fit's draws of the same coordinates: a
         leave-one-cycle-out refit starts from the full-data ensembles); each ensemble
         takes its walkers from them, and Laplace draws replace any without finite
-        density.
+        density. A coordinate every given walker shares (a parameter set at one
+        estimate) is drawn apart first, from the Laplace conditional: an ensemble's
+        moves cannot leave the subspace it starts in.
 
     Returns
     -------
@@ -454,6 +475,10 @@ def _sample_posterior(post: Posterior, settings: SamplerSettings | None,
     if not structured and n_walkers < 2 * ndim:
         raise ParameterError(f"n_walkers={n_walkers} is too few for {ndim} dimensions with "
                              f"{settings.moves!r} moves (need >= {2 * ndim})")
+    if initial is not None:
+        initial = _unshared(post, start, initial, StructuredTarget(post, structure).other_idx,
+                            np.random.default_rng(np.random.SeedSequence(settings.seed)
+                                                  .spawn(n_ens + 2)[-1]))
     fp = None
     if checkpoint is not None:
         fp = _fingerprint(post, settings, n_walkers, initial)
