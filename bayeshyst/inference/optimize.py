@@ -477,7 +477,9 @@ def spread_shared_coordinates(
     approximation's conditional given the walker's other coordinates (covariance
     ``inv(P_DD)``, ``P`` the Laplace precision) centred on the shared value; a walker
     whose draw has no finite density is drawn again at half the width, and one that
-    never finds finite density is left out (the caller fills the ensemble).
+    never finds finite density is left out (the caller fills the ensemble). Nothing is
+    evaluated when no coordinate is shared (the common case: a refit started from an
+    earlier fit's draws).
 
     Parameters
     ----------
@@ -485,7 +487,8 @@ def spread_shared_coordinates(
     start : MAPResult
         Its Laplace covariance sets the widths.
     walkers : ndarray, shape (M, ndim)
-        Starting points, each with finite density.
+        Starting points; where a coordinate is shared, those without finite density are
+        left out before the draw.
     idx : ndarray of int
         Coordinates the sampler's non-exact moves act on (coordinates drawn exactly from
         their conditional, the linear block of the structured moves, cannot stick).
@@ -508,6 +511,7 @@ def spread_shared_coordinates(
     shared = idx[walkers[:, idx].std(axis=0) <= SHARED_SPREAD * width]
     if shared.size == 0:
         return walkers, shared
+    walkers = walkers[np.isfinite(post.log_prob_batch(walkers))]
     precision = np.linalg.inv(cov)
     chol = np.linalg.cholesky(np.linalg.inv(precision[np.ix_(shared, shared)]))
     out = walkers.copy()

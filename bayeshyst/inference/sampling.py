@@ -153,11 +153,11 @@ def _unshared(post: Posterior, start: MAPResult, initial: np.ndarray, idx: np.nd
               rng: np.random.Generator) -> np.ndarray:
     """The given walkers, with the coordinates they all share drawn apart.
 
-    :func:`~bayeshyst.inference.optimize.spread_shared_coordinates` on those with finite
-    density; ``initial`` itself when none is shared (its checkpoint identity unchanged).
+    :func:`~bayeshyst.inference.optimize.spread_shared_coordinates`; ``initial`` itself
+    when none is shared (its checkpoint identity unchanged, and no evaluation spent:
+    :func:`_initial_positions` checks the walkers' densities once).
     """
     pool = np.asarray(initial, dtype=float).reshape(-1, post.ndim)
-    pool = pool[np.isfinite(post.log_prob_batch(pool))]
     spread, shared = spread_shared_coordinates(post, start, pool, idx, rng)
     if shared.size == 0:
         return initial
@@ -476,6 +476,7 @@ def _sample_posterior(post: Posterior, settings: SamplerSettings | None,
         raise ParameterError(f"n_walkers={n_walkers} is too few for {ndim} dimensions with "
                              f"{settings.moves!r} moves (need >= {2 * ndim})")
     if initial is not None:
+        # the seed's child n_ens + 1: a stream no ensemble and no MAP search draws from
         initial = _unshared(post, start, initial, StructuredTarget(post, structure).other_idx,
                             np.random.default_rng(np.random.SeedSequence(settings.seed)
                                                   .spawn(n_ens + 2)[-1]))
