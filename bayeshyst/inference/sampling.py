@@ -54,6 +54,12 @@ from bayeshyst.inference.posterior import EvalCounts, Posterior
 from bayeshyst.inference.sampling_result import SamplingResult
 from bayeshyst.inference.settings import SamplerSettings
 from bayeshyst.inference.structured_target import MoveStats, StructuredTarget
+from bayeshyst.inference.warmup import (
+    MIN_MOVE_RATE,
+    adaptation_points,
+    extension_points,
+    keep_adapting,
+)
 from bayeshyst.threads import single_threaded_blas
 
 __all__ = [
@@ -77,44 +83,6 @@ def chunk_boundaries(first: int, max_steps: int) -> list[int]:
     while out[-1] < max_steps:
         out.append(min(max_steps, out[-1] + max(first // 2, out[-1] // 4, 1)))
     return out
-
-
-def adaptation_points(warmup: int) -> list[int]:
-    """Step counts at which the independence proposal is re-fitted during the warm-up.
-
-    A quarter, half, three quarters and all of the warm-up (none without one).
-    """
-    return sorted({warmup * k // 4 for k in (1, 2, 3, 4)} - {0})
-
-
-def extension_points(warmup: int, max_steps: int) -> list[int]:
-    """Where a warm-up whose proposal still moves too few walkers may be extended.
-
-    Twice, four, eight ... times the warm-up, up to half the budget.
-    """
-    out = []
-    b = 2 * warmup
-    while warmup > 0 and b <= max_steps // 2:
-        out.append(b)
-        b *= 2
-    return out
-
-
-#: Below this fraction of walker-steps that move the proposed coordinates, the warm-up
-#: goes on (the independence proposal is re-fitted again at the next extension point).
-#: Well-fitted proposals move 0.75-0.9 of them (Bouc-Wen, 6 000 samples: 0.78); a
-#: curved posterior the first fit missed moves 0.5-0.6.
-MIN_MOVE_RATE = 0.65
-
-
-def _move_rate(chain: np.ndarray, idx: np.ndarray) -> float:
-    """Fraction of consecutive walker-steps in ``chain`` that changed the coordinates ``idx``.
-
-    ``chain`` has shape (S, W, ndim).
-    """
-    if chain.shape[0] < 2 or idx.size == 0:
-        return 1.0
-    return float(np.mean(np.any(np.diff(chain[:, :, idx], axis=0) != 0, axis=2)))
 
 
 def _emcee_moves(moves: str) -> Any:
@@ -362,15 +330,14 @@ def _advance(samplers: list, indeps: list, other: np.ndarray, settings: SamplerS
                 return out
         refit = boundary in adapt_at
         if boundary in extend_at and not frozen:
-            rate = min(_move_rate(s.get_chain()[last_adapt:boundary], other)
-                       for s, _ in samplers)
-            # go on while the proposal moves too few walkers and the last re-fit still
-            # helped (a curved posterior no mixture fits well stops here)
-            if rate >= MIN_MOVE_RATE or rate < last_rate + 0.05:
-                frozen = True
-            else:
+            decision = keep_adapting([s.get_chain() for s, _ in samplers], other,
+                                     last_adapt, boundary, last_rate)
+            _log.debug("step %d: warm-up %s", boundary, decision)
+            if decision.refit:
                 refit, warm_end = True, boundary
-            last_rate = rate
+            else:
+                frozen = True
+            last_rate = decision.move_rate
         if refit:
             last_adapt = boundary
             # one proposal from the draws of every ensemble (twice the draws for its
