@@ -76,6 +76,10 @@ def test_draws_that_cannot_give_a_covariance_never_read_as_settled():
     assert window_divergence(x, stuck) == math.inf
     assert window_divergence(x[:3], x) == math.inf  # fewer draws than coordinates
     assert window_divergence(np.zeros((10, 0)), np.zeros((10, 0))) == 0.0
+    # reported in words, not as a number
+    chains = [np.repeat(stuck[:200].reshape(200, 1, 3), 4, axis=1)]
+    d = keep_adapting(chains, np.arange(3), 50, 100, -math.inf)
+    assert d.refit and "inf" not in str(d) and "not measurable" in str(d)
 
 
 def _chains(rng, steps, walkers, scale_of_step, move_prob=1.0):
@@ -106,6 +110,7 @@ def test_the_warm_up_goes_on_while_the_ensemble_spreads_and_freezes_once_settled
     slow = [_chains(rng, 400, 40, lambda t: 1.0, move_prob=0.3) for _ in range(2)]
     assert keep_adapting(slow, idx, 100, 200, 0.1).refit
     assert not keep_adapting(slow, idx, 100, 200, 0.28).refit
+    assert str(d).startswith("freeze: move rate") and "nats" in str(d)
 
 
 def test_walkers_started_far_too_narrow_still_reach_the_posterior():

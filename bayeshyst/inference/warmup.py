@@ -142,8 +142,10 @@ class WarmupDecision:
     divergence: float
 
     def __str__(self) -> str:
+        kl = (f"{self.divergence:.3g} nats" if math.isfinite(self.divergence)
+              else "not measurable (a singular covariance)")
         return (f"{'re-fit' if self.refit else 'freeze'}: move rate {self.move_rate:.2f}, "
-                f"window divergence {self.divergence:.3g} nats")
+                f"window divergence {kl}")
 
 
 def keep_adapting(chains: list[np.ndarray], idx: np.ndarray, last_fit: int, boundary: int,
