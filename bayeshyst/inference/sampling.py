@@ -328,10 +328,12 @@ def _advance(samplers: list, indeps: list, other: np.ndarray, settings: SamplerS
             if best_lp > start.log_prob + MAP_SLACK:
                 out.restart_from, out.best_log_prob = best_z, best_lp
                 return out
+        # every boundary re-fits, decides or checks on the stored chain: read it once
+        # (from a checkpoint that is a read of the file)
+        chains = [s.get_chain()[:boundary] for s, _ in samplers]
         refit = boundary in adapt_at
         if boundary in extend_at and not frozen:
-            decision = keep_adapting([s.get_chain() for s, _ in samplers], other,
-                                     last_adapt, boundary, last_rate)
+            decision = keep_adapting(chains, other, last_adapt, boundary, last_rate)
             _log.debug("step %d: warm-up %s", boundary, decision)
             if decision.refit:
                 refit, warm_end = True, boundary
@@ -345,15 +347,14 @@ def _advance(samplers: list, indeps: list, other: np.ndarray, settings: SamplerS
             # they started apart, so R-hat between them keeps its meaning)
             live = [i for i in indeps if i is not None]
             if live:
-                pooled = np.concatenate([s.get_chain()[boundary // 2:boundary]
-                                         .reshape(-1, ndim) for s, _ in samplers])
+                pooled = np.concatenate([c[boundary // 2:].reshape(-1, ndim)
+                                         for c in chains])
                 live[0].adapt(pooled)
                 for other_move in live[1:]:
                     other_move.set_proposal(live[0].means, live[0].covariances,
                                             live[0].weights)
         if boundary not in checks:
             continue
-        chains = [s.get_chain()[:boundary] for s, _ in samplers]
         out.report = assess(chains, rhat_threshold=settings.rhat_threshold,
                             min_ess=settings.min_ess, tau_factor=settings.tau_factor,
                             min_burn=warm_end)
