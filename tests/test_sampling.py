@@ -9,6 +9,7 @@ import signal
 import subprocess
 import sys
 import textwrap
+import warnings
 from pathlib import Path
 
 import arviz as az
@@ -116,6 +117,38 @@ def test_a_parameter_that_never_moves_is_not_converged_wherever_it_is(where):
     assert "R-hat undefined" in str(report) and "nan" not in str(report)
     chain[:, :, where] = rng.normal(size=(4000, 8))
     assert assess([chain]).converged
+
+
+@pytest.mark.parametrize("values", ["whole", "thirds"])
+@pytest.mark.parametrize("frozen", [0, 1])
+def test_an_ensemble_that_never_moves_is_not_converged_in_either_order(frozen, values):
+    # two ensembles of i.i.d. draws, one of them frozen at its start for the whole run:
+    # its autocorrelation time is at least the chain (like a stuck walker's), so the
+    # report is the same whichever ensemble comes first, it fails the length criterion,
+    # and it is computed without a NaN time (which crashed the burn-in when the frozen
+    # ensemble came first, and was dropped when it came second)
+    rng = np.random.default_rng(11)
+    steps = 400
+    chains = [rng.normal(size=(steps, 8, 2)) for _ in range(2)]
+    # frozen at whole numbers (their mean over steps is exact, the variance exactly 0)
+    # or at thirds (the mean rounds, the variance is ~1e-30, not 0)
+    start = np.arange(8.0)[None, :, None] + np.zeros((1, 1, 2))
+    if values == "thirds":
+        start = 0.1 + start / 3.0
+    chains[frozen] = np.broadcast_to(start, chains[frozen].shape).copy()
+    assert np.all(chains[frozen].mean(axis=0) == start[0]) == (values == "whole")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        report = assess(chains)
+        swapped = assess(chains[::-1])
+    assert not report.converged
+    assert report.tau_max == swapped.tau_max == steps // 2  # the kept half, frozen
+    assert report.burn == steps // 2
+    assert f"< 50 tau = {50 * (steps // 2)}" in str(report)
+    # both frozen: nothing moved; undefined in words, no exception
+    chains[1 - frozen] = chains[frozen].copy()
+    report = assess(chains)
+    assert not report.converged and "nan" not in str(report)
 
 
 def test_integrated_time_agrees_with_emcee_and_hdi_with_arviz():

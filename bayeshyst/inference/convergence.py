@@ -339,14 +339,18 @@ def _integrated_time_many(x: np.ndarray, c: float) -> np.ndarray:
     """:func:`integrated_time` of each quantity of ``x`` (ndim, walkers, steps)."""
     acov = _autocov(x)
     var = acov[:, :, :1]
+    # a walker is stuck when its draws are all equal, tested exactly: the variance of a
+    # constant series is not always 0 (its mean rounds), and dividing by the rounding
+    # would turn the walker into white noise
+    stuck = np.ptp(x, axis=2) == 0
     with np.errstate(divide="ignore", invalid="ignore"):
         acf = (acov / var).mean(axis=1)  # each walker normalised, then averaged
     taus = 2.0 * np.cumsum(acf, axis=1) - 1.0
     window = np.arange(taus.shape[1]) < c * taus
     m = np.where(np.all(window, axis=1), taus.shape[1] - 1, np.argmin(window, axis=1))
     out = taus[np.arange(taus.shape[0]), m]
-    out = np.where(np.any(var[:, :, 0] <= 0, axis=1), float(x.shape[2]), out)
-    return np.where(np.all(var[:, :, 0] <= 0, axis=1), math.nan, out)
+    out = np.where(np.any(stuck, axis=1), float(x.shape[2]), out)
+    return np.where(np.all(stuck, axis=1), math.nan, out)
 
 
 def hdi(x: np.ndarray, prob: float = 0.9) -> tuple[float, float]:
@@ -405,6 +409,19 @@ class ConvergenceReport:
                 f"burn {self.burn})")
 
 
+def _longest_time(chains: list[np.ndarray]) -> float:
+    """The longest autocorrelation time of any parameter in any ensemble, in steps.
+
+    A parameter that no walker of an ensemble moved (NaN from :func:`integrated_time`)
+    counts as the ensemble's whole length: its autocorrelation time is at least the
+    window, as for a single stuck walker. Dropping it instead would let a frozen
+    ensemble pass the length criterion unseen, or, with only frozen ensembles, leave no
+    time at all.
+    """
+    return max(float(np.max(np.where(np.isnan(t), float(c.shape[0]), t)))
+               for c in chains for t in [integrated_time(c)])
+
+
 def assess(
     chains: list[np.ndarray],
     *,
@@ -430,14 +447,14 @@ def assess(
     """
     steps = min(c.shape[0] for c in chains)
     chains = [c[:steps] for c in chains]
-    tau_all = max(float(np.nanmax(integrated_time(c))) for c in chains)
+    tau_all = _longest_time(chains)
     burn = int(max(min(math.ceil(burn_factor * tau_all), steps // 2), min(min_burn, steps - 4)))
     # an even number of kept steps: every split chain then holds all the draws, in both
     # arrangements below, so one rank-normalisation serves R-hat (walkers and ensembles
     # as chains) and the bulk ESS
     burn += (steps - burn) % 2
     kept = [c[burn:] for c in chains]
-    tau = max(float(np.nanmax(integrated_time(c))) for c in kept)
+    tau = _longest_time(kept)
     # (d, chains, n): every walker of every ensemble a chain
     walkers = np.concatenate([c.transpose(2, 1, 0) for c in kept], axis=1)
     # an undefined value (a parameter whose draws are constant or not finite: the
