@@ -106,11 +106,11 @@ def test_the_warm_up_goes_on_while_the_ensemble_spreads_and_freezes_once_settled
     still = [_chains(rng, 200, 40, lambda t: 1.0) for _ in range(2)]
     d = keep_adapting(still, idx, 50, 100, -math.inf)
     assert not d.refit and d.divergence < SETTLED_KL
+    assert str(d).startswith("freeze: move rate") and "nats" in str(d)
     # settled but the proposal moves few walkers: go on while a re-fit raised the rate
     slow = [_chains(rng, 400, 40, lambda t: 1.0, move_prob=0.3) for _ in range(2)]
     assert keep_adapting(slow, idx, 100, 200, 0.1).refit
     assert not keep_adapting(slow, idx, 100, 200, 0.28).refit
-    assert str(d).startswith("freeze: move rate") and "nats" in str(d)
 
 
 def test_walkers_started_far_too_narrow_still_reach_the_posterior():

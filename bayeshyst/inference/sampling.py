@@ -328,11 +328,14 @@ def _advance(samplers: list, indeps: list, other: np.ndarray, settings: SamplerS
             if best_lp > start.log_prob + MAP_SLACK:
                 out.restart_from, out.best_log_prob = best_z, best_lp
                 return out
-        # every boundary re-fits, decides or checks on the stored chain: read it once
-        # (from a checkpoint that is a read of the file)
-        chains = [s.get_chain()[:boundary] for s, _ in samplers]
         refit = boundary in adapt_at
-        if boundary in extend_at and not frozen:
+        decide = boundary in extend_at and not frozen
+        if not (refit or decide or boundary in checks):
+            continue  # an extension point after the warm-up froze: nothing reads the chain
+        # the re-fit, the warm-up decision and the check all read the stored chain: read
+        # it once (from a checkpoint that is a read of the file)
+        chains = [s.get_chain()[:boundary] for s, _ in samplers]
+        if decide:
             decision = keep_adapting(chains, other, last_adapt, boundary, last_rate)
             _log.debug("step %d: warm-up %s", boundary, decision)
             if decision.refit:
