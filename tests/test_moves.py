@@ -18,7 +18,7 @@ from scipy import stats
 from bayeshyst.inference.conjugate import conjugate_posterior
 from bayeshyst.inference.convergence import integrated_time
 from bayeshyst.inference.linear import LinearStructure
-from bayeshyst.inference.moves import DifferentialMove, IndependenceMove
+from bayeshyst.inference.moves import ANCHOR_WEIGHT, DifferentialMove, IndependenceMove
 from bayeshyst.inference.posterior import Posterior
 from bayeshyst.inference.sampling import sample_posterior
 from bayeshyst.inference.settings import SamplerSettings
@@ -426,3 +426,31 @@ def test_moves_leave_a_banana_invariant(which, seed):
     draws = _run_move(density, mover, seed, steps=4000)
     assert stats.kstest(draws[:, 0], "norm").pvalue > 1e-3
     assert stats.kstest(draws[:, 1] - 0.5 * (draws[:, 0] ** 2 - 1.0), "norm").pvalue > 1e-3
+
+
+def test_stuck_walkers_get_anchor_components_of_their_own_spread():
+    density, mean, cov = _gaussian6()
+    move = IndependenceMove(StructuredTarget(density, None), MoveStats(), mean, cov)
+    rng = np.random.default_rng(5)
+    bulk = rng.multivariate_normal(mean, cov, size=4000)
+    # one walker that crept about a far point (enough distinct positions for a local
+    # covariance), one that never moved (a single position)
+    crept = np.repeat(mean + 6.0 + 0.1 * rng.standard_normal((40, 6)), 5, axis=0)
+    frozen = np.repeat((mean - 5.0)[None], 200, axis=0)
+    move.adapt(bulk)
+    n_fit = move.weights.size
+    move.adapt(bulk, (crept, frozen))
+    assert move.weights.size == n_fit + 2
+    np.testing.assert_allclose(move.weights.sum(), 1.0)
+    np.testing.assert_allclose(move.weights[-2:], [ANCHOR_WEIGHT / 2] * 2)
+    distinct = np.unique(crept, axis=0)
+    np.testing.assert_allclose(move.means[-2], distinct.mean(axis=0))
+    np.testing.assert_allclose(move.covariances[-2], np.cov(distinct.T)
+                               + 0.01 * np.diag(np.diag(np.cov(bulk.T))))
+    np.testing.assert_allclose(move.means[-1], mean - 5.0)
+    np.testing.assert_allclose(move.covariances[-1], 0.25 * np.cov(bulk.T))
+    # the proposal density at the stuck points rose by at least the anchor's own mass
+    # there (the oracle: the t component's density at its centre, from scipy)
+    t_peak = stats.multivariate_t(loc=mean - 5.0, shape=0.25 * np.cov(bulk.T),
+                                  df=move.dof).logpdf(mean - 5.0)
+    assert move._log_t((mean - 5.0)[None])[0] >= math.log(ANCHOR_WEIGHT / 2) + t_peak - 1e-9

@@ -48,7 +48,8 @@ from scipy import special
 from bayeshyst.inference.noise_proposals import phi_proposal, sigma_proposal
 from bayeshyst.inference.structured_target import MoveStats, StructuredTarget
 
-__all__ = ["DifferentialMove", "IndependenceMove", "LinearGibbsMove", "structured_moves"]
+__all__ = ["ANCHOR_WEIGHT", "DifferentialMove", "IndependenceMove", "LinearGibbsMove",
+           "structured_moves"]
 
 
 def _accept(log_ratio: np.ndarray, random: np.random.RandomState) -> np.ndarray:
@@ -252,6 +253,31 @@ def _fit_mixture(x: np.ndarray, k: int, iterations: int = 60
 DEFENSIVE = 0.1
 DEFENSIVE_SCALE = 2.0
 
+#: Total weight of the anchors (one component on each walker the frozen proposal left
+#: stuck, :func:`~bayeshyst.inference.warmup.stuck_walkers`), and how many there are at
+#: most. Small: an anchor covers a tail or a late-found mode the fitted components miss,
+#: where a walker's importance ratio p / q is large; it need not match that region's
+#: mass, only bound the ratio, and the bulk keeps nine tenths of the proposal.
+ANCHOR_WEIGHT = 0.05
+MAX_ANCHORS = 8
+
+
+def _anchor(draws: np.ndarray, cov: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Centre and scale of a component on one stuck walker's draws ``draws`` (M, d).
+
+    The mean and covariance of its distinct positions when it has enough to give one,
+    else its last position with a quarter of the ensemble's covariance ``cov``.
+    """
+    d = draws.shape[1]
+    distinct = np.unique(draws, axis=0)
+    if distinct.shape[0] >= 2 * d + 2:
+        local = np.cov(distinct.T).reshape(d, d)
+        if np.all(np.isfinite(local)) and np.linalg.matrix_rank(local) == d:
+            # a hundredth of the ensemble's variances keeps a walker that crept along a
+            # narrow ridge from giving a component thinner than the ridge's own width
+            return distinct.mean(axis=0), local + 0.01 * np.diag(np.diag(cov))
+    return draws[-1].copy(), 0.25 * cov
+
 
 class IndependenceMove(_StructuredMove):
     """Adaptive independence proposal on ``z_n`` (a mixture of multivariate t).
@@ -327,13 +353,21 @@ class IndependenceMove(_StructuredMove):
         self._logdets = np.array([f[2] for f in factors])
         self.mean = self.means[int(np.argmax(self.weights))]
 
-    def adapt(self, samples: np.ndarray) -> None:
+    def adapt(self, samples: np.ndarray, stuck: tuple[np.ndarray, ...] = ()) -> None:
         """Re-fit the proposal to posterior draws ``samples`` (M, ndim) of the ensemble.
 
         Mixtures of 1..``max_components`` Gaussians (1 for d = 1; k only with at least
         ten draws per parameter) are fitted by EM and the one with the lowest BIC is
-        kept (components then get t tails), plus the defensive component. With fewer
-        than ``2 d + 2`` distinct draws the proposal stays as it is.
+        kept (components then get t tails), plus the defensive component, plus an anchor
+        on each of the first :data:`MAX_ANCHORS` walkers in ``stuck`` (weight
+        :data:`ANCHOR_WEIGHT` between them). With fewer than ``2 d + 2`` distinct draws
+        the proposal stays as it is.
+
+        Parameters
+        ----------
+        samples : ndarray, shape (M, ndim)
+        stuck : tuple of ndarray, shape (M_i, ndim) each
+            The draws of walkers that held still under the current proposal.
         """
         x = np.asarray(samples, float)[:, self.target.other_idx]
         m, d = x.shape
@@ -358,9 +392,14 @@ class IndependenceMove(_StructuredMove):
         w, mu, cv = best
         # defensive component: the global fit, twice as wide (a walker in the tails, where
         # the posterior outweighs the fitted components, is reached and left again)
-        w = np.concatenate([(1.0 - DEFENSIVE) * w, [DEFENSIVE]])
-        mu = np.vstack([mu, x.mean(axis=0)])
-        cv = np.concatenate([cv, (DEFENSIVE_SCALE**2 * cov)[None]])
+        anchors = [_anchor(np.asarray(a, float)[:, self.target.other_idx], cov)
+                   for a in stuck[:MAX_ANCHORS]]
+        share = ANCHOR_WEIGHT if anchors else 0.0
+        w = np.concatenate([(1.0 - DEFENSIVE - share) * w, [DEFENSIVE],
+                            np.full(len(anchors), share / max(len(anchors), 1))])
+        mu = np.vstack([mu, x.mean(axis=0), *[a[0][None] for a in anchors]])
+        cv = np.concatenate([cv, (DEFENSIVE_SCALE**2 * cov)[None],
+                             *[a[1][None] for a in anchors]])
         self.set_proposal(mu, cv, w)
 
     def _log_t(self, x: np.ndarray) -> np.ndarray:

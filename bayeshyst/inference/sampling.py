@@ -55,10 +55,12 @@ from bayeshyst.inference.sampling_result import SamplingResult
 from bayeshyst.inference.settings import SamplerSettings
 from bayeshyst.inference.structured_target import MoveStats, StructuredTarget
 from bayeshyst.inference.warmup import (
+    MAX_REOPENINGS,
     MIN_MOVE_RATE,
     adaptation_points,
     extension_points,
     keep_adapting,
+    stuck_walkers,
 )
 from bayeshyst.threads import single_threaded_blas
 
@@ -291,14 +293,36 @@ def _ensembles(post: Posterior, settings: SamplerSettings, target: StructuredTar
     return samplers, stats, indeps
 
 
+def _refit(indeps: list, chains: list[np.ndarray], boundary: int,
+           stuck: list[np.ndarray]) -> None:
+    """Re-fit the shared independence proposal to the second half of the stored chains.
+
+    ``stuck`` are the draws of walkers the current proposal held still; each gets an
+    anchor component (:meth:`~bayeshyst.inference.moves.IndependenceMove.adapt`).
+    """
+    # one proposal from the draws of every ensemble (twice the draws for its shape; each
+    # ensemble stays a valid chain of its own once it is frozen, and they started apart,
+    # so R-hat between them keeps its meaning)
+    live = [i for i in indeps if i is not None]
+    if not live:
+        return
+    ndim = chains[0].shape[2]
+    pooled = np.concatenate([c[boundary // 2:].reshape(-1, ndim) for c in chains])
+    live[0].adapt(pooled, tuple(stuck))
+    for other_move in live[1:]:
+        other_move.set_proposal(live[0].means, live[0].covariances, live[0].weights)
+
+
 def _advance(samplers: list, indeps: list, other: np.ndarray, settings: SamplerSettings,
              start: MAPResult, bar: Any, *, can_restart: bool) -> _Advance:
     """Run one attempt's ensembles chunk by chunk.
 
     Adapt the proposal during warm-up, assess convergence at the checks, and stop early
-    when a walker shows the start was not the mode (``can_restart``).
+    when a walker shows the start was not the mode (``can_restart``). A check that fails
+    after the warm-up with walkers the frozen proposal holds still re-opens it (at most
+    :data:`~bayeshyst.inference.warmup.MAX_REOPENINGS` times, in the first half of the
+    budget): the proposal is re-fitted with an anchor on each and the burn-in moves there.
     """
-    ndim = start.z.size
     warmup = settings.warmup_steps if any(i is not None for i in indeps) else 0
     adapt_at = set(adaptation_points(warmup))
     extend_at = extension_points(warmup, settings.max_steps)
@@ -306,6 +330,7 @@ def _advance(samplers: list, indeps: list, other: np.ndarray, settings: SamplerS
     boundaries = sorted(checks | adapt_at | set(extend_at))
     out = _Advance()
     warm_end, frozen, last_adapt, last_rate = warmup, False, warmup, -math.inf
+    reopened = 0
     for boundary in boundaries:
         for pair in samplers:
             sampler, p0 = pair
@@ -344,18 +369,8 @@ def _advance(samplers: list, indeps: list, other: np.ndarray, settings: SamplerS
                 frozen = True
             last_rate = decision.move_rate
         if refit:
+            _refit(indeps, chains, boundary, stuck_walkers(chains, other, last_adapt, boundary))
             last_adapt = boundary
-            # one proposal from the draws of every ensemble (twice the draws for its
-            # shape; each ensemble stays a valid chain of its own once it is frozen, and
-            # they started apart, so R-hat between them keeps its meaning)
-            live = [i for i in indeps if i is not None]
-            if live:
-                pooled = np.concatenate([c[boundary // 2:].reshape(-1, ndim)
-                                         for c in chains])
-                live[0].adapt(pooled)
-                for other_move in live[1:]:
-                    other_move.set_proposal(live[0].means, live[0].covariances,
-                                            live[0].weights)
         if boundary not in checks:
             continue
         out.report = assess(chains, rhat_threshold=settings.rhat_threshold,
@@ -369,6 +384,18 @@ def _advance(samplers: list, indeps: list, other: np.ndarray, settings: SamplerS
                                 f"{out.report.ess_bulk_min:.0f}, tau {out.report.tau_max:.0f}")
         if out.report.converged:
             break
+        warm_over = frozen or not any(e > boundary for e in extend_at)
+        if warm_over and reopened < MAX_REOPENINGS and boundary <= settings.max_steps // 2:
+            # a region the frozen proposal misses holds a walker still (a tail along a
+            # ridge, a mode found late): re-fit with an anchor on each such walker and
+            # burn in to here, so the kept chain has one fixed proposal again
+            stuck = stuck_walkers(chains, other, warm_end, boundary)
+            if stuck:
+                _log.info("step %d: %d walker(s) held still under the frozen proposal; "
+                          "re-fitted with an anchor on each, burn-in moved to this step",
+                          boundary, len(stuck))
+                _refit(indeps, chains, boundary, stuck)
+                last_adapt, warm_end, reopened = boundary, boundary, reopened + 1
     return out
 
 
