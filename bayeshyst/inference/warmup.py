@@ -108,10 +108,10 @@ def stuck_walkers(chains: list[np.ndarray], idx: np.ndarray, start: int, stop: i
     """The draws of every walker that held still between steps ``start`` and ``stop``.
 
     A walker is stuck when it moved the coordinates ``idx`` in fewer than
-    :data:`STUCK_FRACTION` times as many steps as its ensemble's median walker (and at
-    least once less: an ensemble that never moves has no median to fall short of... it
-    is the warm-up's move rate that catches it). Windows shorter than
-    :data:`MIN_STUCK_WINDOW` steps cannot tell and give none.
+    :data:`STUCK_FRACTION` times as many steps as its ensemble's median walker. An
+    ensemble whose median walker never moves has none stuck by this rule (the warm-up's
+    move rate is what catches that one). Windows shorter than :data:`MIN_STUCK_WINDOW`
+    steps cannot tell and give none.
 
     Parameters
     ----------
