@@ -163,6 +163,26 @@ def test_a_walker_that_holds_still_is_found_and_free_walkers_are_not():
         assert stuck_walkers(free, idx, 600 - MIN_STUCK_WINDOW + 1, 600) == []
 
 
+def test_a_walker_that_moves_but_only_about_one_place_is_trapped_and_free_ones_are_not():
+    idx = np.arange(2)
+    # the null, over 20 seeds of 2 ensembles: walkers moving at 0.4 have tau = 1.6 / 0.4
+    # = 4 steps; the Bonferroni threshold makes a false call 1e-4 per ensemble, so none
+    # in 40 but with probability 0.4 %
+    for seed in range(20):
+        rng = np.random.default_rng(100 + seed)
+        free = [_chains(rng, 600, 40, lambda t: 1.0, move_prob=0.4) for _ in range(2)]
+        assert stuck_walkers(free, idx, 0, 600) == []
+    # a walker that moves as often as the rest but about a point 0.8 sd off in the second
+    # coordinate: its mean is 0.8 / sqrt(4 / 600) = 10 standard errors away
+    rng = np.random.default_rng(7)
+    free = [_chains(rng, 600, 40, lambda t: 1.0, move_prob=0.4) for _ in range(2)]
+    creeping = _chains(rng, 600, 1, lambda t: 0.3, move_prob=0.4)[:, 0] + [0.0, 0.8]
+    free[1][:, 5] = creeping
+    found = stuck_walkers(free, idx, 0, 600)
+    assert len(found) == 1
+    np.testing.assert_array_equal(found[0], creeping)
+
+
 class _Named:
     def __init__(self, name):
         self.name = name
