@@ -367,7 +367,8 @@ class IndependenceMove(_StructuredMove):
         ----------
         samples : ndarray, shape (M, ndim)
         stuck : tuple of ndarray, shape (M_i, ndim) each
-            The draws of walkers that held still under the current proposal.
+            The draws of walkers the current proposal held in one place (still or
+            trapped, :func:`~bayeshyst.inference.warmup.stuck_walkers`).
         """
         x = np.asarray(samples, float)[:, self.target.other_idx]
         m, d = x.shape

@@ -297,7 +297,7 @@ def _refit(indeps: list, chains: list[np.ndarray], boundary: int,
            stuck: list[np.ndarray]) -> None:
     """Re-fit the shared independence proposal to the second half of the stored chains.
 
-    ``stuck`` are the draws of walkers the current proposal held still; each gets an
+    ``stuck`` are the draws of walkers the current proposal held in one place; each gets an
     anchor component (:meth:`~bayeshyst.inference.moves.IndependenceMove.adapt`).
     """
     # one proposal from the draws of every ensemble (twice the draws for its shape; each

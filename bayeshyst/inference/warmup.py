@@ -109,7 +109,12 @@ def move_rate(chain: np.ndarray, idx: np.ndarray) -> float:
     """
     if chain.shape[0] < 2 or idx.size == 0:
         return 1.0
-    return float(np.mean(np.any(np.diff(chain[:, :, idx], axis=0) != 0, axis=2)))
+    return float(np.mean(_moved(chain[:, :, idx])))
+
+
+def _moved(x: np.ndarray) -> np.ndarray:
+    """Whether each walker's step changed any coordinate of ``x`` (S, W, d): (S - 1, W)."""
+    return np.any(np.diff(x, axis=0) != 0, axis=2)
 
 
 def stuck_walkers(chains: list[np.ndarray], idx: np.ndarray, start: int, stop: int
@@ -153,7 +158,7 @@ def stuck_walkers(chains: list[np.ndarray], idx: np.ndarray, start: int, stop: i
     for c in chains:
         window = c[start:stop]
         x = window[:, :, idx]
-        rates = np.mean(np.any(np.diff(x, axis=0) != 0, axis=2), axis=0)
+        rates = np.mean(_moved(x), axis=0)
         still = rates < STUCK_FRACTION * float(np.median(rates))
         z = _walker_offsets(x)
         crit = float(stats.norm.isf(TRAPPED_ALPHA / (2 * z.size)))
