@@ -186,6 +186,21 @@ def test_a_gain_under_four_nats_is_not_kept_however_small_its_error(gain, kept):
         assert "negligible" in step.reason, step.reason
 
 
+def test_a_change_that_rounds_to_zero_prints_as_zero_not_minus_zero():
+    # oracle: the paired difference over 12 cycles is 12 * (-0.003) = -0.036 nats, which
+    # rounds to 0.0 at one decimal; the sign of a rounded zero carries no information
+    from bayeshyst.diagnosis.candidates import judge
+    from bayeshyst.diagnosis.records import DiagnosisSettings
+
+    current = _stub_fit(np.full(12, -50.0), 1.0)
+    cand = _stub_fit(np.full(12, -50.0) - 0.003 + 1e-3 * np.sin(np.arange(12)), 1.0)
+    test = EffectTest("drift", "F", 10.0, 2, 100, 1e-6, 1e-5, 20.0, 0.1, 0.01, 0.1, {}, {},
+                      True)
+    step = judge(1, test, current, cand, DiagnosisSettings())
+    assert not step.accepted
+    assert "changes by 0.0 (se" in step.reason and "-0.0" not in step.reason, step.reason
+
+
 # ------------------------------------------------ effects fitted together (pair_for)
 # per-cycle held-out elpd on the bundled virtual actuator (10 cycles: two per frequency,
 # 1-200 Hz) of pi_play(8)+asym_output, and the gains of adding a delay, second-order

@@ -143,14 +143,14 @@ def judge(rnd: int, test: EffectTest, current: DiagnosisFit, cand: DiagnosisFit,
         ok = bool(d > st.threshold * se and d > MIN_ELPD_GAIN)
         if ok:
             # the se in the same form as the other outcomes': "> 2 x se 99.1" read as
-            # 2 se = 99.1
-            reason = (f"held-out elpd improves by {d:.1f} (se {se:.1f}), above "
+            # 2 se = 99.1. 'z' prints a change that rounds to zero as 0.0, not -0.0
+            reason = (f"held-out elpd improves by {d:z.1f} (se {se:.1f}), above "
                       f"{st.threshold:g} x se")
         elif d > st.threshold * se:
-            reason = (f"held-out elpd improves by {d:.1f} (se {se:.1f}), under the "
+            reason = (f"held-out elpd improves by {d:z.1f} (se {se:.1f}), under the "
                       f"{MIN_ELPD_GAIN:g} nats below which a gain is negligible")
         else:
-            reason = (f"held-out elpd changes by {d:.1f} (se {se:.1f}), not above "
+            reason = (f"held-out elpd changes by {d:z.1f} (se {se:.1f}), not above "
                       f"{st.threshold:g} x se")
     else:
         cannot = (f"held-out elpd cannot decide on these data ({n_units} cycles, fewer than "

@@ -288,7 +288,7 @@ def _challenge(step: DiagnosisStep, cand: DiagnosisFit, alt_step: DiagnosisStep,
     effect, the simpler reading, is kept. Returns both steps with their verdicts.
     """
     d, se = paired_difference(alt.pointwise_elpd, cand.pointwise_elpd)
-    versus = f"held-out elpd {d:+.1f} (se {se:.1f}) against {step.effect}"
+    versus = f"held-out elpd {d:+z.1f} (se {se:.1f}) against {step.effect}"
     if alt_step.accepted and math.isfinite(se) and d > threshold * se and d > 0:
         return (replace(step, accepted=False,
                         reason=f"{step.reason}; but a smooth term in time explains the "
