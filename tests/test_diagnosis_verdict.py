@@ -426,3 +426,44 @@ def test_a_gate_passed_by_an_unresolved_resonance_is_a_warning_not_a_finding():
         step = judge(1, _test("rate_dependence", 40.0), current, cand, DiagnosisSettings())
         assert step.accepted == kept, step.reason
         assert step.reason.startswith("unresolved") == (not kept), step.reason
+
+
+# ------------------------------------------- refused readings: no finding, still structure
+def test_a_refused_reading_is_no_finding_but_the_verdict_says_what_it_explained(monkeypatch):
+    # oracle: a delay gaining 300 nats on each of 10 cycles passes the gate (d = 3000,
+    # se = 0); every reading is made implausible, so nothing is kept, and the verdict
+    # names the delay with the gate's numbers instead of saying nothing about it
+    import bayeshyst.diagnosis.candidates as candidates
+
+    reason = "delay.d = 0.0334 is outside [0, 0.002] (a test range)"
+    monkeypatch.setattr(candidates, "implausible", lambda means, ranges: [reason])
+    result = _stubbed_loop(monkeypatch, _GAIN["delay"], gains={"delay": np.full(10, 300.0)})
+    first = result.steps[0]
+    assert first.effect == "delay" and not first.accepted
+    assert first.reason == f"implausible: {reason}"
+    assert result.effects_found == () and result.final is result.base
+    assert ("delay would explain structure that is left (RMSE 1 -> 1, held-out elpd "
+            f"+3000.0 (se 0.0)) but is not credited: implausible: {reason}") in result.verdict
+    # a step that did not pass its gate is not named as refused
+    rejected = [s.effect for s in result.steps
+                if not s.accepted and not s.reason.startswith("implausible")]
+    assert rejected and all(f"{e} would explain" not in result.verdict for e in rejected)
+
+
+def test_only_a_refit_on_top_of_the_shape_correction_that_passed_unties_it_from_the_shape():
+    from types import SimpleNamespace as NS
+
+    from bayeshyst.diagnosis.verdict import explained_beyond_shape
+
+    def step(effect, accepted, reason):
+        return NS(effect=effect, accepted=accepted, reason=reason)
+
+    steps = [step("delay", False, "implausible: delay.d = 0.012"),  # before the shape
+             step("creep", False, "held-out elpd changes by 1.0 (se 2.0)"),
+             step("branch shape", True, "held-out elpd improves by 163.0 (se 39.0)"),
+             step("delay", False, "implausible: delay.d = 0.033"),
+             step("rate_dependence", False, "not decided: ... (implausible: f_n = 2.6)"),
+             step("drift", False, "held-out elpd changes by -3.0 (se 2.0)"),
+             step("asymmetry", True, "held-out elpd improves by 84.0 (se 22.0)")]
+    assert explained_beyond_shape(steps) == {"delay", "asymmetry"}
+    assert explained_beyond_shape(steps[:3]) == set()

@@ -89,6 +89,7 @@ from bayeshyst.diagnosis.verdict import (
     SLOW_IN_TIME,
     column_tie_notes,
     column_tied,
+    explained_beyond_shape,
     shape_tie_notes,
     tied_beyond,
 )
@@ -583,10 +584,13 @@ def diagnose(
         rounds.append(current.analysis)
     return DiagnosisResult(base.label, current.label, tuple(found), tuple(steps), base,
                            current, tuple(rounds), st, tuple(warnings),
-                           # an effect kept in a later round (on top of the shape
-                           # correction) is a finding, no longer a tie with the shape
+                           # an effect kept in a later round, or one whose refit on top
+                           # of the shape correction passed its gate (a refused reading
+                           # too), explains something beyond the loop position: no
+                           # longer a tie with the shape
                            shape_tie_notes({e: p for e, p in shape_ties.items()
-                                             if e not in found})
+                                             if e not in found
+                                             and e not in explained_beyond_shape(steps)})
                            + column_tie_notes({e: v for e, v in column_ties.items()
                                                if e not in found}))
 

@@ -14,7 +14,7 @@ import numpy as np
 
 from bayeshyst.diagnosis.catalogue import EFFECTS
 from bayeshyst.diagnosis.residual import EffectTest, ResidualAnalysis
-from bayeshyst.diagnosis.verdict import NOT_CONVERGED, PLAUSIBLE
+from bayeshyst.diagnosis.verdict import NOT_CONVERGED, PLAUSIBLE, refused_findings
 from bayeshyst.inference.fit import FitResult, TrackingError
 from bayeshyst.inference.posterior import Posterior
 from bayeshyst.inference.sampling_result import ParamSummary, SamplingResult
@@ -374,6 +374,9 @@ class DiagnosisResult(TableRecord):
             left.append("unexplained structure: " + last.remaining())
         if fired:
             left.append(f"tests still firing on the final residual: {', '.join(fired)}")
+        # a refused reading (implausible, unresolved) is no finding, but the structure
+        # it explained is left in the residual: say how much
+        left.extend(refused_findings(self.steps, self.final.label))
         ties = [f"cannot tell {s.effect} from {', '.join(s.tied_with)} ({s.experiment})"
                 for s in self.steps if s.accepted and s.tied_with] + list(self.ties)
         if self.undecided:

@@ -12,6 +12,8 @@
   with every other that fired.
 * **Plausibility.** An accepted effect whose physical reading is outside the range a
   piezo stage can have (:data:`PLAUSIBLE`, overridable) is a warning, not a finding.
+  The verdict still says what such a reading would have explained
+  (:func:`refused_findings`): the structure is real, only this explanation of it is not.
 * **Resolution.** So is a resonance the data cannot see (:func:`unresolved`): a natural
   frequency whose whole credible interval lies above the fastest record's Nyquist
   frequency.
@@ -53,7 +55,9 @@ __all__ = [
     "column_tie_notes",
     "column_tied",
     "experiment_for",
+    "explained_beyond_shape",
     "implausible",
+    "refused_findings",
     "separates_lags",
     "shape_tie_notes",
     "shape_tied",
@@ -198,6 +202,60 @@ def _tie_sentence(names: Sequence[str], nuisance: str, beyond: str, experiment: 
     return (f"cannot tell {', '.join(names)} from {nuisance} on these data "
             f"({'they explain' if len(names) > 1 else 'it explains'} nothing beyond "
             f"{beyond}); what would: {experiment}")
+
+
+def explained_beyond_shape(steps: Iterable[Any]) -> set[str]:
+    """Effects whose refit on top of the shape correction passed its gate, kept or not.
+
+    Such an effect explains structure beyond the loop position (its gate compared two
+    fits that both carry the correction), so "cannot tell it from the branch shape" is
+    no longer true of it, even when its reading was refused as implausible or
+    unresolved. The micromanipulator's delay: tied with the shape on the base residual,
+    then +1 109 (se 41) nats on top of the correction, a 33 ms reading refused.
+
+    Parameters
+    ----------
+    steps : iterable of DiagnosisStep
+        The loop's steps in the order tried (``effect``, ``accepted``, ``reason``).
+    """
+    out: set[str] = set()
+    corrected = False
+    for s in steps:
+        if corrected and (s.accepted or s.reason.startswith(NOT_A_FINDING)):
+            out.add(s.effect)
+        corrected |= bool(s.accepted and s.effect == BRANCH_SHAPE)
+    return out
+
+
+def refused_findings(steps: Iterable[Any], judged_against: str) -> tuple[str, ...]:
+    """What passed its gate against ``judged_against`` but is no finding, in words.
+
+    One sentence per effect, from its last step judged against that fit (the final
+    model's round): the reason it was refused, what it did to the error, and its held-out
+    elpd change when the elpd gate decided. A refused reading is a warning, but the
+    structure it explained is still there, so the verdict says how much.
+
+    Parameters
+    ----------
+    steps : iterable of DiagnosisStep
+    judged_against : str
+        Label of the fit the steps were judged against (``model_before``).
+    """
+    last: dict[str, Any] = {}
+    for s in steps:
+        if s.model_before == judged_against:
+            last[s.effect] = s
+    out = []
+    for effect, s in last.items():
+        if s.accepted or not s.reason.startswith(NOT_A_FINDING):
+            continue
+        gain = (f", held-out elpd {s.delta_elpd:+.1f} (se {s.delta_elpd_se:.1f})"
+                if s.decided_by == "elpd" and math.isfinite(s.delta_elpd)
+                and math.isfinite(s.delta_elpd_se) else "")
+        out.append(f"{effect} would explain structure that is left (RMSE "
+                   f"{s.before.rmse:.4g} -> {s.after.rmse:.4g}{gain}) but is not credited: "
+                   f"{s.reason}")
+    return tuple(out)
 
 
 def column_tie_notes(ties: Mapping[str, tuple[float, Sequence[str]]]) -> tuple[str, ...]:
