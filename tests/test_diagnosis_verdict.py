@@ -467,3 +467,21 @@ def test_only_a_refit_on_top_of_the_shape_correction_that_passed_unties_it_from_
              step("asymmetry", True, "held-out elpd improves by 84.0 (se 22.0)")]
     assert explained_beyond_shape(steps) == {"delay", "asymmetry"}
     assert explained_beyond_shape(steps[:3]) == set()
+
+
+def test_a_step_is_no_longer_undecided_once_a_later_step_of_its_effect_decided():
+    # oracle: round 5's unconverged second-order fit, then round 6's converged refusal
+    # (the micromanipulator, d5e35c5); a drift that never converged stays undecided
+    from types import SimpleNamespace as NS
+
+    from bayeshyst.diagnosis.records import DiagnosisResult
+
+    def step(effect, decided_by):
+        return NS(effect=effect, decided_by=decided_by)
+
+    steps = (step("rate_dependence", "not converged"), step("drift", "not converged"),
+             step("delay", "elpd"), step("rate_dependence", "elpd"),
+             step("drift", "not converged"))
+    undecided = DiagnosisResult.undecided.fget(NS(steps=steps))
+    assert undecided == (steps[1], steps[4])
+    assert DiagnosisResult.undecided.fget(NS(steps=steps[:3])) == steps[:2]

@@ -387,8 +387,19 @@ class DiagnosisResult(TableRecord):
 
     @property
     def undecided(self) -> tuple[DiagnosisStep, ...]:
-        """The steps whose gate decided nothing (their fit did not converge)."""
-        return tuple(s for s in self.steps if s.decided_by == NOT_CONVERGED)
+        """The steps whose gate decided nothing (their fit did not converge).
+
+        A step stops counting once a later step of the same effect decided (the
+        micromanipulator's second-order candidate: unconverged in round 5, converged and
+        refused in round 6).
+        """
+        out = []
+        for i, s in enumerate(self.steps):
+            later = self.steps[i + 1:]
+            if s.decided_by == NOT_CONVERGED and not any(
+                    t.effect == s.effect and t.decided_by != NOT_CONVERGED for t in later):
+                out.append(s)
+        return tuple(out)
 
     def _round_labels(self) -> list[str]:
         labels = [self.base_model]
