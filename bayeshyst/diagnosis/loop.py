@@ -582,15 +582,14 @@ def diagnose(
         current, spec, disc, effects = accepted
         found.extend(effects)
         rounds.append(current.analysis)
+    # an effect kept in a later round, or one whose refit on top of the shape correction
+    # passed its gate (a refused reading too), explains something beyond the loop
+    # position: no longer a tie with the shape
+    untied = set(found) | explained_beyond_shape(steps)
     return DiagnosisResult(base.label, current.label, tuple(found), tuple(steps), base,
                            current, tuple(rounds), st, tuple(warnings),
-                           # an effect kept in a later round, or one whose refit on top
-                           # of the shape correction passed its gate (a refused reading
-                           # too), explains something beyond the loop position: no
-                           # longer a tie with the shape
                            shape_tie_notes({e: p for e, p in shape_ties.items()
-                                             if e not in found
-                                             and e not in explained_beyond_shape(steps)})
+                                             if e not in untied})
                            + column_tie_notes({e: v for e, v in column_ties.items()
                                                if e not in found}))
 
