@@ -456,7 +456,9 @@ def test_only_a_refit_on_top_of_the_shape_correction_that_passed_unties_it_from_
     from bayeshyst.diagnosis.verdict import explained_beyond_shape
 
     def step(effect, accepted, reason):
-        return NS(effect=effect, accepted=accepted, reason=reason)
+        # ``refused`` as DiagnosisStep derives it: not kept, reason implausible/unresolved
+        return NS(effect=effect, accepted=accepted,
+                  refused=not accepted and reason.startswith(("implausible", "unresolved")))
 
     steps = [step("delay", False, "implausible: delay.d = 0.012"),  # before the shape
              step("creep", False, "held-out elpd changes by 1.0 (se 2.0)"),

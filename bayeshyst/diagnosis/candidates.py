@@ -30,7 +30,6 @@ from bayeshyst.diagnosis.verdict import (
     LAG_LIKE,
     MIN_ELPD_GAIN,
     MIN_GATE_UNITS,
-    NOT_A_FINDING,
     NOT_CONVERGED,
     experiment_for,
     implausible,
@@ -238,8 +237,7 @@ def pair_for(tried: Sequence[tuple[EffectTest, DiagnosisFit, DiagnosisStep]],
     like any candidate.
     """
     def usable(step: DiagnosisStep) -> bool:
-        return (step.effect in pairable and not step.accepted
-                and not step.reason.startswith(NOT_A_FINDING)
+        return (step.effect in pairable and not step.accepted and not step.refused
                 and step.decided_by != NOT_CONVERGED)
 
     firsts = [i for i, (_, _, step) in enumerate(tried)

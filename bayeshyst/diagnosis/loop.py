@@ -83,7 +83,6 @@ from bayeshyst.diagnosis.residual import (
     best_point,
 )
 from bayeshyst.diagnosis.verdict import (
-    NOT_A_FINDING,
     NOT_CONVERGED,
     PLAUSIBLE,
     SLOW_IN_TIME,
@@ -555,7 +554,7 @@ def diagnose(
                 continue  # already fitted as a challenger this round
             cand, step, new_spec, new_disc = attempt(test)
             tried.append((test, cand, step, new_spec, new_disc))
-            if not step.accepted and step.reason.startswith(NOT_A_FINDING):
+            if step.refused:
                 # the structure is real, this explanation of it is not: the next
                 # candidate gets its turn without using up the round's budget
                 warnings.append(f"{test.effect}: {step.reason}")

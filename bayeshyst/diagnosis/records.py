@@ -14,7 +14,12 @@ import numpy as np
 
 from bayeshyst.diagnosis.catalogue import EFFECTS
 from bayeshyst.diagnosis.residual import EffectTest, ResidualAnalysis
-from bayeshyst.diagnosis.verdict import NOT_CONVERGED, PLAUSIBLE, refused_findings
+from bayeshyst.diagnosis.verdict import (
+    NOT_A_FINDING,
+    NOT_CONVERGED,
+    PLAUSIBLE,
+    refused_findings,
+)
 from bayeshyst.inference.fit import FitResult, TrackingError
 from bayeshyst.inference.posterior import Posterior
 from bayeshyst.inference.sampling_result import ParamSummary, SamplingResult
@@ -216,6 +221,11 @@ class DiagnosisStep(TableRecord):
         if self.accepted:
             return "accepted"
         return "not decided" if self.decided_by == NOT_CONVERGED else "rejected"
+
+    @property
+    def refused(self) -> bool:
+        """Whether the gate passed but the reading is no finding (implausible, unresolved)."""
+        return not self.accepted and self.reason.startswith(NOT_A_FINDING)
 
     def verdict(self, accepted: str = "accepted") -> str:
         """``"<outcome> (<reason>)"``, the reason without the outcome it may start with.

@@ -216,12 +216,12 @@ def explained_beyond_shape(steps: Iterable[Any]) -> set[str]:
     Parameters
     ----------
     steps : iterable of DiagnosisStep
-        The loop's steps in the order tried (``effect``, ``accepted``, ``reason``).
+        The loop's steps in the order tried (``effect``, ``accepted``, ``refused``).
     """
     out: set[str] = set()
     corrected = False
     for s in steps:
-        if corrected and (s.accepted or s.reason.startswith(NOT_A_FINDING)):
+        if corrected and (s.accepted or s.refused):
             out.add(s.effect)
         corrected |= bool(s.accepted and s.effect == BRANCH_SHAPE)
     return out
@@ -247,7 +247,7 @@ def refused_findings(steps: Iterable[Any], judged_against: str) -> tuple[str, ..
             last[s.effect] = s
     out = []
     for effect, s in last.items():
-        if s.accepted or not s.reason.startswith(NOT_A_FINDING):
+        if not s.refused:
             continue
         gain = (f", held-out elpd {s.delta_elpd:+.1f} (se {s.delta_elpd_se:.1f})"
                 if s.decided_by == "elpd" and math.isfinite(s.delta_elpd)
