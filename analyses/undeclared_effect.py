@@ -42,16 +42,18 @@ combined ``summary.json`` (written last).
 Run (from the repository root)::
 
     python -m analyses.undeclared_effect                  # full: 3 data sets, <= 6 rounds,
-                                                          # <= 20 000 steps per fit, <= 5
-                                                          # exact LOO refits each (hours)
+                                                          # <= 20 000 steps per fit (40 000
+                                                          # for one that has not converged
+                                                          # by then), <= 5 exact LOO
+                                                          # refits each (hours)
     python -m analyses.undeclared_effect --quick          # seconds: 150 V set, 1 round
     python -m analyses.undeclared_effect --datasets piezo_150v --max-rounds 1 --steps 3000 \\
         --max-refits 0                                    # the first round only (minutes)
     python -m analyses.undeclared_effect --datasets piezo_150v --model "pi_play(n_operators=8)"
 
 Quick mode (``--quick``): one round, one candidate effect refitted, 200 sampler steps,
-no exact LOO refits, 50 prediction draws; its fits are NOT converged and its outputs
-say so.
+no exact LOO refits, 50 prediction draws, no second run of an unconverged fit; its fits
+are NOT converged and its outputs say so.
 """
 
 from __future__ import annotations
@@ -115,13 +117,13 @@ PLAUSIBLE_FOR = {"mr_damper": MR_DAMPER_PLAUSIBLE}
 # first two candidates -- score tests that fired on structure a column explains -- had
 # used up the MR damper's budget while the scan still saw 86 % of the residual)
 FULL = {"datasets": MEASURED, "sampler": SamplerSettings(max_steps=20_000), "max_rounds": 6,
-        "max_candidates": 12, "max_refits": 5, "n_draws": 200,
+        "max_candidates": 12, "max_refits": 5, "n_draws": 200, "budget_doublings": 1,
         "cuts": {"piezo_150v": Cut(samples_per_cycle=1000),  # 5 kHz -> 1 kHz
                  "micromanipulator": Cut(),
                  "mr_damper": Cut(samples_per_cycle=200)}}
 QUICK = {"datasets": ("piezo_150v",), "sampler": SamplerSettings(max_steps=200, first_chunk=200),
          "max_rounds": 1,
-         "max_candidates": 1, "max_refits": 0, "n_draws": 50,
+         "max_candidates": 1, "max_refits": 0, "n_draws": 50, "budget_doublings": 0,
          "cuts": {key: Cut(samples_per_cycle=100, cycles=3, trim_rest_s=0.2)
                   for key in MEASURED}}
 
@@ -153,6 +155,9 @@ def build_parser() -> argparse.ArgumentParser:
                         "every one; --quick 1)")
     p.add_argument("--steps", type=positive_int, default=None,
                    help="step budget per ensemble of every fit (default 20000; --quick 200)")
+    p.add_argument("--budget-doublings", type=non_negative_int, default=None, metavar="N",
+                   help="times an unconverged fit is sampled again with twice the steps "
+                        "before it is reported as not converged (default 1; --quick 0)")
     p.add_argument("--walkers", type=positive_int, default=None,
                    help="walkers per ensemble (default: from the number of parameters)")
     p.add_argument("--max-refits", type=non_negative_int, default=None, metavar="N",
@@ -285,7 +290,8 @@ def _analyse(args: argparse.Namespace) -> int:
     log = Progress(PROG, args.quiet)
     cfg = budget(args, QUICK, FULL, {"max_rounds": args.max_rounds,
                                      "max_candidates": args.max_candidates,
-                                     "max_refits": args.max_refits})
+                                     "max_refits": args.max_refits,
+                                     "budget_doublings": args.budget_doublings})
     keys = tuple(args.datasets or cfg["datasets"])
     # validate everything cheap before anything is written
     unknown = [k for k in keys if k not in MEASURED]
@@ -339,6 +345,7 @@ def _analyse(args: argparse.Namespace) -> int:
                               max_candidates=cfg["max_candidates"],
                               sampler=cfg["sampler"], n_draws=cfg["n_draws"],
                               max_refits=cfg["max_refits"], plausible=plausible,
+                              budget_doublings=cfg["budget_doublings"],
                               checkpoint_dir=(None if args.no_checkpoint
                                               else folder / "checkpoints"),
                               on_fit=on_fit)

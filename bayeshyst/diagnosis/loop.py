@@ -204,8 +204,24 @@ def _fit(data: Dataset, model: HysteresisModel, likelihood: str, label: str,
         if x0 is not None:  # an extra start of the MAP search, not a replacement
             start = find_map(post, seed=np.random.default_rng(seed), x0=x0)
     res = sample_posterior(post, sampler, start=start, initial=initial)
-    notes = [] if res.converged else [f"{label}: the sampler did not converge within its "
-                                      f"budget ({sampler.max_steps} steps)"]
+    notes: list[str] = []
+    # an unconverged fit decides nothing, so it is sampled again from the same start with
+    # twice the steps before it is reported as not decided (its own seed and checkpoint:
+    # the budget is part of a fit's identity). Second-order candidates on the MR damper and
+    # the micromanipulator ran out of 10 000 steps in a slowly mixing offset direction
+    # while every other fit of the run converged
+    for _ in range(0 if st.decide_unconverged else st.budget_doublings):
+        if res.converged:
+            break
+        longer = fit_sampler(post, st.sampler.replace(max_steps=2 * sampler.max_steps),
+                             st.seed, checkpoint_dir)
+        notes.append(f"{label}: the sampler did not converge within {sampler.max_steps} "
+                     f"steps; sampled again with {longer.max_steps}")
+        sampler = longer
+        res = sample_posterior(post, sampler, start=start, initial=initial)
+    if not res.converged:
+        notes.append(f"{label}: the sampler did not converge within its budget "
+                     f"({sampler.max_steps} steps)")
     draws = res.draws(st.n_draws, seed=seed)
     settings = CompareSettings(likelihood=likelihood, sampler=sampler,
                                draws_per_chain=st.draws_per_chain, max_refits=st.max_refits)
@@ -378,6 +394,10 @@ def _check_settings(st: DiagnosisSettings) -> None:
     for name in ("max_rounds", "max_candidates", "n_draws"):
         if int(getattr(st, name)) < 1:
             raise ParameterError(f"{name} must be >= 1, got {getattr(st, name)}")
+    if isinstance(st.budget_doublings, bool) or not isinstance(st.budget_doublings, int) \
+            or st.budget_doublings < 0:
+        raise ParameterError(f"budget_doublings must be an integer >= 0, got "
+                             f"{st.budget_doublings!r}")
 
 
 def diagnose(
@@ -396,6 +416,7 @@ def diagnose(
     n_permutations: int = 999,
     plausible: Mapping[str, tuple[float, float, str]] | None = None,
     decide_unconverged: bool = False,
+    budget_doublings: int = 1,
     checkpoint_dir: str | Path | None = None,
     on_fit: Callable[[DiagnosisFit], None] | None = None,
 ) -> DiagnosisResult:
@@ -444,6 +465,10 @@ def diagnose(
         its gate decides on the draws there are (the step's ``converged`` and the fit's
         warning still say so) -- for studies of what the loop names on short chains
         (``analyses.hidden_effects``), whose decisions are provisional.
+    budget_doublings : int
+        Times an unconverged fit is sampled again, from its start, with twice the step
+        budget of its last run, before it is reported as not converged (0: never). Not
+        with ``decide_unconverged``, which decides on the draws there are.
     checkpoint_dir : path, optional
         Each fit checkpoints here (``<identity>.h5``); a rerun resumes finished fits,
         and a fit another command made with the same data and settings into the same
@@ -466,7 +491,7 @@ def diagnose(
         sampler=SamplerSettings() if sampler is None else sampler, n_draws=int(n_draws),
         max_refits=int(max_refits), n_permutations=int(n_permutations),
         plausible=PLAUSIBLE if plausible is None else MappingProxyType(dict(plausible)),
-        decide_unconverged=bool(decide_unconverged))
+        decide_unconverged=bool(decide_unconverged), budget_doublings=budget_doublings)
     _check_settings(st)
     base_label = model if isinstance(model, str) else model.name
     base_model = get_model(model) if isinstance(model, str) else model

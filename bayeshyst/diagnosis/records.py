@@ -51,6 +51,7 @@ class DiagnosisSettings:
     n_permutations: int = 999
     plausible: Mapping[str, tuple[float, float, str]] = field(default_factory=lambda: PLAUSIBLE)
     decide_unconverged: bool = False
+    budget_doublings: int = 1
 
     @property
     def seed(self) -> int:
