@@ -102,6 +102,10 @@ class ReportSettings:
         Candidate effects of the diagnosis (None: all).
     max_rounds, max_candidates : int
         Diagnosis: most effects added; fired effects refitted per round.
+    budget_doublings : int
+        Diagnosis: times an unconverged fit is sampled again with twice the steps before
+        a candidate resting on it is not decided (the base fit too: then it is no longer
+        the comparison's joint fit, which the comparison's table still reports).
     design_draws : int
         Posterior draws the posterior-aware feedforward commands are designed on.
     robust_quantile : float
@@ -124,6 +128,7 @@ class ReportSettings:
     effects: tuple[str, ...] | None = None
     max_rounds: int = 6
     max_candidates: int = 2
+    budget_doublings: int = 1
     design_draws: int = 24
     robust_quantile: float = 0.9
     n_jobs: int | None = None
@@ -141,6 +146,10 @@ class ReportSettings:
         if isinstance(self.max_refits, bool) or not isinstance(self.max_refits, int) \
                 or self.max_refits < 0:
             raise ParameterError(f"max_refits must be an integer >= 0, got {self.max_refits!r}")
+        if isinstance(self.budget_doublings, bool) or not isinstance(self.budget_doublings, int) \
+                or self.budget_doublings < 0:
+            raise ParameterError(f"budget_doublings must be an integer >= 0, got "
+                                 f"{self.budget_doublings!r}")
         if not 0.0 < self.robust_quantile < 1.0:
             raise ParameterError(f"robust_quantile must be in (0, 1), got "
                                  f"{self.robust_quantile!r}")
@@ -356,7 +365,7 @@ def _run_report(data: Dataset, names: tuple[str, ...], s: ReportSettings, out: P
         diagnosis = diagnose(
             data, chosen, s.likelihood, effects=s.effects, max_rounds=s.max_rounds,
             max_candidates=s.max_candidates, sampler=sampler, max_refits=s.max_refits,
-            checkpoint_dir=checkpoints, on_fit=on_fit)
+            budget_doublings=s.budget_doublings, checkpoint_dir=checkpoints, on_fit=on_fit)
         times["diagnose"] = time.perf_counter() - t0
         final = diagnosis.final
         if s.calibration:

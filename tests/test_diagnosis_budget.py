@@ -115,3 +115,11 @@ def test_no_second_run_without_doublings_or_when_unconverged_fits_decide(data, t
 def test_budget_doublings_must_be_a_count(data, bad):
     with pytest.raises(ParameterError, match="budget_doublings must be an integer >= 0"):
         diagnose(data, BASE, sampler=TINY, budget_doublings=bad)
+
+
+@pytest.mark.parametrize("bad", [-1, 1.5, True])
+def test_the_reports_budget_doublings_must_be_a_count(bad):
+    from bayeshyst.workflow import ReportSettings
+
+    with pytest.raises(ParameterError, match="budget_doublings must be an integer >= 0"):
+        ReportSettings(budget_doublings=bad)
