@@ -143,13 +143,10 @@ class ReportSettings:
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, int) or v < 1:
                 raise ParameterError(f"{name} must be a positive integer, got {v!r}")
-        if isinstance(self.max_refits, bool) or not isinstance(self.max_refits, int) \
-                or self.max_refits < 0:
-            raise ParameterError(f"max_refits must be an integer >= 0, got {self.max_refits!r}")
-        if isinstance(self.budget_doublings, bool) or not isinstance(self.budget_doublings, int) \
-                or self.budget_doublings < 0:
-            raise ParameterError(f"budget_doublings must be an integer >= 0, got "
-                                 f"{self.budget_doublings!r}")
+        for name in ("max_refits", "budget_doublings"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, int) or v < 0:
+                raise ParameterError(f"{name} must be an integer >= 0, got {v!r}")
         if not 0.0 < self.robust_quantile < 1.0:
             raise ParameterError(f"robust_quantile must be in (0, 1), got "
                                  f"{self.robust_quantile!r}")
