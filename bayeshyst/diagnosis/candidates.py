@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 
@@ -26,6 +27,7 @@ from bayeshyst.diagnosis.records import (
 from bayeshyst.diagnosis.residual import EffectTest
 from bayeshyst.diagnosis.verdict import (
     BRANCH_SHAPE,
+    BY_RESOLUTION,
     FALLBACK_LOG_BF,
     LAG_LIKE,
     MIN_ELPD_GAIN,
@@ -37,14 +39,15 @@ from bayeshyst.diagnosis.verdict import (
     shape_tied,
     tied_effects,
     unresolved,
+    unresolved_throughout,
 )
-from bayeshyst.inference.sampling_result import ParamSummary
+from bayeshyst.inference.sampling_result import ParamSummary, SamplingResult
 from bayeshyst.models.blocks.smooth import TIME
 from bayeshyst.selection import paired_difference
 
 __all__ = ["BRANCH_SHAPE", "DISTURBANCE", "SCAN_JUDGED", "SHAPE_DISCREPANCY", "UNEXPLAINED",
-           "added_parameters", "judge", "line_candidate", "pair_for", "shape_candidate",
-           "unexplained_candidate"]
+           "added_names", "added_parameters", "judge", "line_candidate", "pair_for",
+           "shape_candidate", "unexplained_candidate", "unresolved_added"]
 
 
 #: The discrepancy that stands for it: a smooth function of where on the loop a sample is.
@@ -168,6 +171,7 @@ def judge(rnd: int, test: EffectTest, current: DiagnosisFit, cand: DiagnosisFit,
                       f"{lbf:.1f} {'>' if lbf > FALLBACK_LOG_BF else '<='} {FALLBACK_LOG_BF:g}"
                       f" and the error {current.overall.rmse:.4g} -> {cand.overall.rmse:.4g}")
     added = added_parameters(cand, current)
+    gate = reason  # the gate's own words, before a reading overrides them
     if ok:
         means: dict[str, list[float]] = {}
         for p in added:
@@ -182,11 +186,21 @@ def judge(rnd: int, test: EffectTest, current: DiagnosisFit, cand: DiagnosisFit,
     if not cand.sampling.converged and not st.decide_unconverged:
         # kept or rejected, the verdict would rest on draws that are not yet the
         # posterior (MR damper 0.5 A: a delay on the shape correction, R-hat 1.018 after
-        # 10 000 steps, "rejected" at -117 +- 56 nats): it is not decided
-        ok, decided_by = False, NOT_CONVERGED
-        reason = (f"not decided: the augmented fit did not converge within its budget, so "
-                  f"its gate ({reason}) rests on an unconverged posterior; a larger step "
-                  f"budget would decide")
+        # 10 000 steps, "rejected" at -117 +- 56 nats): it is not decided -- unless the
+        # block's resonance is above Nyquist in every ensemble, which no gate and no
+        # longer run can make a finding
+        hidden = unresolved_added(cand.sampling, [p.label.split("[")[0] for p in added],
+                                  current.posterior.data)
+        ok = False
+        if hidden:
+            decided_by = BY_RESOLUTION
+            reason = ("unresolved: " + "; ".join(hidden) + f" (its gate, which decides "
+                      f"nothing unconverged: {gate})")
+        else:
+            decided_by = NOT_CONVERGED
+            reason = (f"not decided: the augmented fit did not converge within its budget, "
+                      f"so its gate ({gate}) rests on an unconverged posterior; a larger "
+                      f"step budget would decide")
     tied: list[str] = []
     if ok and test.effect not in SCAN_JUDGED:
         tied = tied_effects(test.effect, current.analysis.tests)
@@ -204,7 +218,14 @@ def judge(rnd: int, test: EffectTest, current: DiagnosisFit, cand: DiagnosisFit,
 
 
 def added_parameters(fit: DiagnosisFit, before: DiagnosisFit) -> tuple[ParamSummary, ...]:
-    """Posterior summaries of the parameters the augmentation added.
+    """Posterior summaries of the parameters the augmentation added."""
+    summary = fit.sampling.summary()
+    new = set(added_names([p.label.split("[")[0] for p in summary], before))
+    return tuple(p for p in summary if p.label.split("[")[0] in new)
+
+
+def added_names(names: Sequence[str], before: DiagnosisFit) -> list[str]:
+    """The parameter names among ``names`` that ``before``'s posterior does not have.
 
     A composite carries the previous model's parameters under ``static.``.
     """
@@ -212,7 +233,19 @@ def added_parameters(fit: DiagnosisFit, before: DiagnosisFit) -> tuple[ParamSumm
         return name.removeprefix("static.")
 
     old = {base(n) for n in before.posterior.space.names}
-    return tuple(p for p in fit.sampling.summary() if base(p.label.split("[")[0]) not in old)
+    return [n for n in names if base(n) not in old]
+
+
+def unresolved_added(sampling: SamplingResult, names: Sequence[str], data: Any) -> list[str]:
+    """:func:`unresolved_throughout` for the natural frequencies among ``names``.
+
+    ``names``: the parameters an augmentation added (:func:`added_names`); each
+    ensemble's last half decides, so an unconverged fit is read as it stands.
+    """
+    resonances = sorted({n for n in names if n.endswith(".f_n")})
+    if not resonances:
+        return []
+    return unresolved_throughout(sampling.ensemble_summaries(resonances), data)
 
 
 def pair_for(tried: Sequence[tuple[EffectTest, DiagnosisFit, DiagnosisStep]],

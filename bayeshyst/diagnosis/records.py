@@ -194,8 +194,9 @@ class DiagnosisStep(TableRecord):
         ``"elpd"`` (held-out cycles), ``"bic"`` (the score test's Bayes factor, when
         the cycles are too few for the elpd gate), ``"residual scan"`` (the driver
         scan's or the spectral test's own calibrated p-value, for the branch shape and a
-        disturbance) or ``"not converged"`` (nothing decided: the augmented fit did not
-        converge).
+        disturbance), ``"not converged"`` (nothing decided: the augmented fit did not
+        converge) or ``"resolution"`` (the augmented fit did not converge, but the
+        resonance it adds lies above Nyquist in every ensemble: refused as unresolved).
     """
 
     index: int

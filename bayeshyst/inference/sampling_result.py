@@ -7,12 +7,13 @@ returns; :func:`summarise_draws` is the one place posterior summaries
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
+from bayeshyst.errors import ParameterError
 from bayeshyst.inference.convergence import ConvergenceReport, hdi
 from bayeshyst.inference.optimize import MAPResult
 from bayeshyst.inference.posterior import EvalCounts
@@ -156,6 +157,45 @@ class SamplingResult:
         theta = self.theta()
         return summarise_draws({p.name: theta[p.name] for p in self.space.params},
                                {p.name: p.unit for p in self.space.params}, prob)
+
+    def ensemble_summaries(self, names: Sequence[str], prob: float = 0.9, *,
+                           last: float = 0.5) -> list[list[ParamSummary]]:
+        """:meth:`summary` of the parameters ``names``, each ensemble on its own.
+
+        Unconverged, the ensembles are not yet one posterior, and their pooled interval
+        depends on how the sampler has weighed modes so far; what holds in the last part
+        of every ensemble (an interval on one side of a bound) holds however the modes end
+        up weighted.
+
+        Parameters
+        ----------
+        names : sequence of str
+            Parameter names (as declared, not element labels).
+        prob : float
+            Mass of each highest-density interval, in (0, 1).
+        last : float
+            Fraction of each ensemble's kept steps summarised (the latest ones), in
+            (0, 1].
+
+        Returns
+        -------
+        list of list of ParamSummary
+            One list per ensemble, as :meth:`summary` restricted to ``names``.
+        """
+        if not 0.0 < last <= 1.0:
+            raise ParameterError(f"last must be a fraction in (0, 1], got {last!r}")
+        units = {p.name: p.unit for p in self.space.params}
+        unknown = [n for n in names if n not in units]
+        if unknown:
+            raise ParameterError(f"no free parameters {unknown} in this posterior "
+                                 f"(free: {sorted(units)})")
+        n_steps = self.chains.shape[1]
+        first = n_steps - max(1, round(last * n_steps))
+        out = []
+        for chain in self.chains:
+            theta = self.space.unpack(chain[first:].reshape(-1, chain.shape[-1]))
+            out.append(summarise_draws({n: theta[n] for n in names}, units, prob))
+        return out
 
     def __str__(self) -> str:
         moves = ", ".join(f"{k} {v:.2f}" for k, v in sorted(self.move_acceptance.items()))
