@@ -16,7 +16,7 @@ import pytest
 from bayeshyst.data import excitation
 from bayeshyst.data.dataset import Dataset
 from bayeshyst.data.record import Record
-from bayeshyst.diagnosis import diagnose, loop
+from bayeshyst.diagnosis import _fitting, diagnose
 from bayeshyst.errors import ParameterError
 from bayeshyst.inference.settings import SamplerSettings
 from bayeshyst.models import get as get_model
@@ -50,7 +50,7 @@ def data() -> Dataset:
 def _converging_from(monkeypatch, need: int) -> list[SamplerSettings]:
     """Record every run of the sampler; a run converges iff its budget is >= ``need``."""
     runs: list[SamplerSettings] = []
-    real = loop.sample_posterior
+    real = _fitting.sample_posterior
 
     def sample(post, settings, **kw):
         runs.append(settings)
@@ -58,7 +58,7 @@ def _converging_from(monkeypatch, need: int) -> list[SamplerSettings]:
         conv = dataclasses.replace(res.convergence, converged=settings.max_steps >= need)
         return dataclasses.replace(res, convergence=conv)
 
-    monkeypatch.setattr(loop, "sample_posterior", sample)
+    monkeypatch.setattr(_fitting, "sample_posterior", sample)
     return runs
 
 

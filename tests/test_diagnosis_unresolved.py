@@ -178,11 +178,11 @@ def test_the_loop_does_not_sample_such_a_candidate_again(tmp_path, monkeypatch):
     # throughout (a stand-in for a resonance above Nyquist: the rule itself is tested
     # above), so only the base fit is run again
     import bayeshyst.diagnosis.candidates as candidates
-    from bayeshyst.diagnosis import diagnose, loop
+    from bayeshyst.diagnosis import _fitting, diagnose
     from bayeshyst.inference.settings import SamplerSettings
 
     runs, seen = [], []
-    real = loop.sample_posterior
+    real = _fitting.sample_posterior
 
     def sample(post, settings, **kw):
         runs.append(settings.max_steps)
@@ -194,8 +194,8 @@ def test_the_loop_does_not_sample_such_a_candidate_again(tmp_path, monkeypatch):
         seen.append(tuple(names))
         return ["drift.x lies above every record's Nyquist frequency"] if names else []
 
-    monkeypatch.setattr(loop, "sample_posterior", sample)
-    monkeypatch.setattr(loop, "unresolved_added", unseen)
+    monkeypatch.setattr(_fitting, "sample_posterior", sample)
+    monkeypatch.setattr(_fitting, "unresolved_added", unseen)
     monkeypatch.setattr(candidates, "unresolved_added", unseen)
     tiny = SamplerSettings(max_steps=STEPS, first_chunk=STEPS, n_walkers=16, progress=False)
     result = diagnose(_drifting(), BASE, effects=("drift",), max_rounds=1, max_candidates=1,

@@ -323,7 +323,7 @@ def _stubbed_loop(monkeypatch, pair_gain, gains=None, unconverged=frozenset()):
                       structure_left=False)
         return DiagnosisFit(label, fit, analysis)
 
-    monkeypatch.setattr(loop, "_fit", fake_fit)
+    monkeypatch.setattr(loop, "diagnosis_fit", fake_fit)
     return loop.diagnose(data, "pi_play(n_operators=2)", max_rounds=2, max_candidates=2)
 
 
