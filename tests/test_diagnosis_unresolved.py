@@ -15,7 +15,12 @@ from types import SimpleNamespace as NS
 import numpy as np
 import pytest
 
-from bayeshyst.diagnosis.verdict import BY_RESOLUTION, NOT_CONVERGED, unresolved_throughout
+from bayeshyst.diagnosis.verdict import (
+    BY_RESOLUTION,
+    NOT_CONVERGED,
+    refused_findings,
+    unresolved_throughout,
+)
 from bayeshyst.errors import ParameterError
 from bayeshyst.inference.convergence import ConvergenceReport
 from bayeshyst.inference.optimize import MAPResult
@@ -138,12 +143,15 @@ def test_an_unconverged_resonance_above_nyquist_everywhere_is_refused_whatever_i
     step = judge(1, test, current, cand, DiagnosisSettings())
     assert not step.accepted and not step.converged
     assert step.decided_by == decided_by, step.reason
+    words = refused_findings([step], current.label)
     if decided_by == BY_RESOLUTION:
         assert step.refused and step.outcome == "rejected"
         assert step.reason.startswith("unresolved: second_order.f_n lies above")
         assert "its gate, which decides nothing unconverged: held-out elpd" in step.reason
+        # the verdict does not say it would explain anything: its gate decided nothing
+        assert words == (f"rate_dependence is not credited: {step.reason}",)
     else:
-        assert not step.refused and step.outcome == "not decided"
+        assert not step.refused and step.outcome == "not decided" and words == ()
 
 
 # ------------------------------------------------ the loop: no second run for such a fit

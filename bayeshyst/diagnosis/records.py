@@ -226,7 +226,11 @@ class DiagnosisStep(TableRecord):
 
     @property
     def refused(self) -> bool:
-        """Whether the gate passed but the reading is no finding (implausible, unresolved)."""
+        """Whether the reading is no finding (implausible, unresolved) however the gate went.
+
+        The gate passed, or (``decided_by`` ``"resolution"``) the fit did not converge
+        and its resonance lies above Nyquist in every ensemble.
+        """
         return not self.accepted and self.reason.startswith(NOT_A_FINDING)
 
     def verdict(self, accepted: str = "accepted") -> str:

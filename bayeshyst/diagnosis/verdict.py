@@ -240,7 +240,9 @@ def refused_findings(steps: Iterable[Any], judged_against: str) -> tuple[str, ..
     One sentence per effect, from its last step judged against that fit (the final
     model's round): the reason it was refused, what it did to the error, and its held-out
     elpd change when the elpd gate decided. A refused reading is a warning, but the
-    structure it explained is still there, so the verdict says how much.
+    structure it explained is still there, so the verdict says how much. A step refused
+    on an unconverged fit (:data:`BY_RESOLUTION`) passed no gate: its sentence gives only
+    the reason.
 
     Parameters
     ----------
@@ -255,6 +257,11 @@ def refused_findings(steps: Iterable[Any], judged_against: str) -> tuple[str, ..
     out = []
     for effect, s in last.items():
         if not s.refused:
+            continue
+        if s.decided_by == BY_RESOLUTION:
+            # its gate decided nothing (the fit did not converge): no claim that it
+            # would explain anything, only why it is not credited
+            out.append(f"{effect} is not credited: {s.reason}")
             continue
         gain = (f", held-out elpd {s.delta_elpd:+.1f} (se {s.delta_elpd_se:.1f})"
                 if s.decided_by == "elpd" and math.isfinite(s.delta_elpd)
