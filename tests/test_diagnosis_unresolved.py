@@ -28,6 +28,8 @@ from bayeshyst.inference.posterior import EvalCounts
 from bayeshyst.inference.sampling_result import ParamSummary, SamplingResult
 from bayeshyst.params import Param, ParamSpace
 from bayeshyst.params.priors import LogNormal, Normal
+from tests.test_diagnosis_budget import BASE, STEPS, TINY, _drifting
+from tests.test_diagnosis_verdict import _resonance, _two_rates
 
 
 def _result(chains: np.ndarray) -> SamplingResult:
@@ -68,23 +70,6 @@ def test_each_ensemble_is_summarised_alone_over_its_last_half():
         res.ensemble_summaries(["zeta"])
     with pytest.raises(ParameterError, match="last must be a fraction in"):
         res.ensemble_summaries(["k"], last=0.0)
-
-
-def _resonance(lo, hi):
-    return ParamSummary("second_order.f_n", "Hz", 0.5 * (lo + hi), 0.25 * (hi - lo), lo, hi)
-
-
-def _two_rates():
-    # records sampled at 50 and 200 Hz: no record carries anything above 100 Hz
-    from bayeshyst.data.dataset import Dataset
-    from bayeshyst.data.record import Record
-
-    recs = []
-    for fs in (50.0, 200.0):
-        t = np.arange(200) / fs
-        u = np.sin(2 * np.pi * t)
-        recs.append(Record(t, u, u.copy(), name=f"r{fs:g}"))
-    return Dataset(tuple(recs), name="rates")
 
 
 @pytest.mark.parametrize("spans, flagged", [
@@ -155,31 +140,6 @@ def test_an_unconverged_resonance_above_nyquist_everywhere_is_refused_whatever_i
 
 
 # ------------------------------------------------ the loop: no second run for such a fit
-BASE = "pi_play(n_operators=2)"
-STEPS = 100
-
-
-def _drifting():
-    """Two sines from the base model with a gain drift of 8 % (drift fires on the base)."""
-    from bayeshyst.data import excitation
-    from bayeshyst.data.dataset import Dataset
-    from bayeshyst.data.record import Record
-    from bayeshyst.models import get as get_model
-
-    model = get_model(BASE)
-    recs = []
-    for i, f in enumerate((1.0, 2.0)):
-        t, u = excitation.sine(f, 100.0 * f, cycles=6)
-        proto = Record(t=t, u=u, y=u.copy(), warmup=100)
-        theta = dict(model.param_space(proto).fixed)
-        theta.update({"p0": 0.5, "w": np.array([0.08, 0.05])})
-        y = model.simulate(u, t, theta) * (1.0 + 0.08 * t / t[-1])
-        y = y + 0.002 * np.random.default_rng(i).standard_normal(y.size)
-        recs.append(Record(t=t, u=u, y=y, warmup=100, name=f"sine_{f:g}Hz",
-                           metadata={"frequency_hz": f}))
-    return Dataset(tuple(recs), name="drifting")
-
-
 def test_the_loop_does_not_sample_such_a_candidate_again(tmp_path, monkeypatch):
     # the real sampler never converges here (its flag is forced off), so every fit
     # would be run twice; the candidate's added block is declared unresolved
@@ -187,7 +147,6 @@ def test_the_loop_does_not_sample_such_a_candidate_again(tmp_path, monkeypatch):
     # above), so only the base fit is run again
     import bayeshyst.diagnosis.candidates as candidates
     from bayeshyst.diagnosis import _fitting, diagnose
-    from bayeshyst.inference.settings import SamplerSettings
 
     runs, seen = [], []
     real = _fitting.sample_posterior
@@ -205,9 +164,8 @@ def test_the_loop_does_not_sample_such_a_candidate_again(tmp_path, monkeypatch):
     monkeypatch.setattr(_fitting, "sample_posterior", sample)
     monkeypatch.setattr(_fitting, "unresolved_added", unseen)
     monkeypatch.setattr(candidates, "unresolved_added", unseen)
-    tiny = SamplerSettings(max_steps=STEPS, first_chunk=STEPS, n_walkers=16, progress=False)
     result = diagnose(_drifting(), BASE, effects=("drift",), max_rounds=1, max_candidates=1,
-                      sampler=tiny, n_draws=20, max_refits=0, n_permutations=0,
+                      sampler=TINY, n_draws=20, max_refits=0, n_permutations=0,
                       checkpoint_dir=tmp_path)
     assert runs == [STEPS, 2 * STEPS, STEPS]  # base twice, the candidate once
     (step,) = result.steps
