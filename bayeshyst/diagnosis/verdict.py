@@ -345,6 +345,8 @@ def unresolved(added: Sequence[Any], data: Any) -> list[str]:
     data : Dataset or Record
         The fitted data (their sample times give the Nyquist frequency).
     """
+    if not any(p.label.endswith(".f_n") for p in added):
+        return []  # no resonance: the records' sampling steps need not be read
     nyquist = 0.5 / sample_period(data)
     return [f"{p.label} = {p.mean:.3g} Hz ({p.prob:.0%} interval {p.hdi_lo:.3g}-"
             f"{p.hdi_hi:.3g} Hz) lies above every record's Nyquist frequency (at most "
