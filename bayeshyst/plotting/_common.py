@@ -27,7 +27,7 @@ from bayeshyst.inference.sampling_result import SamplingResult
 
 __all__ = ["DPI", "RED", "axes_figure", "check_result", "fmt", "label", "new_figure",
            "png_path", "positive_int", "probability", "save_and_free", "save_figure",
-           "time_axis", "title", "unit"]
+           "time_axis", "title", "unit", "wrap_title"]
 
 #: Resolution of the PNG files of a new figure (dots per inch).
 DPI = 120
@@ -58,17 +58,60 @@ def time_axis(t: np.ndarray) -> tuple[np.ndarray, str]:
     return (1e3 * t, "t [ms]") if 0 < span < 0.5 else (t, "t [s]")
 
 
+def _wrap_line(line: str, width: int) -> str:
+    # break before a '+' that joins two blocks of a composite's name, or after a space;
+    # a piece longer than the width stays whole on a line of its own
+    pieces = [p for p in re.split(r"(?=\+)|(?<= )(?=\S)", line) if p]
+    lines, current = [], ""
+    for piece in pieces:
+        if current and len(current) + len(piece.rstrip()) > width:
+            lines.append(current.rstrip())
+            current = piece
+        else:
+            current += piece
+    lines.append(current.rstrip())
+    return "\n".join(lines)
+
+
+def wrap_title(text: str, fig: Figure, fontsize: float = 10.0) -> str:
+    """``text`` with each line longer than ``fig`` is wide broken into several.
+
+    A composite model's name runs to 150 characters and more; a figure title does not
+    wrap, so such a line was cut off at both edges of the figure. Lines are broken
+    before a ``+`` joining two blocks or after a space, for a width estimated from the
+    figure's width and the font size (0.62 em per character, which DejaVu Sans' average
+    character does not exceed).
+
+    Parameters
+    ----------
+    text : str
+        The title, lines separated by ``\\n``.
+    fig : Figure
+        The figure it goes on; its width sets the line length.
+    fontsize : float
+        Of the title, in points.
+
+    Returns
+    -------
+    str
+        ``text``, its long lines broken with ``\\n``; short lines as they were.
+    """
+    width = max(20, int(fig.get_figwidth() * 72.0 / (0.62 * fontsize)))
+    return "\n".join(_wrap_line(line, width) for line in text.split("\n"))
+
+
 def title(fig: Figure, result: SamplingResult, what: str) -> None:
     """Figure title; a run that has not converged gets a red banner."""
     conv = result.convergence
     if conv.converged:
-        fig.suptitle(f"{result.model} / {result.likelihood}: {what}\nconverged (R-hat max "
-                     f"{fmt(conv.rhat_max, '.3f')}, ESS bulk min "
-                     f"{fmt(conv.ess_bulk_min, '.0f')})", fontsize=10)
+        text = (f"{result.model} / {result.likelihood}: {what}\nconverged (R-hat max "
+                f"{fmt(conv.rhat_max, '.3f')}, ESS bulk min "
+                f"{fmt(conv.ess_bulk_min, '.0f')})")
+        fig.suptitle(wrap_title(text, fig), fontsize=10)
     else:
         reasons = "; ".join(conv.reasons) or "see the convergence report"
-        fig.suptitle(f"NOT CONVERGED: {reasons}\n{result.model} / {result.likelihood}: "
-                     f"{what}", fontsize=10, color=RED, fontweight="bold")
+        text = f"NOT CONVERGED: {reasons}\n{result.model} / {result.likelihood}: {what}"
+        fig.suptitle(wrap_title(text, fig), fontsize=10, color=RED, fontweight="bold")
 
 
 # ------------------------------------------------------------------------ arguments

@@ -35,6 +35,7 @@ from bayeshyst.plotting._common import (
     save_and_free,
     time_axis,
     unit,
+    wrap_title,
 )
 
 __all__ = ["COMPENSATION_MAX_ROWS", "compensation_figure", "diagnosis_residuals_figure",
@@ -118,8 +119,8 @@ def model_comparison_figure(result: Any, *, fig: Figure | None = None) -> Figure
     axes[0].legend(fontsize=7, loc="best")
     title = "model selection per frequency (higher elpd is better)"
     if unconverged:
-        fig.suptitle(f"NOT CONVERGED (red x): {', '.join(unconverged)}\n{title}", fontsize=10,
-                     color=RED, fontweight="bold")
+        fig.suptitle(wrap_title(f"NOT CONVERGED (red x): {', '.join(unconverged)}\n{title}",
+                                fig), fontsize=10, color=RED, fontweight="bold")
     else:
         fig.suptitle(title, fontsize=10)
     return fig
@@ -296,9 +297,10 @@ def compensation_figure(result: Any, *, fig: Figure | None = None,
     if len(every) > n:
         title += f"\nfirst {n} of {len(every)} references shown (right panel: all)"
     if result.converged:
-        fig.suptitle(title, fontsize=10)
+        fig.suptitle(wrap_title(title, fig), fontsize=10)
     else:
-        fig.suptitle(f"NOT CONVERGED: the fit behind the design did not converge\n{title}",
+        fig.suptitle(wrap_title("NOT CONVERGED: the fit behind the design did not "
+                                f"converge\n{title}", fig),
                      fontsize=10, color=RED, fontweight="bold")
     return fig
 
@@ -384,12 +386,12 @@ def diagnosis_residuals_figure(result: Any, *, fig: Figure | None = None) -> Fig
     title = (f"diagnosis: effects found: {found}\n{models}\n"
              "residual (measured − posterior-mean prediction) on the scored samples")
     if base.sampling.converged and final.sampling.converged:
-        fig.suptitle(title, fontsize=10)
+        fig.suptitle(wrap_title(title, fig), fontsize=10)
     else:
         which = [f.label for f in ((base,) if same else (base, final))
                  if not f.sampling.converged]
-        fig.suptitle(f"NOT CONVERGED: {'; '.join(which)}\n{title}", fontsize=10, color=RED,
-                     fontweight="bold")
+        fig.suptitle(wrap_title(f"NOT CONVERGED: {'; '.join(which)}\n{title}", fig),
+                     fontsize=10, color=RED, fontweight="bold")
     return fig
 
 
