@@ -152,6 +152,21 @@ def test_batched_unpack_and_log_prior_match_single():
         assert lp[i] == pytest.approx(space.log_prior(zs[i]))
 
 
+def test_unpack_of_named_parameters_is_the_full_unpack_restricted_to_them():
+    space = _space().fix("b", 0.25)
+    zs = space.sample_prior(np.random.default_rng(2), 5)
+    for z in (zs, zs[0]):
+        full = space.unpack(z)
+        some = space.unpack(z, names=["d", "b", "a"])
+        assert set(some) == {"a", "b", "d"}
+        for n in some:
+            np.testing.assert_array_equal(some[n], full[n])
+            assert type(some[n]) is type(full[n])
+        assert space.unpack(z, names=[]) == {}
+    with pytest.raises(KeyError, match="no parameter named 'x'"):
+        space.unpack(zs, names=["a", "x"])
+
+
 def test_log_prior_is_the_density_of_z():
     # oracle: the density of z = forward(x), x ~ prior, integrates to one and equals the
     # change-of-variables formula; check it by numerical integration in z for 1-D spaces

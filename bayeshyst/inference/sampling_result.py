@@ -195,9 +195,7 @@ class SamplingResult:
         for chain in self.chains:
             # only the named coordinates are transformed: unpacking all of a 120-dim
             # chain's last 5 000 steps would hold ~300 MB per ensemble for one summary
-            z = chain[first:].reshape(-1, chain.shape[-1])
-            theta = {n: self.space[n].transform.inverse(z[:, self.space.slice_of(n)])
-                     .reshape((z.shape[0], *self.space[n].shape)) for n in names}
+            theta = self.space.unpack(chain[first:].reshape(-1, chain.shape[-1]), names=names)
             out.append(summarise_draws(theta, units, prob))
         return out
 

@@ -230,27 +230,40 @@ class ParamSpace:
             )
         return (z if batched else z[None, :]), batched
 
-    def unpack(self, z: np.ndarray) -> dict[str, Any]:
+    def unpack(self, z: np.ndarray, *, names: Iterable[str] | None = None) -> dict[str, Any]:
         """Named physical values from unconstrained ``z``.
 
         Parameters
         ----------
         z : ndarray, shape (ndim,) or (W, ndim)
+        names : iterable of str, optional
+            Only these parameters (free or fixed); default every one. A few coordinates
+            of a long chain are transformed without the memory of all of them.
 
         Returns
         -------
         dict
             ``name -> value``: a float (scalar parameter) or an array of the declared
             shape; with a batch, arrays of shape ``(W, *shape)``.
+
+        Raises
+        ------
+        KeyError
+            A name in ``names`` that is no parameter of this space.
         """
         zz, batched = self._split(z)
         w = zz.shape[0]
+        free, fixed = self.params, self.fixed_params
+        if names is not None:
+            chosen = [self[n] for n in names]
+            free = tuple(p for p in chosen if p.name in self._offsets)  # type: ignore[attr-defined]
+            fixed = tuple(p for p in chosen if p.name in self.fixed)
         theta: dict[str, Any] = {}
-        for p in self.params:
+        for p in free:
             a, b = self._offsets[p.name]  # type: ignore[attr-defined]
             x = p.transform.inverse(zz[:, a:b]).reshape((w, *p.shape))
             theta[p.name] = x if batched else (float(x[0]) if not p.shape else x[0])
-        for p in self.fixed_params:
+        for p in fixed:
             v = self.fixed[p.name]
             if batched:
                 theta[p.name] = np.broadcast_to(v, (w, *p.shape))
