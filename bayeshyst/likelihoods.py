@@ -43,7 +43,7 @@ def _noise_scale(data: Any) -> tuple[float, str]:
     records = list(data) if hasattr(data, "records") else [data]
     ys = np.concatenate([np.asarray(r.y, dtype=float) for r in records])
     span = float(ys.max() - ys.min())
-    unit = str(dict(getattr(records[0], "units", None) or {}).get("y", "um"))
+    unit = str(dict(getattr(records[0], "units", None) or {}).get("y", "unknown"))
     return (0.01 * span if span > 0 else 0.01), unit
 
 

@@ -64,7 +64,9 @@ def records(draw: st.DrawFn, name: str = "rec") -> Record:
     }
     return Record(
         t, u, y, segment=seg, warmup=draw(st.integers(0, n - 2)), metadata=meta,
-        units={"y": draw(st.sampled_from(["um", "nm", "N"]))}, name=name,
+        # units the readers keep as they are (a working unit, a unit without one,
+        # unknown) come back exactly; nm is converted to um (tests/test_units_pint.py)
+        units={"y": draw(st.sampled_from(["um", "N", "mm/s", "unknown"]))}, name=name,
     )
 
 
@@ -152,11 +154,17 @@ def test_sidecar_supplies_metadata_units_columns_and_explicit_args_win(tmp_path)
     }))
     ds = read_csv(path)
     rec = ds[0]
-    assert ds.name == "bench" and rec.warmup == 2 and rec.units["y"] == "nm"
+    # a sidecar unit is converted like a header unit: nm -> um, noted
+    assert ds.name == "bench" and rec.warmup == 2 and rec.units["y"] == "um"
+    np.testing.assert_allclose(rec.y, np.arange(6.0) * 1e-3, rtol=1e-15)
+    assert rec.metadata["unit_conversions"][-1].endswith("nm (sidecar "
+                                                         f"{sidecar_path(path)}, key 'units')"
+                                                         " -> um, x 0.001")
     assert rec.frequency_hz == 3.0 and rec.metadata["temperature_c"] == 21.5
     over = read_csv(path, warmup=0, metadata={"frequency_hz": 4.0}, units={"y": "um"}, name="x")
     assert over.name == "x" and over[0].warmup == 0 and over[0].frequency_hz == 4.0
     assert over[0].units["y"] == "um" and over[0].metadata["temperature_c"] == 21.5
+    np.testing.assert_array_equal(over[0].y, np.arange(6.0))  # the argument wins
 
 
 def test_frequency_column_splits_contiguous_blocks(tmp_path):
@@ -481,8 +489,8 @@ def test_constant_is_judged_over_the_whole_file(tmp_path):
 def test_record_errors_name_the_file_when_the_sidecar_names_another_source(tmp_path):
     # the bundled data's sidecars say "source": "virtual actuator"
     path = write_csv(_sine(metadata={"source": "virtual actuator"}), tmp_path / "v.csv")
-    with pytest.raises(DataError, match=re.escape(str(path)) + r": record 's' \(source virtual "
-                       r"actuator\): units: expected str -> str"):
+    with pytest.raises(DataError, match=re.escape(str(path)) + r": the units argument, role "
+                       r"'y': expected a unit string, got 3"):
         load(path, units={"y": 3})
     with pytest.raises(DataError, match=re.escape(str(path)) + r": record 's' .*metadata "
                        r"'frequency_hz': expected a positive finite number"):

@@ -228,25 +228,25 @@ def test_a_stepped_sine_is_split_into_its_steps_with_their_frequencies(noise):
     warm = np.array([r.warmup for r in out][1:])
     assert np.all(np.abs(warm - periods) <= (0.05 * periods if noise else 1))
     assert sum(r.n for r in out) == u.size  # nothing dropped
+    assert {r.metadata["excitation"] for r in out} == {"stepped"}
 
 
-def test_one_frequency_keeps_the_record_and_a_sweep_is_binned():
+def test_one_frequency_keeps_the_record_and_a_sweep_is_kept_whole():
     fs = 5000.0
     t = np.arange(int(3 * fs)) / fs
     (sine,) = label_frequencies(_rec(60 - 50 * np.cos(2 * np.pi * 7.3 * t), "sine"))
     assert sine.name == "sine" and sine.frequency_hz == 7.3 and sine.n == t.size
-    # a linear chirp 1 -> 20 Hz: every piece's label lies within its own span of
-    # instantaneous frequency, the labels increase, and every piece has >= 2 cycles
+    assert sine.metadata["excitation"] == "periodic"
+    # a linear chirp 1 -> 20 Hz repeats nothing: it is one broadband record, not a run of
+    # "cycles" labelled with frequencies (issue 58), and its band holds the sweep's span
     f0, rate = 1.0, 19.0 / 3.0
-    pieces = label_frequencies(_rec(60 - 50 * np.cos(2 * np.pi * (f0 * t + rate / 2 * t**2)),
-                                    "chirp"))
-    labels = [r.frequency_hz for r in pieces]
-    assert len(pieces) > 5 and labels == sorted(labels)
-    for r in pieces[1:]:
-        a, b = r.metadata["parent_slice"]
-        lo, hi = f0 + rate * t[a], f0 + rate * t[b - 1]
-        assert lo * 0.97 <= r.frequency_hz <= hi * 1.03
-        assert int(r.metadata["frequency_source"].split("(")[1].split()[0]) >= 2
+    (chirp,) = label_frequencies(_rec(60 - 50 * np.cos(2 * np.pi * (f0 * t + rate / 2 * t**2)),
+                                      "chirp"))
+    assert chirp.name == "chirp" and chirp.n == t.size and chirp.frequency_hz is None
+    assert chirp.metadata["excitation"] == "broadband"
+    lo, hi = chirp.metadata["band_hz"]
+    assert lo <= 1.5 and hi >= 19.0
+    assert "kept whole" in chirp.metadata["excitation_note"]
 
 
 def test_labelled_records_pass_and_acyclic_ones_say_why():

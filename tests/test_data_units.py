@@ -43,8 +43,12 @@ def test_conversion_factors_and_labels():
     assert conversion("t", "ms") == (1e-3, "s") and conversion("t", "µs") == (1e-6, "s")
     assert conversion("y", "nm") == (1e-3, "um") and conversion("y", "mm") == (1e3, "um")
     assert conversion("y", "m") == (1e6, "um") and conversion("u", "kV") == (1e3, "V")
-    assert conversion("u", "mA") is None  # another dimension: a label
-    assert conversion("y", "ms") is None and conversion("t", None) is None
+    # every dimension with a working unit is converted (a current to A, a force to N)
+    assert conversion("u", "mA") == (1e-3, "A") and conversion("y", "kN") == (1e3, "N")
+    assert conversion("y", "mm/s") is None  # no working unit for a speed: kept
+    # a role takes any dimension (a y in ms becomes s), but the time must be a time
+    assert conversion("y", "ms") == (1e-3, "s")
+    assert conversion("t", "V") is None and conversion("t", None) is None
 
 
 def test_an_instrument_export_is_read_and_converted(tmp_path):
@@ -88,10 +92,16 @@ def test_ambiguous_or_contradicting_headers_are_refused_in_words(tmp_path):
 
 
 def test_time_in_ms_read_as_seconds_is_flagged(tmp_path):
+    # the data contradict themselves: a 5 Hz excitation (frequency_hz) sampled every
+    # every "0.2 s" (5000 Hz in ms read as s) -- 1 sample per cycle, and the input
+    # cycles once per 200 "s"
     t, u, y = _signals()
     path = _write(tmp_path / "ms.csv", ["time", "volt", "disp"], [t * 1e3, u, y])
-    (warning,) = plausibility(load(path))
-    assert "sampling rate 5 Hz" in warning and "ms" in warning
+    (warning,) = plausibility(load(path, metadata={"frequency_hz": 5.0}))
+    assert "1 samples per cycle of the 5 Hz excitation (step 0.2 s)" in warning
+    assert "time in ms read as s?" in warning
+    # without a frequency, nothing in the data contradicts a 5 Hz sampling
+    assert plausibility(load(path)) == []
 
 
 def test_a_reference_file_with_instrument_units(tmp_path):
@@ -146,20 +156,26 @@ def test_cli_finds_the_frequencies_a_file_does_not_give(tmp_path, capsys):
 
 def test_an_unknown_unit_is_refused_and_other_quantities_stay_labels(tmp_path, capsys):
     t, u, y = _signals()
-    odd = _write(tmp_path / "odd.csv", ["Time [s]", "Voltage [V]", "Displacement [furlong]"],
-                 [t, u, y])
+    # (a furlong is a length pint knows; "furlongs per week" spelled as one word is not)
+    odd = _write(tmp_path / "odd.csv", ["Time [s]", "Voltage [V]",
+                                        "Displacement [furlongsperweek]"], [t, u, y])
     with pytest.raises(DataError, match=r"odd\.csv: line 1 \(header\), column "
-                                        r"'Displacement \[furlong\]' \(y\): unknown unit"):
+                                        r"'Displacement \[furlongsperweek\]' \(y\): "
+                                        r"unknown unit"):
         load(odd)
     assert main(["fit", str(odd), "--model", "pi_play", "--out", str(tmp_path / "o")]) == 2
-    assert "unknown unit 'furlong'" in capsys.readouterr().err
+    assert "unknown unit 'furlongsperweek'" in capsys.readouterr().err
     assert not (tmp_path / "o").exists()
-    # an MR damper's file: a displacement input and a force output are labels, the
-    # numbers untouched (only t in time units, u in volts, y in lengths are converted)
+    # an MR damper's file: a displacement input is converted to um like any length, a
+    # force output is in N already (its working unit): numbers x 1000 and untouched
     force = _write(tmp_path / "force.csv", ["t [ms]", "u [mm]", "y [N]"], [t * 1e3, u, y])
     (rec,) = load(force)
-    assert dict(rec.units) == {"t": "s", "u": "mm", "y": "N"}
-    assert np.array_equal(rec.u, u) and np.array_equal(rec.y, y)
+    assert dict(rec.units) == {"t": "s", "u": "um", "y": "N"}
+    np.testing.assert_allclose(rec.u, u * 1e3, rtol=1e-15)
+    assert np.array_equal(rec.y, y)
+    # a unit of a quantity without a working unit stays a label, in pint's spelling
+    speed = _write(tmp_path / "speed.csv", ["t", "u [V]", "y [mm / s]"], [t, u, y])
+    assert dict(load(speed)[0].units) == {"t": "s", "u": "V", "y": "mm/s"}
 
 
 def test_an_instrument_file_fits_to_the_posterior_of_its_converted_twin(tmp_path):

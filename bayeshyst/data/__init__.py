@@ -7,7 +7,8 @@
   :mod:`bayeshyst.data.parsing`);
 * :func:`find_reversals`, :func:`split_cycles`, :func:`estimate_frequency`,
   :func:`split_by_frequency`, :func:`label_frequencies` -- cycles and frequency blocks
-  (:mod:`bayeshyst.data.segment`);
+  (:mod:`bayeshyst.data.segment`); :func:`classify_excitation` -- periodic, stepped,
+  multisine or broadband input (:mod:`bayeshyst.data.classify`);
 * ``load_*`` -- the measured sets in the shared data folder
   (:mod:`bayeshyst.data.measured`);
 * :class:`VirtualActuator`, :func:`bundle` -- the documented simulator with known
@@ -20,9 +21,12 @@
 from __future__ import annotations
 
 from bayeshyst.data import excitation
+from bayeshyst.data.classify import Excitation, classify_excitation
 from bayeshyst.data.dataset import Dataset
+from bayeshyst.data.hdf5 import read_hdf5
 from bayeshyst.data.io import load, read_csv, read_mat, read_npz
 from bayeshyst.data.measured import (
+    load_bouc_wen_benchmark,
     load_micromanipulator_reference,
     load_mr_damper,
     load_piezo_actuator_150v,
@@ -37,6 +41,7 @@ from bayeshyst.data.segment import (
     default_prominence,
     estimate_frequency,
     find_reversals,
+    input_noise_sd,
     label_frequencies,
     split_by_frequency,
     split_cycles,
@@ -65,11 +70,13 @@ __all__ = [
     "BipolarActuator",
     "CycleSplit",
     "Dataset",
+    "Excitation",
     "Record",
     "Table",
     "VirtualActuator",
     "bipolar_records",
     "bundle",
+    "classify_excitation",
     "creep_per_decade",
     "cycle_labels",
     "default_prominence",
@@ -79,14 +86,17 @@ __all__ = [
     "frequency_key",
     "hysteresis_only",
     "hysteresis_percent",
+    "input_noise_sd",
     "label_frequencies",
     "load",
+    "load_bouc_wen_benchmark",
     "load_micromanipulator_reference",
     "load_mr_damper",
     "load_piezo_actuator_150v",
     "load_piezo_micromanipulator",
     "loop_width",
     "read_csv",
+    "read_hdf5",
     "read_mat",
     "read_npz",
     "read_table",

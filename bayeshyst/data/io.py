@@ -21,6 +21,13 @@ stem) with these optional keys::
 Precedence, lowest first: sidecar top level, sidecar ``records`` entry, explicit
 arguments. Unknown keys are errors (they are usually typos).
 
+Units
+-----
+A unit in a column's name (``Time [ms]``), the sidecar's ``units`` and the ``units``
+argument are parsed by pint and converted by :func:`bayeshyst.data.units.apply_units`
+(time to s; input and output to the working unit of their dimension, else kept); a
+role without any unit is ``"unknown"`` (time: s assumed), never a default unit.
+
 Columns (roles)
 ---------------
 ``t``, ``u``, ``y`` are required; ``segment`` (integer labels), ``frequency_hz`` and
@@ -63,7 +70,7 @@ from bayeshyst.data.parsing import (
     role_labels,
 )
 from bayeshyst.data.record import MIN_SAMPLES, Record
-from bayeshyst.data.units import header_units
+from bayeshyst.data.units import apply_units, split_header
 from bayeshyst.errors import DataError
 
 __all__ = [
@@ -108,8 +115,19 @@ def _assemble(
     covariates: Mapping[str, np.ndarray] | None = None,
     kind: str = "column",
     fittable: bool = True,
+    header: str = "",
 ) -> Dataset:
-    """Split validated columns into Records, reporting problems at file positions."""
+    """Split validated columns into Records, reporting problems at file positions.
+
+    Every reader ends here, and so do the units: the unit written in a column's name
+    (``"Time [ms]"``), the sidecar's (top level, then the block's ``records`` entry) and
+    the ``units`` argument (winning) go through
+    :func:`bayeshyst.data.units.apply_units`, which converts ``t`` to s and ``u``, ``y``
+    to the working unit of their dimension, labels a role without any unit
+    ``"unknown"`` (``t``: s assumed) and notes every conversion in
+    ``metadata["unit_conversions"]``. ``header`` says where the column names are
+    (``"line 1 (header)"``) for messages.
+    """
     label = role_labels(resolved, kind)
     n = cols["t"].size
     covariates = {k: v for k, v in (covariates or {}).items() if v.size == n}
@@ -147,7 +165,11 @@ def _assemble(
                 f"{path}: rows {span}, {label['t']}: too few samples, expected at "
                 f"least {MIN_SAMPLES} (MIN_SAMPLES), got {b - a}"
             )
-        t = cols["t"][a:b]
+        entry = entries[k] if entries is not None else {}
+        block, rec_units, notes = _units(path, sp, k if entries is not None else None,
+                                         {r: cols[r][a:b] for r in ("t", "u", "y")},
+                                         resolved, label, header, sc, entry, units)
+        t = block["t"]
         steps = np.diff(t)
         if not (steps > 0).all():
             i = int(np.argmax(steps <= 0)) + 1
@@ -156,8 +178,9 @@ def _assemble(
                 f"{path}: {where(a + i)}, {label['t']}: expected time greater than "
                 f"{float(t[i - 1])!r} ({where(a + i - 1)}), got {float(t[i])!r} ({problem})"
             )
-        entry = entries[k] if entries is not None else {}
         meta: dict[str, Any] = {**sc.get("metadata", {}), **entry.get("metadata", {})}
+        if notes:
+            meta["unit_conversions"] = tuple(notes)
         if "frequency_hz" in cols:
             meta["frequency_hz"] = float(cols["frequency_hz"][a])
         meta.update(metadata or {})
@@ -189,12 +212,12 @@ def _assemble(
             records.append(
                 Record(
                     t=t,
-                    u=cols["u"][a:b],
-                    y=cols["y"][a:b],
+                    u=block["u"],
+                    y=block["y"],
                     segment=segment,
                     warmup=int(w),
                     metadata=meta,
-                    units={**sc.get("units", {}), **entry.get("units", {}), **(units or {})},
+                    units=rec_units,
                     name=rec_name,
                     covariates={k: v[a:b] for k, v in covariates.items()},
                 )
@@ -204,6 +227,40 @@ def _assemble(
     if fittable:
         check_fittable(data, str(path), label)
     return data
+
+
+def _units(
+    path: Path,
+    sidecar: Path | None,
+    entry_index: int | None,
+    cols: Mapping[str, np.ndarray],
+    resolved: Mapping[str, str],
+    label: Mapping[str, str],
+    header: str,
+    sc: Mapping[str, Any],
+    entry: Mapping[str, Any],
+    units: Mapping[str, str] | None,
+) -> tuple[dict[str, np.ndarray], dict[str, str], list[str]]:
+    """One block's ``t``, ``u``, ``y`` in working units, its units and conversion notes."""
+    declared: dict[str, tuple[str, str]] = {}
+    for origin, given in (
+        (f"sidecar {sidecar}, key 'units'", sc.get("units") or {}),
+        (f"sidecar {sidecar}, key 'records'[{entry_index}].units", entry.get("units") or {}),
+        ("the units argument", units or {}),
+    ):
+        for role, unit in given.items():
+            if not isinstance(unit, str):
+                raise DataError(f"{path}: {origin}, role {role!r}: expected a unit string, "
+                                f"got {unit!r}")
+            declared[role] = (unit, origin)
+    where = {r: f"{path}: " + (f"{header}, " if header else "") + label[r]
+             for r in ("t", "u", "y")}
+    written = {r: split_header(resolved[r])[1] for r in ("t", "u", "y")}
+    block, rec_units, notes = apply_units(cols, written, declared, where)
+    # roles other than t, u, y (a covariate's unit) are kept as declared
+    extra = {r: u for r, (u, _) in declared.items() if r not in ("t", "u", "y")}
+    notes = [n.removeprefix(f"{path}: ").removeprefix(f"{header}, ") for n in notes]
+    return block, {**extra, **rec_units}, notes
 
 
 @contextmanager
@@ -251,7 +308,13 @@ def read_csv(
         Merged over the sidecar metadata (explicit keys win). ``source`` defaults to
         the file path.
     units : mapping of str to str, optional
-        Merged over the sidecar units and the defaults ``{"t": "s", "u": "V", "y": "um"}``.
+        Role -> unit of the file's columns, e.g. ``{"u": "A/m", "y": "mT"}``; wins over
+        the sidecar's units, and a unit in the header must agree (pint equality). Every
+        unit is converted as :func:`bayeshyst.data.units.apply_units` says: ``t`` to s
+        (assumed s without a unit), ``u`` and ``y`` to the working unit of their
+        dimension (V, um, N, A, T, A/m, Pa, C, ...) or kept as written; a role without a
+        unit anywhere is ``"unknown"``. Conversions are listed in
+        ``metadata["unit_conversions"]``.
     name : str, optional
         Dataset name (default: the sidecar's ``name``, else the file stem).
     fittable : bool, default True
@@ -276,15 +339,15 @@ def read_csv(
     side = read_sidecar(p)
     table = read_table(p, delimiter=delimiter)
     header = f"line {table.header_line} (header)"
-    resolved = resolve_roles(columns, side, table.names, p, "column", header)
+    order: list[str] = []
+    resolved = resolve_roles(columns, side, table.names, p, "column", header, notes=order)
+    if order:
+        metadata = {**(metadata or {}), "column_roles": tuple(order)}
     label = role_labels(resolved, "column")
     cols = {
         role: table.floats(col, label=label[role], integer=role in _INTEGER_ROLES)
         for role, col in resolved.items()
     }
-    units, notes = header_units(p, header, resolved, cols, units, side)
-    if notes:
-        metadata = {**(metadata or {}), "unit_conversions": tuple(notes)}
     covariates, ignored = {}, []
     for c in table.names:
         if c in resolved.values():
@@ -298,7 +361,7 @@ def read_csv(
     return _assemble(
         p, cols, lambda i: f"line {table.lines[i]}", resolved, side,
         warmup=warmup, metadata=metadata, units=units, name=name, ignored=ignored,
-        covariates=covariates, fittable=fittable,
+        covariates=covariates, fittable=fittable, header=header,
     )
 
 
@@ -360,7 +423,8 @@ def _read_arrays(
             ignored.append(k)
     return _assemble(
         path, cols, lambda i: f"index {i} (0-based)", resolved, side,
-        ignored=ignored, covariates=covariates, kind=kind, **options,
+        ignored=ignored, covariates=covariates, kind=kind, header=f"{kind}s in file",
+        **options,
     )
 
 
@@ -391,7 +455,7 @@ def read_npz(
     metadata : mapping, optional
         Merged over the sidecar metadata.
     units : mapping of str to str, optional
-        Merged over sidecar units and defaults.
+        As in :func:`read_csv` (wins over the sidecar's units, converted alike).
     name : str, optional
         Dataset name (default: sidecar ``name``, else the file stem).
     fittable : bool, default True
@@ -473,12 +537,25 @@ def read_mat(
     return _read_arrays(p, variables, "variable", columns, opts)
 
 
+def _read_hdf5(path: str | os.PathLike[str], **options: Any) -> Dataset:
+    """:func:`bayeshyst.data.hdf5.read_hdf5`, imported when first called.
+
+    The HDF5 reader builds on this module's assembly (``_assemble``), so this module
+    cannot import it at the top without an import cycle.
+    """
+    from bayeshyst.data.hdf5 import read_hdf5
+
+    return read_hdf5(path, **options)
+
+
 #: Readers by lower-case file suffix, used by :func:`load`.
 SUFFIXES: Mapping[str, Callable[..., Dataset]] = {
     ".csv": read_csv,
     ".txt": read_csv,
     ".npz": read_npz,
     ".mat": read_mat,
+    ".h5": _read_hdf5,
+    ".hdf5": _read_hdf5,
 }
 
 
@@ -488,11 +565,14 @@ def load(path: str | os.PathLike[str], **options: Any) -> Dataset:
     Parameters
     ----------
     path : path-like
-        ``.csv``/``.txt`` (:func:`read_csv`), ``.npz`` (:func:`read_npz`) or ``.mat``
-        (:func:`read_mat`).
+        ``.csv``/``.txt`` (:func:`read_csv`), ``.npz`` (:func:`read_npz`), ``.mat``
+        (:func:`read_mat`) or ``.h5``/``.hdf5``
+        (:func:`~bayeshyst.data.hdf5.read_hdf5`).
     **options
         Passed to the reader (``columns``, ``warmup``, ``metadata``, ``units``, ``name``,
-        ``fittable``, and ``delimiter`` for text).
+        ``fittable``; ``delimiter`` for text; ``fs`` [Hz] for HDF5 without a time
+        dataset). For HDF5, ``columns`` maps roles to dataset paths, e.g.
+        ``{"u": "multisine/u", "y": "multisine/y"}``.
 
     Raises
     ------

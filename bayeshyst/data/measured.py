@@ -1,8 +1,8 @@
 """Loaders for the measured data sets kept in the shared data folder (never copied here).
 
-Three public measurements, each described by a ``SOURCE.md`` in its folder (columns,
-units, sampling, licence); the loaders follow those descriptions exactly and copy the
-provenance into ``Record.metadata``:
+Three public measurements and one simulated benchmark, each described by a
+``SOURCE.md`` in its folder (columns, units, sampling, licence); the loaders follow
+those descriptions exactly and copy the provenance into ``Record.metadata``:
 
 * ``piezo_actuator_150V_1Hz`` -- piezoelectric actuator, +-150 V / 1 Hz sine, 5 kHz
   (:func:`load_piezo_actuator_150v`);
@@ -11,13 +11,17 @@ provenance into ``Record.metadata``:
 * ``mr_damper_utfsm_sine`` -- a magnetorheological **damper** (not a piezo) under
   sinusoidal displacement at 6 frequencies and 5 coil currents
   (:func:`load_mr_damper`). It serves the rate-dependence and model-selection studies:
-  a hysteretic force-displacement system with a strong, known frequency dependence.
+  a hysteretic force-displacement system with a strong, known frequency dependence;
+* ``boucwen_benchmark`` -- the Noël-Schoukens Bouc-Wen hysteresis benchmark, simulated
+  with known true parameters: force in, displacement out, 750 Hz, HDF5 files
+  (:func:`load_bouc_wen_benchmark`).
 
 The folder is found by :func:`shared_data_root`.
 """
 
 from __future__ import annotations
 
+import hashlib
 import math
 import os
 import re
@@ -28,14 +32,21 @@ from typing import Any, Literal
 import numpy as np
 
 from bayeshyst.data.dataset import Dataset
+from bayeshyst.data.hdf5 import read_hdf5
 from bayeshyst.data.parsing import read_table
 from bayeshyst.data.record import Record
 from bayeshyst.data.segment import find_reversals
 from bayeshyst.errors import DataError
 
 __all__ = [
+    "BOUC_WEN_PARAMETER_UNITS",
+    "BOUC_WEN_PERIOD_SAMPLES",
+    "BOUC_WEN_SHA256",
+    "BOUC_WEN_TEST_OUTPUT_RMS_M",
+    "BOUC_WEN_TRUE_PARAMETERS",
     "ENV_VAR",
     "MICROMANIPULATOR_SEGMENT_STARTS",
+    "load_bouc_wen_benchmark",
     "load_micromanipulator_reference",
     "load_mr_damper",
     "load_piezo_actuator_150v",
@@ -49,6 +60,7 @@ ENV_VAR = "BAYESHYST_SHARED_DATA"
 PIEZO_150V_DIR = "piezo_actuator_150V_1Hz"
 MICROMANIPULATOR_DIR = "piezo_micromanipulator_dbo"
 MR_DAMPER_DIR = "mr_damper_utfsm_sine"
+BOUC_WEN_DIR = "boucwen_benchmark"
 
 #: 1-based MATLAB segment starts ``si`` marked in ``Step02_ChkCurves.m`` for
 #: ``Test_Vi_Do_Di.dat`` (3852, 5052: no inverse compensation; 11152, 11852: with it);
@@ -403,3 +415,146 @@ def load_mr_damper(
             name=path.stem,
         ))
     return Dataset(records, name=MR_DAMPER_DIR)
+
+
+# ------------------------------------------------------------- Bouc-Wen benchmark
+#: sha256 of the benchmark files as stated in the folder's SOURCE.md (byte copies of the
+#: dynonet repository's files): a changed file would silently move every published score.
+BOUC_WEN_SHA256 = {
+    "train.h5": "a4df68f6101a22f9fc5032e98b3e773fc108a291378ef9cf69d1b128c7ac44a4",
+    "test.h5": "822fe88df38cf41bffbebedb06af8d6c5eb2f808de0e2eefe6d78b215de53016",
+}
+#: Samples per period of the benchmark's multisines (at 750 Hz).
+BOUC_WEN_PERIOD_SAMPLES = 8192
+#: The simulated system's parameters (SOURCE.md), SI units in :data:`BOUC_WEN_PARAMETER_UNITS`.
+BOUC_WEN_TRUE_PARAMETERS = {
+    "m_L": 2.0, "c_L": 10.0, "k_L": 5e4, "alpha": 5e4, "beta": 1e3, "gamma": 0.8,
+    "delta": -1.1, "nu": 1.0,
+}
+BOUC_WEN_PARAMETER_UNITS = {
+    "m_L": "kg", "c_L": "N s/m", "k_L": "N/m", "alpha": "N/m", "beta": "1/m",
+    "gamma": "-", "delta": "-", "nu": "-",
+}
+#: RMS of the two official test outputs [m], the scale the literature's RMSE is read on.
+BOUC_WEN_TEST_OUTPUT_RMS_M = {"test_multisine": 6.67e-4, "test_sweep": 6.64e-4}
+
+_BW_FS = 750.0  # Hz, SOURCE.md; the files' own fs datasets are what the records use
+# which -> (file, group, record name, description, number of periods or None)
+_BW_RECORDS: dict[str, tuple[str, str, str, str, int | None]] = {
+    "train": (
+        "train.h5", "multisine", "train_multisine",
+        "training data: 5 periods x 8192 samples of one random-phase multisine (5-150 Hz, "
+        "RMS 50 N), output with band-limited measurement noise (RMS about 8e-6 m)", 5),
+    "test_multisine": (
+        "test.h5", "multisine", "test_multisine",
+        "official test 1: one steady-state period (8192 samples) of another multisine, "
+        "noise-free output; simulate several periods and score the last", 1),
+    "test_sweep": (
+        "test.h5", "sinesweep", "test_sweep",
+        "official test 2: sine sweep, 40 N, about 20 -> 50 Hz at 10 Hz/min, from rest, "
+        "noise-free output", None),
+}
+
+
+def _sha256(path: Path) -> str:
+    digest = hashlib.sha256()
+    with path.open("rb") as fh:
+        for chunk in iter(lambda: fh.read(1 << 20), b""):
+            digest.update(chunk)
+    return digest.hexdigest()
+
+
+def load_bouc_wen_benchmark(
+    which: Literal["train", "test_multisine", "test_sweep"] = "train",
+    root: str | os.PathLike[str] | None = None,
+) -> Dataset:
+    """The Noël-Schoukens Bouc-Wen hysteresis benchmark (simulated), force in, displacement out.
+
+    A 1-DOF mass with a Bouc-Wen hysteretic restoring force driven by a force u [N];
+    output the displacement y [m]; fs = 750 Hz (read from the files' ``fs`` datasets).
+    Files ``train.h5`` and ``test.h5`` of the folder ``boucwen_benchmark`` (byte copies
+    from the dynonet repository, checked against the sha256 in its ``SOURCE.md``), read
+    with :func:`~bayeshyst.data.hdf5.read_hdf5`. The literature scores free-run
+    simulation RMSE [m] on each test record with the model identified on ``"train"``
+    only.
+
+    Parameters
+    ----------
+    which : {"train", "test_multisine", "test_sweep"}, default "train"
+        ``"train"``: ``train.h5`` ``multisine/*``, 40 960 samples (5 periods of 8 192,
+        with measurement noise; u repeats exactly from period to period), kept whole.
+        ``"test_multisine"``: ``test.h5`` ``multisine/*``, 8 192 samples, one
+        steady-state period, noise-free. ``"test_sweep"``: ``test.h5``
+        ``sinesweep/*``, 153 000 samples from rest, noise-free.
+    root : path-like, optional
+        The shared data folder (default :func:`shared_data_root`).
+
+    Returns
+    -------
+    Dataset
+        ``"boucwen_benchmark_<which>"`` with one Record ``"train_multisine"``,
+        ``"test_multisine"`` or ``"test_sweep"``; units ``{"t": "s", "u": "N", "y":
+        "m"}`` as declared to the reader; metadata: ``description``, ``noise_free``,
+        ``period_s`` (8192/750 s), ``period_samples`` and ``n_periods`` for the
+        multisines, ``true_parameters`` (dict, SI units in ``true_parameter_units``),
+        ``test_output_rms_m`` (both published test-output RMS values [m]) and, for a
+        test record, ``output_rms_m`` (its own), the sha256 and the provenance.
+
+    Raises
+    ------
+    ValueError
+        If ``which`` is not one of the three names.
+    DataError
+        If the folder or a file is missing, a file's sha256 differs from SOURCE.md, or
+        the file is malformed (:func:`~bayeshyst.data.hdf5.read_hdf5`).
+    """
+    if which not in _BW_RECORDS:
+        raise ValueError(f"which: expected one of {list(_BW_RECORDS)}, got {which!r}")
+    filename, group, rec_name, description, n_periods = _BW_RECORDS[which]
+    path = _folder(root, BOUC_WEN_DIR) / filename
+    if not path.is_file():
+        raise DataError(f"{path}: expected the benchmark file {filename!r}, found none")
+    found = _sha256(path)
+    if found != BOUC_WEN_SHA256[filename]:
+        raise DataError(
+            f"{path}: expected sha256 {BOUC_WEN_SHA256[filename]} (SOURCE.md), got {found}; "
+            f"not the published benchmark file"
+        )
+    meta = _provenance(
+        "https://github.com/forgi86/dynonet",
+        "56699401b141065a45403a18977333e0ec8d7303",
+        kind="simulated benchmark",
+        source=str(path),
+        original_path=f"examples/BW/data/Test signals/{filename}",
+        copyright="Copyright (c) 2020 Marco Forgione",
+        sha256=found,
+        benchmark="Bouc-Wen hysteretic benchmark (Noel & Schoukens 2016)",
+        paper=("M. Schoukens, J.P. Noel, Three benchmarks addressing open challenges in "
+               "nonlinear system identification, IFAC World Congress 2017"),
+        doi="10.1016/j.ifacol.2017.08.071",
+        dataset_doi="10.4121/12967592",
+        device="simulated 1-DOF mass with Bouc-Wen hysteretic restoring force (not a piezo)",
+        model=("m_L y'' + c_L y' + k_L y + z = u; z' = alpha y' - beta (gamma |y'| "
+               "|z|^(nu-1) z + delta y' |z|^nu)"),
+        true_parameters=dict(BOUC_WEN_TRUE_PARAMETERS),
+        true_parameter_units=dict(BOUC_WEN_PARAMETER_UNITS),
+        test_output_rms_m=dict(BOUC_WEN_TEST_OUTPUT_RMS_M),
+        scoring="free-run simulation RMSE [m] per test record, identified on train only",
+        description=description,
+        benchmark_record=which,
+        noise_free=which != "train",
+    )
+    if n_periods is not None:
+        meta.update(period_samples=BOUC_WEN_PERIOD_SAMPLES,
+                    period_s=BOUC_WEN_PERIOD_SAMPLES / _BW_FS, n_periods=n_periods)
+    if which in BOUC_WEN_TEST_OUTPUT_RMS_M:
+        meta["output_rms_m"] = BOUC_WEN_TEST_OUTPUT_RMS_M[which]
+    data = read_hdf5(
+        path,
+        columns={"u": f"{group}/u", "y": f"{group}/y"},
+        metadata=meta,
+        units={"t": "s", "u": "N", "y": "m"},
+        name=f"{BOUC_WEN_DIR}_{which}",
+    )
+    # the reader names a single record after the file stem; one file holds two records
+    return Dataset([data[0].with_(name=rec_name)], name=data.name)

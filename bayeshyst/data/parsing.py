@@ -438,8 +438,15 @@ def resolve_roles(
     path: Path,
     kind: str,
     header: str,
+    notes: list[str] | None = None,
 ) -> dict[str, str]:
     """Map each role present to the name used in the file (explicit > sidecar > role).
+
+    Roles not mapped are recognised by name (:func:`~bayeshyst.data.units.recognise_roles`).
+    A text file of exactly three columns whose names say too little (``H [A/m]``,
+    ``BL [T]``; or a displacement that drives a damper whose force is measured) and
+    with no mapping given is read in its column order as t, u, y -- the order
+    :func:`~bayeshyst.data.writers.write_csv` writes -- and ``notes`` says so.
 
     Parameters
     ----------
@@ -455,6 +462,9 @@ def resolve_roles(
         ``"column"``, ``"array"`` or ``"variable"``, for messages.
     header : str
         Where the names come from, for messages, e.g. ``"line 1 (header)"``.
+    notes : list of str, optional
+        Receives one line when the roles were taken from the column order; without it
+        (archives, HDF5) the order is never used.
 
     Returns
     -------
@@ -503,6 +513,12 @@ def resolve_roles(
         found, ambiguous = recognise_roles(available, resolved)
         resolved.update({r: c for r, c in found.items() if r in missing})
         still = [r for r in REQUIRED_ROLES if r not in resolved]
+        if still and notes is not None and not mapping and len(available) == 3:
+            resolved = dict(zip(REQUIRED_ROLES, available, strict=True))
+            notes.append("columns taken in their order as t, u, y: "
+                         + ", ".join(f"{r} = {c!r}" for r, c in resolved.items())
+                         + " (name them with --columns t=...,u=...,y=... otherwise)")
+            still = []
         if still:
             role = still[0]
             if role in ambiguous:

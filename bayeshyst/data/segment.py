@@ -6,6 +6,9 @@ cross-validation), and reports are made per excitation frequency. This module fi
 the input turning points robustly, cuts records into whole cycles (reporting the
 partial ends instead of dropping them), estimates the excitation frequency when the
 metadata lacks it, and splits multi-frequency records into one Record per block.
+Only records whose input repeats are cut: :func:`label_frequencies` first classifies
+the excitation (:mod:`bayeshyst.data.classify`) and keeps broadband and multisine
+records whole.
 """
 
 from __future__ import annotations
@@ -29,6 +32,7 @@ __all__ = [
     "default_prominence",
     "estimate_frequency",
     "find_reversals",
+    "input_noise_sd",
     "label_frequencies",
     "split_by_frequency",
     "split_cycles",
@@ -75,12 +79,31 @@ def default_prominence(u: np.ndarray) -> float:
         Threshold in the unit of ``u`` (0 for a constant input).
     """
     arr = _input_vector(u)
-    span = float(np.ptp(arr))
-    sigma = 0.0
-    if arr.size >= 3:
-        d2 = np.diff(arr, 2)
-        sigma = 1.4826 * float(np.median(np.abs(d2 - np.median(d2)))) / np.sqrt(6.0)
-    return max(_RANGE_FRACTION * span, _NOISE_FACTOR * sigma)
+    return max(_RANGE_FRACTION * float(np.ptp(arr)), _NOISE_FACTOR * input_noise_sd(arr))
+
+
+def input_noise_sd(u: np.ndarray) -> float:
+    """White-noise standard deviation of input ``u``: ``1.4826 MAD(diff(u, 2)) / sqrt(6)``.
+
+    The second difference of white noise of variance ``s2`` has variance ``6 s2``; a
+    smooth, well-sampled excitation barely moves its median absolute deviation. A
+    signal with power near the Nyquist frequency inflates the estimate.
+
+    Parameters
+    ----------
+    u : array_like of float, shape (n,)
+        Input signal [any unit].
+
+    Returns
+    -------
+    float
+        Standard deviation in the unit of ``u`` (0 for fewer than 3 samples).
+    """
+    arr = _input_vector(u)
+    if arr.size < 3:
+        return 0.0
+    d2 = np.diff(arr, 2)
+    return 1.4826 * float(np.median(np.abs(d2 - np.median(d2)))) / np.sqrt(6.0)
 
 
 def _zigzag(u: np.ndarray, threshold: float) -> tuple[list[int], list[bool]]:
@@ -494,28 +517,46 @@ def _blocks_of(freqs: np.ndarray) -> list[list[int]]:
 
 
 def label_frequencies(data: Record | Dataset) -> Dataset:
-    """Records without an excitation frequency, labelled (and split) from their input.
+    """Records without an excitation frequency, classified, labelled (and split).
 
-    A record whose metadata has no ``frequency_hz`` is cut into whole input cycles
-    (:func:`split_cycles`); consecutive cycles within :data:`FREQUENCY_BIN` of each other
-    form a block (a stepped sine gives one block per step, a sweep is binned). One block:
-    the record is labelled with :func:`estimate_frequency`; several: it is split at the
-    blocks' first cycles, each piece labelled from its spectrum (at least
-    :data:`SPECTRAL_CYCLES` cycles) or its cycles' count over their duration (a sweep's
-    short bin), and given its first cycle as warm-up (a model starts from rest, the stage did not).
+    Each record whose metadata has no ``frequency_hz`` is classified by
+    :func:`bayeshyst.data.classify.classify_excitation`; ``metadata["excitation"]`` gets
+    its kind, ``metadata["band_hz"]`` its input band ``(lo, hi)`` [Hz] and
+    ``metadata["excitation_note"]`` one line saying what was done:
+
+    * **periodic**: labelled with :func:`estimate_frequency`, kept whole. One closed
+      loop (a B(H) loop, one sine cycle) is labelled ``1 / duration``.
+    * **stepped**: cut into whole input cycles (:func:`split_cycles`); consecutive
+      cycles within :data:`FREQUENCY_BIN` of each other form a block (one per step).
+      The record is split at the blocks' first cycles, each piece labelled from its
+      spectrum (at least :data:`SPECTRAL_CYCLES` cycles) or its cycles' count over their
+      duration, and given its first cycle as warm-up (a model starts from rest, the
+      stage did not).
+    * **multisine**: kept whole, ``metadata["period_s"]`` set, **no** ``frequency_hz``.
+      Its fundamental ``1 / period`` usually carries no power (a 5-50 Hz multisine of
+      period 1 s has no 1 Hz line), so labelling it would file it with a 1 Hz sine in
+      per-frequency reports whose rates it does not share; its band says what it
+      excites.
+    * **broadband**: kept whole, never split, no ``frequency_hz``: the pieces between
+      its input minima are not cycles of anything.
+
     Labels are rounded to :data:`FREQUENCY_DIGITS` significant figures.
-    ``metadata["frequency_source"]`` says how a label was found; a record with fewer than
-    two whole cycles keeps no label and says why in ``metadata["frequency_note"]``.
-    Labelled records pass through unchanged.
+    ``metadata["frequency_source"]`` says how a label was found; a record left without a
+    label says why in ``metadata["frequency_note"]``. Labelled records pass through
+    unchanged.
 
     Parameters
     ----------
     data : Record or Dataset
+        Records [input in any unit, time in s].
 
     Returns
     -------
     Dataset
+        The records, labelled where possible, stepped ones split into their steps.
     """
+    from bayeshyst.data.classify import _labelled  # deferred: classify imports this module
+
     records = [data] if isinstance(data, Record) else list(data)
     name = data.name
     out: list[Record] = []
@@ -523,43 +564,5 @@ def label_frequencies(data: Record | Dataset) -> Dataset:
         if rec.frequency_hz is not None:
             out.append(rec)
             continue
-        split = split_cycles(rec)
-        if len(split) < 2:
-            out.append(rec.with_(metadata={
-                **rec.metadata, "frequency_note": f"{len(split)} whole input cycle(s): no "
-                "excitation frequency estimated"}))
-            continue
-        t = rec.t
-        # each cycle's end time (the last sample for a cycle ending with the record)
-        ends = np.array([t[min(c.stop, rec.n - 1)] for c in split.cycles])
-        freqs = 1.0 / (ends - np.array([t[c.start] for c in split.cycles]))
-        blocks = _blocks_of(freqs)
-        if len(blocks) == 1:
-            f = _rounded(estimate_frequency(rec))
-            _log.info("%s: no frequency_hz; %g Hz from %d input cycles", rec.name, f,
-                      len(split))
-            out.append(rec.with_(metadata={
-                **rec.metadata, "frequency_hz": f,
-                "frequency_source": f"estimated ({len(split)} cycles)"}))
-            continue
-        _log.info("%s: no frequency_hz; %d blocks of cycles at different frequencies",
-                  rec.name, len(blocks))
-        starts = [split.cycles[b[0]].start for b in blocks]
-        bounds = [0, *starts[1:], rec.n]
-        for k, (a, b) in enumerate(itertools.pairwise(bounds)):
-            first = split.cycles[blocks[k][0]]
-            warm = rec.warmup if k == 0 else first.stop - first.start
-            piece = rec.slice(a, b, warmup=min(warm, b - a - 2), name=f"{rec.name}/{k}")
-            # a steady block of several cycles: its spectrum (a noisy input's minima
-            # move by tens of samples, its spectral peak does not); a sweep's short bin:
-            # its cycles over their duration (a spectrum of two cycles is not resolved)
-            if len(blocks[k]) >= SPECTRAL_CYCLES:
-                f = _rounded(estimate_frequency(piece))
-            else:
-                span = ends[blocks[k][-1]] - t[first.start]
-                f = _rounded(len(blocks[k]) / span)
-            out.append(dataclasses.replace(piece, metadata={
-                **rec.metadata, "frequency_hz": f, "parent": rec.name,
-                "parent_slice": (a, b),
-                "frequency_source": f"estimated ({len(blocks[k])} cycles)"}))
+        out.extend(_labelled(rec))
     return Dataset(out, name=name)

@@ -15,6 +15,7 @@ vectors at once (the numba kernel loops over walkers); the single-theta methods 
 from __future__ import annotations
 
 import functools
+import re
 from abc import ABC, abstractmethod
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
@@ -51,11 +52,13 @@ class DataScales:
     Attributes
     ----------
     u_min, u_max : float
-        Input range (V).
+        Input range (input unit).
     y_min, y_max : float
-        Output range (output unit, µm by default).
+        Output range (output unit).
     u_unit, y_unit : str
-        Units of input and output, used to label parameters.
+        Units of input and output, used to label parameters: the data's
+        (``Record.units``; ``"unknown"`` where the data give none). Without data, the
+        classic piezo labels V and um of the unit ranges that a model listing shows.
     """
 
     u_min: float = -1.0
@@ -67,7 +70,7 @@ class DataScales:
 
     @property
     def u_span(self) -> float:
-        """Peak-to-peak input (V)."""
+        """Peak-to-peak input (input unit)."""
         return self.u_max - self.u_min
 
     @property
@@ -77,8 +80,23 @@ class DataScales:
 
     @property
     def gain(self) -> float:
-        """Secant gain ``y_span / u_span`` (output unit per V)."""
+        """Secant gain ``y_span / u_span`` (output unit per input unit)."""
         return self.y_span / self.u_span
+
+    @property
+    def gain_unit(self) -> str:
+        """Output unit per input unit: ``um/V``; ``T/(A/m)`` for a compound input unit."""
+        return f"{self.y_unit}/{_factor(self.u_unit)}"
+
+    @property
+    def rate_unit(self) -> str:
+        """Input unit per second: ``V/s``; ``(A/m)/s`` for a compound input unit."""
+        return f"{_factor(self.u_unit)}/s"
+
+
+def _factor(unit: str) -> str:
+    # a compound unit in a denominator or under a power needs parentheses: T/A/m is T m/A
+    return f"({unit})" if re.search(r"[/* ]", unit) else unit
 
     def __str__(self) -> str:
         return (f"u in [{self.u_min:.4g}, {self.u_max:.4g}], "
@@ -106,7 +124,7 @@ def data_scales(data: Any = None) -> DataScales:
         raise ParameterError(f"output y is constant ({y_min}); no hysteresis can be identified")
     units = dict(getattr(records[0], "units", None) or {})
     return DataScales(u_min, u_max, y_min, y_max,
-                      str(units.get("u", "V")), str(units.get("y", "um")))
+                      str(units.get("u", "unknown")), str(units.get("y", "unknown")))
 
 
 def sample_period(data: Any = None, default: float = 1e-4) -> float:

@@ -216,7 +216,7 @@ class Butterfly(LinearInParams, HysteresisModel):
             Param("q", LogNormal.from_median(sc.y_span, 1.0), unit=sc.y_unit,
                   description="electrostrictive strain Q at saturation (S = Q P^2 + ...)"),
             Param("d_lin", Normal(0.0, 0.5 * sc.y_span / _u_ref(sc)),
-                  unit=f"{sc.y_unit}/{sc.u_unit}", description="linear term d_lin E"),
+                  unit=sc.gain_unit, description="linear term d_lin E"),
         ))
 
     def _initial_state(self, theta: Mapping[str, np.ndarray], u0: float) -> np.ndarray:

@@ -32,6 +32,7 @@ from bayeshyst.models.base import (
     HysteresisModel,
     LinearDesign,
     LinearInParams,
+    _factor,
     data_scales,
     kernel_buffers,
 )
@@ -214,8 +215,9 @@ class BoucWen(LinearInParams, HysteresisModel):
 
     def _space(self, sc: DataScales, extra: tuple[Param, ...] = ()) -> ParamSpace:
         g = abs(sc.gain)
-        gu = f"{sc.y_unit}/{sc.u_unit}"
-        shape = (_bw_shape_params(sc.y_span, 0.3 * g, gu, f"1/({sc.u_unit} {sc.y_unit}^(n-1))")
+        gu = sc.gain_unit
+        shape_unit = f"1/({_factor(sc.u_unit)} {_factor(sc.y_unit)}^(n-1))"
+        shape = (_bw_shape_params(sc.y_span, 0.3 * g, gu, shape_unit)
                  if self.parametrisation == "classical"
                  else _saturation_shape_params(sc.y_span, 0.3 * g, gu, sc.y_unit))
         return ParamSpace((
@@ -409,7 +411,7 @@ class AsymmetricBoucWen(BoucWen):
         sc = data_scales(data)
         u_ref = max(abs(sc.u_min), abs(sc.u_max))
         d_sd = 0.2 * 0.3 * abs(sc.gain) / u_ref
-        delta = Param("delta", Normal(0.0, d_sd), unit=f"{sc.y_unit}/{sc.u_unit}^2",
+        delta = Param("delta", Normal(0.0, d_sd), unit=f"{sc.y_unit}/{_factor(sc.u_unit)}^2",
                       description="asymmetry: the hysteretic drive is alpha + delta*u")
         return self._space(sc, (delta,))
 

@@ -34,6 +34,7 @@ from bayeshyst.models.base import (
     HysteresisModel,
     LinearDesign,
     LinearInParams,
+    _factor,
     checked_state,
     data_scales,
     kernel_buffers,
@@ -111,7 +112,7 @@ def _delta_param(sc: DataScales, rate: float) -> Param:
     """
     u_ref = max(abs(sc.u_min), abs(sc.u_max))
     d_sd = 0.2 * 0.3 * abs(sc.gain) * rate / u_ref
-    return Param("delta", Normal(0.0, d_sd), unit=f"{sc.y_unit}/({sc.u_unit} s)",
+    return Param("delta", Normal(0.0, d_sd), unit=f"{sc.y_unit}/({_factor(sc.u_unit)} s)",
                  description="asymmetry: dh/dt gains delta*u*sgn(du/dt)")
 
 
@@ -284,14 +285,15 @@ class FrequencyFactorBoucWen(LinearInParams, HysteresisModel):
         sc = data_scales(data)
         dt = sample_period(data)
         g = abs(sc.gain)
-        gu = f"{sc.y_unit}/{sc.u_unit}"
+        gu = sc.gain_unit
         return ParamSpace((
             Param("f_n", LogNormal.from_median(1.0 / (20.0 * dt), 1.0), unit="Hz",
                   description="natural frequency sqrt(k0/m0)/(2 pi)"),
             Param("zeta", LogNormal.from_median(0.3, 1.0), unit="1",
                   description="damping ratio c0/(2 sqrt(k0 m0))"),
             Param("gain", Normal(sc.gain, g), unit=gu, description="static gain k1/k0"),
-            *_bw_shape_params(sc.y_span, 0.3 * g, gu, f"1/({sc.u_unit} {sc.y_unit}^(n-1))"),
+            *_bw_shape_params(sc.y_span, 0.3 * g, gu,
+                              f"1/({_factor(sc.u_unit)} {_factor(sc.y_unit)}^(n-1))"),
             _delta_param(sc, input_rate(data)),
             Param("tau", HalfNormal(20.0 * dt), unit="s",
                   description="frequency factor: lag of the linear drive (0: none)"),
@@ -472,9 +474,9 @@ class BoucWenOscillator(HysteresisModel):
                   description="natural frequency (below Nyquist)"),
             Param("zeta", LogNormal.from_median(0.1, 1.0), unit="1",
                   description="damping ratio"),
-            Param("gain", Normal(sc.gain, g), unit=f"{sc.y_unit}/{sc.u_unit}",
+            Param("gain", Normal(sc.gain, g), unit=sc.gain_unit,
                   description="static gain k1/k"),
-            *_bw_shape_params(sc.y_span, 0.3, "1", f"1/{sc.y_unit}^n"),
+            *_bw_shape_params(sc.y_span, 0.3, "1", f"1/{_factor(sc.y_unit)}^n"),
         ))
 
     def _initial_state(self, theta: Mapping[str, np.ndarray], u0: float) -> np.ndarray:

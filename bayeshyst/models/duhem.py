@@ -263,7 +263,7 @@ class ImprovedDuhem(LinearInParams, HysteresisModel):
         """
         sc = data_scales(data)
         g = abs(sc.gain)
-        gu = f"{sc.y_unit}/{sc.u_unit}"
+        gu = sc.gain_unit
         # p du/dt reaches the full stroke at 1 sigma for an excitation at 1 % of the
         # sampling rate: weakly informative, and scaled by the data's time base
         tau = 100.0 * sample_period(data, 1e-4) / (2.0 * np.pi)

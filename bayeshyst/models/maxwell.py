@@ -69,7 +69,7 @@ class MaxwellSlip(LinearInParams, HysteresisModel):
         """
         sc = data_scales(data)
         g = abs(sc.gain)
-        gu = f"{sc.y_unit}/{sc.u_unit}"
+        gu = sc.gain_unit
         n = self.n_elements
         return ParamSpace(
             (

@@ -173,7 +173,7 @@ class DistributedMaxwellSlip(LinearInParams, HysteresisModel):
         """
         sc = data_scales(data)
         g = abs(sc.gain)
-        gu = f"{sc.y_unit}/{sc.u_unit}"
+        gu = sc.gain_unit
         return ParamSpace((
             Param("k0", Normal(sc.gain, g), unit=gu, description="parallel linear spring"),
             Param("K", Normal(0.0, g), unit=gu,

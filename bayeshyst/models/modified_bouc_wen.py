@@ -17,7 +17,13 @@ import numpy as np
 
 from bayeshyst.errors import ModelError, ParameterError
 from bayeshyst.models._kernels.bouc_wen import mbw_batch
-from bayeshyst.models.base import HysteresisModel, LinearInParams, data_scales, kernel_buffers
+from bayeshyst.models.base import (
+    HysteresisModel,
+    LinearInParams,
+    _factor,
+    data_scales,
+    kernel_buffers,
+)
 from bayeshyst.models.bouc_wen import _check_scale, _first
 from bayeshyst.models.registry import register
 from bayeshyst.params import LogNormal, Normal, Param, ParamSpace, Uniform
@@ -95,14 +101,15 @@ class ModifiedBoucWen(LinearInParams, HysteresisModel):
         u_ref = max(abs(sc.u_min), abs(sc.u_max))
         coeffs = [
             Param(f"c{i}", Normal(sc.gain if i == 1 else 0.0, g / u_ref ** (i - 1)),
-                  unit=f"{sc.y_unit}/{sc.u_unit}" + (f"^{i}" if i > 1 else ""),
+                  unit=sc.gain_unit + (f"^{i}" if i > 1 else ""),
                   description=f"weight of w^{i} in the output polynomial (Eq. 53)")
             for i in range(1, self.order + 1)
         ]
         return ParamSpace((
             Param("rho", Uniform(0.0, 1.0), unit="1",
                   description="MBW shape: branches at u - w = ±(1/rho - 1)/lam"),
-            Param("lam", LogNormal.from_median(4.0 / sc.u_span, 1.0), unit=f"1/{sc.u_unit}",
+            Param("lam", LogNormal.from_median(4.0 / sc.u_span, 1.0),
+                  unit=f"1/{_factor(sc.u_unit)}",
                   description="inverse relaxation length of w (mu = lam by gauge)"),
             *coeffs,
         ))

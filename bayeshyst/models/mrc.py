@@ -113,7 +113,7 @@ class MRCElectromechanical(HysteresisModel):
         """
         sc = data_scales(data)
         n = self.n_elements
-        gu = f"{sc.y_unit}/{sc.u_unit}"
+        gu = sc.gain_unit
         # a piezo stack resonates in the kHz range; with data, centre the prior at a
         # quarter of the sampling rate so the resonance is resolvable but not assumed
         f_med = 0.25 / sample_period(data, 2.5e-4)

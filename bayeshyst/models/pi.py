@@ -55,7 +55,7 @@ def operator_space(n: int, scales: DataScales, *, linear: str) -> ParamSpace:
     :func:`default_thresholds`.
     """
     g = scales.gain
-    gu = f"{scales.y_unit}/{scales.u_unit}"
+    gu = scales.gain_unit
     span = scales.u_span
     return ParamSpace(
         (

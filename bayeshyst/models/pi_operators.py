@@ -117,7 +117,7 @@ class RightLeftPrandtlIshlinskii(LinearInParams, HysteresisModel):
         """``p0``, ``w_right``, ``w_left`` and the fixed thresholds and input range."""
         sc = data_scales(data)
         n, g, span = self.n_operators, sc.gain, sc.u_span
-        gu, uu = f"{sc.y_unit}/{sc.u_unit}", sc.u_unit
+        gu, uu = sc.gain_unit, sc.u_unit
         r = np.arange(1, n + 1) * span / (n + 1)
         return ParamSpace(
             (Param("p0", Normal(g, abs(g)), unit=gu,
@@ -246,7 +246,7 @@ def _osp_space(n: int, data: Any) -> ParamSpace:
     """OSP-MPI parameters ``p0``, ``a2``, ``a3``, ``w``; fixed ``r``, ``u_c``, ``u_h``."""
     sc = data_scales(data)
     g, uu = sc.gain, sc.u_unit
-    gu = f"{sc.y_unit}/{uu}"
+    gu = sc.gain_unit
     base = operator_space(n, sc, linear="linear (p0 u) in the input polynomial")
     # a one-side play of width r acts like a play of threshold r / 2: twice pi_play's
     base = base.free("r").fix("r", 2.0 * default_thresholds(n, sc)).replace(

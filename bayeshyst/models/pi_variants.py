@@ -419,7 +419,7 @@ class RateDependentPrandtlIshlinskii(LinearInWeights, HysteresisModel):
                   description="rate sensitivity of the thresholds (0: rate-independent)"),
             # a decade either way around the data's typical rate at one sd
             Param("udot0", LogNormal.from_median(typical_rate(data), 2.3),
-                  unit=f"{sc.u_unit}/s", description="reference input rate of the thresholds"),
+                  unit=sc.rate_unit, description="reference input rate of the thresholds"),
         ))
 
     def _initial_state(self, theta: Mapping[str, np.ndarray], u0: float) -> np.ndarray:

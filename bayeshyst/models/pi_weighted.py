@@ -241,13 +241,13 @@ class RateWeightedPI(LinearInWeights, HysteresisModel):
         if self.rate_thresholds:
             exps += (Param("c", HalfNormal(0.5), unit="1",
                            description="rate sensitivity of the thresholds (0: constant)"),
-                     Param("udot0", LogNormal.from_median(rate, 2.3), unit=f"{sc.u_unit}/s",
+                     Param("udot0", LogNormal.from_median(rate, 2.3), unit=sc.rate_unit,
                            description="reference input rate of the thresholds"))
         return _extended(
             operator_space(self.n_operators, sc, linear=_LINEAR), exps,
             {**fixed, "udot_ref": rate},
             (*fixed_params, Param("udot_ref", LogNormal.from_median(rate, 1.0),
-                                  unit=f"{sc.u_unit}/s",
+                                  unit=sc.rate_unit,
                                   description="rate scale of the weights (data's typical)")))
 
     def _initial_state(self, theta: Mapping[str, np.ndarray], u0: float) -> np.ndarray:

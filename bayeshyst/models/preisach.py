@@ -410,7 +410,7 @@ class PreisachDensity(_Staircase, HysteresisModel):
         """
         sc = data_scales(data)
         g, span = sc.gain, sc.u_span
-        gu = f"{sc.y_unit}/{sc.u_unit}"
+        gu = sc.gain_unit
         if self.shape == "lognormal":
             spread = Param(self._spread, LogNormal.from_median(0.5, 0.5), unit="1",
                            description="standard deviation of log half-width")

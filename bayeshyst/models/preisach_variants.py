@@ -103,7 +103,7 @@ class _RateWeighted:
                   description="rate sensitivity of the relay weights (0: rate-independent)"),
             # a decade either way around the data's typical rate at one sd
             Param("udot0", LogNormal.from_median(typical_rate(data), 2.3),
-                  unit=f"{sc.u_unit}/s", description="reference input rate of the weights"),
+                  unit=sc.rate_unit, description="reference input rate of the weights"),
         )
         return ParamSpace((*space.params, *rate), space.fixed, space.fixed_params)
 
