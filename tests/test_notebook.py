@@ -23,7 +23,8 @@ from tests.synthetic import pi_data
 PACKAGE = Path(__file__).resolve().parents[1] / "bayeshyst"
 #: records with to_dict that are settings or specifications, not results
 NOT_RESULTS = {"SamplerSettings", "ReportSettings", "DiagnosisSettings", "MoveStats",
-               "DiscrepancyScales", "Discrepancy", "DatasetSpec", "Study"}
+               "DiscrepancyScales", "Discrepancy", "DatasetSpec", "Study",
+               "InitialCondition"}
 
 
 def _records_with_to_dict() -> list[tuple[str, str]]:

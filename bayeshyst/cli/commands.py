@@ -25,7 +25,7 @@ from bayeshyst.errors import DataError, ModelError
 from bayeshyst.files import RunOutputs, json_text, removed_on_failure
 
 __all__ = ["cmd_compare", "cmd_compensate", "cmd_demo", "cmd_diagnose", "cmd_export",
-           "cmd_fit", "cmd_invert", "cmd_models", "cmd_report", "cmd_study"]
+           "cmd_fit", "cmd_invert", "cmd_models", "cmd_predict", "cmd_report", "cmd_study"]
 
 
 def load_validation(args: argparse.Namespace) -> Any:
@@ -34,41 +34,52 @@ def load_validation(args: argparse.Namespace) -> Any:
 
     if args.validation is None:
         return None
-    validation = load(args.validation, columns=args.columns)
+    validation = load(args.validation, columns=args.columns,
+                      units=args.units)
     return validation if args.no_frequency_labels else label_frequencies(validation)
 
 
 def load_data(args: argparse.Namespace) -> Any:
     """The command's data file with its ``--columns``, frequencies found where missing.
 
-    Records without a ``frequency_hz`` are labelled from their input's cycles (and split
-    where they hold several frequencies, :func:`bayeshyst.data.segment.label_frequencies`)
-    unless ``--no-frequency-labels``. The unit conversions the header asked for, the
+    Records without a ``frequency_hz`` are classified from their input (periodic,
+    stepped, multisine or broadband) and labelled, split into steps or kept whole
+    accordingly (:func:`bayeshyst.data.segment.label_frequencies`) unless
+    ``--no-frequency-labels``. One line per classified record says what its excitation
+    is and what was done with it; the unit conversions the header asked for, the
     frequencies found and what does not look like a piezo stage
-    (:func:`bayeshyst.data.units.plausibility`) are printed unless ``--quiet``.
+    (:func:`bayeshyst.data.units.plausibility`) are printed too, unless ``--quiet``.
     """
     from bayeshyst.data import label_frequencies, load
     from bayeshyst.data.units import plausibility
 
-    data = load(args.data, columns=args.columns)
+    data = load(args.data, columns=args.columns, units=args.units)
     if not args.no_frequency_labels:
         data = label_frequencies(data)
     if not args.quiet:
+        where = f"bayeshyst {args.command}: {args.data}"
         found: dict[str, list[str]] = {}
+        classified: dict[str, str] = {}  # one line per record of the file (pieces' parent)
         for r in data:
+            parent = str(r.metadata.get("parent", r.name))
+            if "excitation_note" in r.metadata:
+                classified.setdefault(parent, str(r.metadata["excitation_note"]))
             if "frequency_source" in r.metadata:
-                found.setdefault(str(r.metadata.get("parent", r.name)), []).append(
+                found.setdefault(parent, []).append(
                     f"{r.frequency_hz:g} Hz ({r.metadata['frequency_source']})")
-            elif "frequency_note" in r.metadata:
-                print(f"bayeshyst {args.command}: {args.data}: record {r.name!r}: "
-                      f"{r.metadata['frequency_note']}", file=sys.stderr)
+            elif "frequency_note" in r.metadata and "excitation_note" not in r.metadata:
+                print(f"{where}: record {r.name!r}: {r.metadata['frequency_note']}",
+                      file=sys.stderr)
+        for name, note in classified.items():
+            print(f"{where}: record {name!r}: {note}", file=sys.stderr)
         for name, labels in found.items():
-            print(f"bayeshyst {args.command}: {args.data}: record {name!r} has no "
-                  f"frequency_hz; found from its input: {', '.join(labels)} "
-                  "(--no-frequency-labels to keep it unlabelled)", file=sys.stderr)
-        notes = dict.fromkeys(n for r in data for n in r.metadata.get("unit_conversions", ()))
+            print(f"{where}: record {name!r} has no frequency_hz; found from its input: "
+                  f"{', '.join(labels)} (--no-frequency-labels to keep it unlabelled)",
+                  file=sys.stderr)
+        notes = dict.fromkeys(n for r in data for key in ("column_roles", "unit_conversions")
+                              for n in r.metadata.get(key, ()))
         for n in notes:
-            print(f"bayeshyst {args.command}: {args.data}: {n}", file=sys.stderr)
+            print(f"{where}: {n}", file=sys.stderr)
         for w in plausibility(data):
             print(f"bayeshyst {args.command}: warning: {w}", file=sys.stderr)
     return data
@@ -348,6 +359,34 @@ def cmd_invert(args: argparse.Namespace) -> int:
     else:
         print(design)
         print(f"outputs in {out}/: command.csv, summary.json")
+    return EXIT_OK
+
+
+def cmd_predict(args: argparse.Namespace) -> int:
+    """``bayeshyst predict FIT DATA``: a saved fit's predictive on other records, scored."""
+    from bayeshyst.inference.saved import load_fit
+    from bayeshyst.outputs.assemble import prediction_figures
+    from bayeshyst.outputs.predict_outputs import write_predict_outputs
+
+    # read and check both inputs, and predict, before anything is written
+    fit = load_fit(args.fit)
+    data = load_data(args)
+    if not args.quiet:
+        print(f"bayeshyst predict: {fit.model.name} from {fit.path} on {data.name} "
+              f"({len(data)} record(s), {data.n_samples} samples); initial state "
+              f"{args.initial.describe()}", file=sys.stderr)
+    result = fit.predict(data, initial=args.initial, n_draws=args.draws, seed=args.seed)
+    out = Path(args.out)
+    with removed_on_failure(out):
+        figures = None if args.no_figures else prediction_figures(result)
+        summary = write_predict_outputs(result, out, fit_path=str(fit.path),
+                                        data_path=str(args.data), figures=figures)
+    if args.json:
+        sys.stdout.write(json_text(summary))
+    else:
+        print(result)
+        print(f"outputs in {out}/: predictions.csv, scores.csv, summary.json"
+              + ("" if args.no_figures else f", {len(summary['files']['figures'])} figure(s)"))
     return EXIT_OK
 
 

@@ -11,9 +11,10 @@ import numpy as np
 from bayeshyst.errors import ParameterError
 from bayeshyst.inference.settings import SamplerSettings
 
-__all__ = ["EXIT_BAD_INPUT", "EXIT_INTERNAL", "EXIT_OK", "effect_list", "int_at_least",
+__all__ = ["EXIT_BAD_INPUT", "EXIT_INTERNAL", "EXIT_OK", "effect_list", "initial_condition",
+           "int_at_least",
            "non_negative_float", "non_negative_int", "positive_int", "probability",
-           "sampler_settings"]
+           "sampler_settings", "unit_mapping"]
 
 #: exit status: success, internal error, bad input
 EXIT_OK, EXIT_INTERNAL, EXIT_BAD_INPUT = 0, 1, 2
@@ -94,6 +95,19 @@ def closed_probability(text: str) -> float:
     return value
 
 
+def initial_condition(text: str) -> Any:
+    """An argparse type: ``relaxed``, ``rest``, ``warmup:SECONDS`` or ``periodic[:K]``.
+
+    Returns the :class:`~bayeshyst.inference.predict.InitialCondition` it names.
+    """
+    from bayeshyst.inference.predict import InitialCondition
+
+    try:
+        return InitialCondition.parse(text)
+    except ParameterError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
 def column_mapping(text: str) -> dict[str, str]:
     """An argparse type: ``t=Time [s],u=Voltage [V],y=Displacement`` -> role -> column.
 
@@ -121,6 +135,40 @@ def column_mapping(text: str) -> dict[str, str]:
         out[role] = name
     if not out:
         raise argparse.ArgumentTypeError(f"no ROLE=COLUMN pair in {text!r}")
+    return out
+
+
+def unit_mapping(text: str) -> dict[str, str]:
+    """An argparse type: ``u=mT,y=um`` -> role -> unit of the data file's columns.
+
+    Roles ``t``, ``u``, ``y``; every unit must parse (pint, or a dimensionless label
+    such as ``%`` or ``counts``; ``unknown`` declares no unit). The reader converts the
+    columns as it does units written in the header
+    (:func:`bayeshyst.data.units.apply_units`).
+    """
+    from bayeshyst.data.units import UNKNOWN, known_unit
+
+    out: dict[str, str] = {}
+    for part in text.split(","):
+        if not part.strip():
+            continue
+        role, sep, unit = part.partition("=")
+        role, unit = role.strip(), unit.strip()
+        if not sep or not unit:
+            raise argparse.ArgumentTypeError(f"expected ROLE=UNIT pairs separated by ',' "
+                                             f"(e.g. t=ms,u=mT,y=um), got {part.strip()!r}")
+        if role not in ("t", "u", "y"):
+            raise argparse.ArgumentTypeError(f"unknown role {role!r} in {part.strip()!r}; "
+                                             f"roles: t, u, y")
+        if role in out:
+            raise argparse.ArgumentTypeError(f"role {role!r} given twice")
+        if unit.lower() != UNKNOWN and not known_unit(unit):
+            raise argparse.ArgumentTypeError(f"role {role!r}: unknown unit {unit!r}; expected "
+                                             f"a unit such as s, ms, V, mV, um, mm, N, A, T, "
+                                             f"mT, A/m, Oe, or a label (%, counts)")
+        out[role] = unit
+    if not out:
+        raise argparse.ArgumentTypeError(f"no ROLE=UNIT pair in {text!r}")
     return out
 
 

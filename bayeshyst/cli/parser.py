@@ -14,16 +14,19 @@ from bayeshyst.cli.commands import (
     cmd_fit,
     cmd_invert,
     cmd_models,
+    cmd_predict,
     cmd_report,
     cmd_study,
 )
 from bayeshyst.cli.options import (
     closed_probability,
     column_mapping,
+    initial_condition,
     non_negative_float,
     non_negative_int,
     positive_int,
     probability,
+    unit_mapping,
 )
 from bayeshyst.inference.settings import MOVES
 from bayeshyst.likelihoods import likelihood_names
@@ -43,7 +46,13 @@ def add_run_options(p: argparse.ArgumentParser, out_default: str, steps_help: st
                         "without their units), e.g. 't=Time [s],u=Voltage,y=Displacement'; "
                         "default: t,u,y, the sidecar's mapping, or names such as time, "
                         "voltage, displacement. Units in the header ('Time [ms]', 'x (nm)', "
-                        "'U/V') are converted to s, V, um")
+                        "'U/V', 'B [mT]') are converted: time to s, a voltage to V, a "
+                        "length to um, a force to N, a current to A, a flux density to T, "
+                        "a field to A/m; other units are kept, no unit is 'unknown'")
+    p.add_argument("--units", type=unit_mapping, default=None, metavar="u=..,y=..",
+                   help="units of the file's columns where neither the header nor the "
+                        "sidecar gives them, e.g. 'u=A/m,y=mT' or 't=ms'; converted like "
+                        "header units (a header unit must agree)")
     p.add_argument("--no-frequency-labels", action="store_true",
                    help="leave records without a frequency_hz unlabelled (default: their "
                         "excitation frequency is estimated from the input's cycles, and a "
@@ -88,6 +97,9 @@ EXAMPLES = {
     "compensate": ["bayeshyst compensate data/virtual_multifreq.csv --model "
                    "'pi_play(n_operators=8)+second_order' --reference sine --out comp"],
     "invert": ["bayeshyst invert fit-bw --reference ref.csv --objective robust --out cmd"],
+    "predict": ["bayeshyst predict fit-bw other-record.csv --out pred",
+                "bayeshyst predict fit-bw test-multisine.h5 --columns u=multisine/u,"
+                "y=multisine/y --initial periodic:3 --out pred-ms"],
     "export": ["bayeshyst export fit-pi --format c --reference ref.csv --out ctrl"],
     "diagnose": ["bayeshyst diagnose data/virtual_multifreq.csv --model pi_play --out diag"],
     "report": ["bayeshyst report data/virtual_multifreq.csv --models pi_play,bouc_wen,gp_memory "
@@ -213,6 +225,37 @@ def build_parser() -> argparse.ArgumentParser:
     p_inv.add_argument("--seed", type=int, default=0,
                        help="seeds the choice of draws (default 0): same seed, same command")
     p_inv.set_defaults(func=cmd_invert)
+
+    p_pred = sub.add_parser("predict", help="a saved fit's posterior predictive on another "
+                            "record, in free run, scored against its measured output")
+    add_saved_fit_options(p_pred, "bayeshyst-predict", "predictions.csv, scores.csv, "
+                          "summary.json, figures/")
+    p_pred.add_argument("data", metavar="DATA",
+                        help="data file (.csv/.txt/.npz/.mat/.h5) with the input and the "
+                             "measured output; converted to the fit's units when its header "
+                             "or sidecar gives others")
+    p_pred.add_argument("--columns", type=column_mapping, default=None,
+                        metavar="t=..,u=..,y=..",
+                        help="which columns (or HDF5 datasets) of DATA are time, input and "
+                             "output, as for fit")
+    p_pred.add_argument("--units", type=unit_mapping, default=None, metavar="u=..,y=..",
+                        help="units of DATA's columns where neither the header nor the "
+                             "sidecar gives them, as for fit")
+    p_pred.add_argument("--no-frequency-labels", action="store_true",
+                        help="leave records without a frequency_hz unlabelled")
+    p_pred.add_argument("--initial", type=initial_condition, default="relaxed",
+                        metavar="relaxed|rest|warmup:S|periodic:K",
+                        help="the model's state before each record: relaxed at its first "
+                             "input (default, as in the fit); rest (relaxed at zero input); "
+                             "warmup:S (the first S seconds simulated, not scored); "
+                             "periodic:K (the record holds whole periods: played K times, "
+                             "the last scored)")
+    p_pred.add_argument("--draws", type=positive_int, default=400, metavar="N",
+                        help="posterior draws simulated (default 400, at most those stored)")
+    p_pred.add_argument("--seed", type=int, default=0,
+                        help="seeds the draws, the noise and the PIT (default 0)")
+    p_pred.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
+    p_pred.set_defaults(func=cmd_predict)
 
     p_exp = sub.add_parser("export", help="a saved fit's inverse for a real-time controller: "
                            "JSON parameters, C99 source or a lookup table")

@@ -228,14 +228,7 @@ class Calibration(TableRecord):
 def predictive_draws(post: Posterior, z: np.ndarray, rng: np.random.Generator
                      ) -> list[np.ndarray]:
     """Posterior-predictive draws (S, N_record) per record: model + discrepancy + noise."""
-    theta = post.space.unpack(z)
-    noise = {k[len(NOISE) + 1:]: np.asarray(theta[k], float)
-             for k in post.space.all_names if k.startswith(NOISE + ".")}
-    out = []
-    for pred in post.predict(z):
-        eps = post.likelihood.sample(noise, pred.shape[1], rng)
-        out.append(pred + eps)
-    return out
+    return [pred + post.noise_draws(z, pred.shape[1], rng) for pred in post.predict(z)]
 
 
 def _by_frequency(groups: dict, freq_of: dict) -> list:

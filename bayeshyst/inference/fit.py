@@ -26,6 +26,7 @@ from bayeshyst.inference.calibration import (
 from bayeshyst.inference.discrepancy_fit import DiscrepancyScales, attach_discrepancy
 from bayeshyst.inference.optimize import find_map
 from bayeshyst.inference.posterior import Posterior
+from bayeshyst.inference.predict import InitialCondition, PredictionResult, predict_posterior
 from bayeshyst.inference.sampling import sample_posterior
 from bayeshyst.inference.sampling_result import SamplingResult
 from bayeshyst.inference.settings import SamplerSettings
@@ -192,6 +193,23 @@ class FitResult(TableRecord):
     def elpd(self) -> float:
         """Summed cycle-wise elpd (NaN when the fit was not scored)."""
         return math.nan if self.pointwise_elpd is None else float(np.sum(self.pointwise_elpd))
+
+    def predict(self, data: Dataset | Record, *, initial: InitialCondition | str | None = None,
+                n_draws: int = 400, seed: int = 0) -> PredictionResult:
+        """The posterior predictive on ``data`` in free run, scored against its outputs.
+
+        See :func:`bayeshyst.inference.predict.predict_posterior`; the parameters are
+        those of :meth:`bayeshyst.inference.saved.SavedFit.predict`. The draws are
+        :meth:`SamplingResult.draws` ``(n_draws, seed=seed)``; a fit that did not converge
+        says so in the result's warnings.
+        """
+        if isinstance(initial, str):
+            initial = InitialCondition.parse(initial)
+        warnings = () if self.converged else (
+            "the fit did NOT converge: " + "; ".join(self.sampling.convergence.reasons),)
+        return predict_posterior(self.posterior, self.sampling.draws(int(n_draws), seed=seed),
+                                 data, initial=initial, seed=seed, source="fit",
+                                 warnings=warnings)
 
     def to_dataframe(self, prob: float = 0.9) -> Any:
         """One row per scalar parameter: mean, sd and the ``prob`` HDI, with its unit."""

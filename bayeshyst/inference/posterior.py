@@ -77,21 +77,52 @@ class EvalCounts:
 
 
 def cycle_units(record: Record) -> list[tuple[int, int]]:
-    """Scored sample ranges, one per input cycle.
+    """Scored sample ranges ``[a, b)``, the leave-one-out units of a record's likelihood.
 
-    Partial cycles at the ends of the scored part join their neighbouring whole cycle
-    so that the units partition the scored samples; a record without whole cycles
-    (steps, holds, random inputs) is one unit.
+    * A record whose input repeats (sines, triangles, a stepped sine's pieces, records
+      not classified): one unit per input cycle
+      (:func:`bayeshyst.data.segment.cycle_labels`), partial cycles at the ends of the
+      scored part joining their neighbouring whole cycle, so that the units partition
+      the scored samples.
+    * ``metadata["excitation"] == "multisine"`` with ``metadata["period_s"]``: one unit
+      per whole period from the first scored sample (the partial rest joins the last),
+      when at least two periods fit.
+    * ``"broadband"``, a multisine without two known periods, or any record without
+      whole cycles (steps, holds, random inputs): contiguous blocks of equal length,
+      about 8, none shorter than 256 samples, one unit when the scored part is shorter
+      than 512 samples (:func:`bayeshyst.data.classify.block_bounds`).
+
+    The units only group the scored samples for cross-validation: the model still
+    simulates the whole record from its start, so the hysteretic state is carried
+    across block (and cycle) boundaries, never reset.
+
+    Parameters
+    ----------
+    record : Record
+        The measurement.
+
+    Returns
+    -------
+    list of (int, int)
+        Consecutive ranges covering the scored samples ``[warmup, n)``.
     """
+    from bayeshyst.data.classify import block_bounds  # local: classify imports segment
+
     start, stop = record.scored.start or 0, record.n
+    kind = record.metadata.get("excitation")
+    if kind == "multisine" and record.metadata.get("period_s"):
+        period = round(float(record.metadata["period_s"]) / record.dt)
+        return block_bounds(stop, start, period=period)
+    if kind in ("broadband", "multisine"):
+        return block_bounds(stop, start)
     try:
         labels = cycle_labels(record)
     except DataError:
-        return [(start, stop)]
+        return block_bounds(stop, start)
     labels = labels[start:stop]
     ids = np.unique(labels[labels >= 0])
     if ids.size == 0:
-        return [(start, stop)]
+        return block_bounds(stop, start)
     bounds = [start + int(np.flatnonzero(labels == i)[0]) for i in ids] + [stop]
     bounds[0] = start
     return [(bounds[j], bounds[j + 1]) for j in range(len(ids))]
@@ -512,13 +543,67 @@ class Posterior:
         list of ndarray, each (W, N_record)
             Full records (warm-up included); failed rows are NaN.
         """
+        return self._simulate(z, self._records, discrepancy)
+
+    def _simulate(self, z: np.ndarray, records: Sequence[dict], discrepancy: bool
+                  ) -> list[np.ndarray]:
+        # one arithmetic for the fitted records and for others (predict_records), so
+        # that a prediction of a fitted record equals the fit's own to the last bit
         z = np.atleast_2d(np.asarray(z, dtype=float))
         theta = self.space.unpack(z)
         model_theta, _, off = self._split_theta(theta)
         off = np.asarray(off, dtype=float).reshape(-1, 1) if self.offset else 0.0
         coef = self._coefficients(theta, z.shape[0]) if discrepancy else None
         return [self.model.run_batch(r["u"], r["t"], model_theta, covariates=r["covariates"]).y
-                + off + self._delta(r, coef) for r in self._records]
+                + off + self._delta(r, coef) for r in records]
+
+    @with_single_threaded_blas
+    def predict_records(self, z: np.ndarray, data: Dataset | Record, *,
+                        discrepancy: bool = True) -> list[np.ndarray]:
+        """Noise-free free-run simulations of ``W`` points on other records.
+
+        The same computation as :meth:`predict` (model from its relaxed state at each
+        record's first input, offset, discrepancy over the record's own input), on
+        records the posterior was not built on: the parameters, the offset and the
+        discrepancy's weights are the fit's; only the inputs (and the measured
+        channels the model reads) are the new records'.
+
+        Parameters
+        ----------
+        z : ndarray, shape (W, ndim)
+            Points of this posterior.
+        data : Dataset or Record
+            Records in the units of the fitted data.
+        discrepancy : bool
+            Include the discrepancy ``delta``.
+
+        Returns
+        -------
+        list of ndarray, each (W, N_record)
+            Full records (warm-up included); failed rows are NaN.
+
+        Raises
+        ------
+        DataError
+            A record lacks a measured column the model reads.
+        """
+        records = [data] if isinstance(data, Record) else list(data)
+        recs = [{"u": np.ascontiguousarray(r.u), "t": np.ascontiguousarray(r.t),
+                 "covariates": record_covariates(self.model, r),
+                 "basis": (None if self.discrepancy is None else np.ascontiguousarray(
+                     self.discrepancy.basis(r.u, r.frequency_hz)))} for r in records]
+        return self._simulate(z, recs, discrepancy)
+
+    def noise_draws(self, z: np.ndarray, n: int, rng: np.random.Generator) -> np.ndarray:
+        """Observation-noise draws (W, n) of the likelihood at ``W`` points ``z``.
+
+        What the posterior predictive adds to a noise-free simulation of ``n`` samples
+        (:meth:`bayeshyst.likelihoods.Likelihood.sample`; AR(1) noise is a correlated
+        series).
+        """
+        theta = self.space.unpack(np.atleast_2d(np.asarray(z, dtype=float)))
+        noise = {k[len(NOISE) + 1:]: np.asarray(theta[k], float) for k in self._noise_names}
+        return self.likelihood.sample(noise, int(n), rng)
 
     @with_single_threaded_blas
     def discrepancy_draws(self, z: np.ndarray) -> list[np.ndarray] | None:

@@ -33,6 +33,7 @@ from bayeshyst.data.record import Record
 from bayeshyst.discrepancy import Discrepancy
 from bayeshyst.errors import DataError, ModelError, ParameterError
 from bayeshyst.inference.posterior import Posterior
+from bayeshyst.inference.predict import InitialCondition, PredictionResult, predict_posterior
 from bayeshyst.models import get as get_model
 from bayeshyst.models.compose import model_spec
 from bayeshyst.tables import TableRecord
@@ -379,6 +380,34 @@ class SavedFit(TableRecord):
                                  f"draws), got {n!r}")
         pick = np.random.default_rng(seed).choice(self.n_draws, size=int(n), replace=False)
         return self.z[np.sort(pick)]
+
+    def predict(self, data: Dataset | Record, *, initial: InitialCondition | str | None = None,
+                n_draws: int = 400, seed: int = 0) -> PredictionResult:
+        """The posterior predictive on ``data`` in free run, scored against its outputs.
+
+        See :func:`bayeshyst.inference.predict.predict_posterior`.
+
+        Parameters
+        ----------
+        data : Dataset or Record
+            Records with measured outputs (any units that convert to the fit's).
+        initial : InitialCondition or str, optional
+            ``"relaxed"`` (default), ``"rest"``, ``"warmup:SECONDS"`` or
+            ``"periodic:PERIODS"``.
+        n_draws : int
+            Stored draws simulated (all of them when fewer are stored).
+        seed : int
+            Seeds the choice of draws, the noise and the PIT.
+
+        Returns
+        -------
+        PredictionResult
+        """
+        if isinstance(initial, str):
+            initial = InitialCondition.parse(initial)
+        z = self.draws(min(int(n_draws), self.n_draws), seed=seed)
+        return predict_posterior(self.posterior, z, data, initial=initial, seed=seed,
+                                 source=str(self.path), warnings=self.warnings)
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready summary (no draws)."""

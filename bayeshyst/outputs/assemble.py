@@ -23,13 +23,14 @@ import numpy as np
 if TYPE_CHECKING:  # only for the annotations: `bayeshyst fit` need not load the others
     from bayeshyst.diagnosis import DiagnosisResult
     from bayeshyst.inference.fit import FitResult
+    from bayeshyst.inference.predict import PredictionResult
     from bayeshyst.inverse.compensate import CompensationResult
     from bayeshyst.selection import ComparisonResult
     from bayeshyst.workflow import ReportResult
 
 __all__ = ["BOUC_WEN_CORNER", "CORNER_MAX", "comparison_figures", "compensation_figures",
            "corner_figure_name", "diagnosis_figures", "fit_figures", "joint_tasks",
-           "report_figures", "report_posteriors", "study_output_figures"]
+           "prediction_figures", "report_figures", "report_posteriors", "study_output_figures"]
 
 #: Parameters of the Bouc–Wen corner plots, drawn whenever a fitted model has them all.
 BOUC_WEN_CORNER = ("alpha", "beta", "gamma", "n")
@@ -37,7 +38,29 @@ BOUC_WEN_CORNER = ("alpha", "beta", "gamma", "n")
 CORNER_MAX = 6
 
 
+#: records drawn by ``bayeshyst predict`` at most (the scores cover every record)
+PREDICTION_FIGURES_MAX = 24
+
+
 # ------------------------------------------------------------------- one command each
+def prediction_figures(result: PredictionResult) -> dict[str, Any]:
+    """The figures ``bayeshyst predict`` writes: ``figures/predict_<k>_<record>.png``.
+
+    One per record (:func:`bayeshyst.plotting.predict.prediction_figure`), the first
+    :data:`PREDICTION_FIGURES_MAX` records at most; the file names carry the record's
+    index and its name with characters outside ``[A-Za-z0-9._-]`` replaced.
+    """
+    import re
+
+    from bayeshyst.plotting.predict import prediction_figure
+
+    out = {}
+    for k, rec in enumerate(result.records[:PREDICTION_FIGURES_MAX]):
+        safe = re.sub(r"[^A-Za-z0-9._-]+", "_", rec.name)[:60]
+        out[f"figures/predict_{k}_{safe}.png"] = prediction_figure(result, rec.name)
+    return out
+
+
 def fit_figures(fit: FitResult, *, seed: int = 0) -> dict[str, Any]:
     """The figures ``bayeshyst fit`` writes.
 

@@ -133,10 +133,13 @@ class ParametricPredictor:
         marginal standard deviation is the root mean of :func:`noise_variance` over the
         draws.
         """
-        test, z = self._on(data)
-        noise = float(np.sqrt(np.mean(noise_variance(test, z))))
+        # the simulation of :func:`bayeshyst.inference.predict.predict`: the fitted
+        # posterior's draws run on the records' inputs (no discrepancy: the physical model)
+        post, z, given = self.posterior, self._draws(), _dataset(data)
+        noise = float(np.sqrt(np.mean(noise_variance(post, z))))
         out = []
-        for rec, sims in zip(test.data, test.predict(z), strict=True):
+        for rec, sims in zip(given, post.predict_records(z, given, discrepancy=False),
+                             strict=True):
             out.append(Prediction(rec.name, np.nanmean(sims, axis=0), np.nanstd(sims, axis=0),
                                   noise))
         return out

@@ -1,0 +1,754 @@
+"""A fit checked on records it never saw: the posterior predictive in free run.
+
+The first thing anyone in system identification does with a fitted model is simulate
+it on another record and compare. :func:`predict` does that for a parametric posterior
+(a :class:`~bayeshyst.inference.saved.SavedFit`, a
+:class:`~bayeshyst.inference.fit.FitResult`, or a :class:`Posterior` with draws) and
+for any :class:`~bayeshyst.inference.protocols.Predictor` (the GP):
+
+* every draw's noise-free simulation of the new record's **input alone** (free run: no
+  measured output is fed back), with the fit's offset and discrepancy weights; the
+  posterior predictive adds the fit's observation noise to each draw;
+* the **initial state** is a choice, stated in the result (:class:`InitialCondition`):
+  relaxed at the first sample (what the fit itself does), at rest (relaxed at zero
+  input before the first sample), a warm-up span simulated and not scored, or periodic
+  steady state (the record, whole periods of a periodic input, played several times
+  and the last scored);
+* scores per record, per excitation frequency (or band, for broadband records) and
+  overall (:class:`PredictionScore`): RMSE, NRMSE, the identification "fit" percentage
+  ``100 (1 - ||y - yhat|| / ||y - mean(y)||)``, the largest error, the coverage of the
+  central 50 % and 90 % predictive bands with the range a calibrated predictive gives
+  (binomial on the effective number of independent samples, as the fit's own
+  calibration check, :mod:`bayeshyst.inference.calibration`) and the PIT histogram.
+
+The new records must be in the units of the fitted data; :func:`predict` converts
+those that are not (:func:`bayeshyst.data.units.convert_units`) or refuses them in words.
+An input outside the range the fit saw is a warning with the share of samples outside.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any, Literal
+
+import numpy as np
+from scipy import special
+
+from bayeshyst.data.dataset import Dataset
+from bayeshyst.data.record import Record, frequency_label
+from bayeshyst.errors import DataError, ParameterError
+from bayeshyst.inference.calibration import (
+    LEVELS,
+    PIT_BINS,
+    binomial_range,
+    effective_size,
+    pit_values,
+)
+from bayeshyst.inference.posterior import Posterior
+from bayeshyst.inference.protocols import Predictor
+from bayeshyst.tables import TableRecord, frame
+
+__all__ = ["InitialCondition", "PredictionResult", "PredictionScore", "RecordPrediction",
+           "group_key", "predict", "predict_posterior", "predict_predictor"]
+
+#: quantiles of the central 50 % and 90 % predictive bands, in the order the records keep
+QUANTILES = (0.05, 0.25, 0.75, 0.95)
+#: a periodic prediction whose last two periods differ by more than this share of the
+#: median predictive standard deviation has not reached its steady state: the change
+#: would shift the bands by a visible fraction of their width
+STEADY_STATE_SHARE = 0.1
+
+Kind = Literal["relaxed", "rest", "warmup", "periodic"]
+_KINDS = ("relaxed", "rest", "warmup", "periodic")
+
+
+@dataclass(frozen=True)
+class InitialCondition:
+    """How the model's state before a record is set, and which samples are scored.
+
+    Parameters
+    ----------
+    kind : {"relaxed", "rest", "warmup", "periodic"}
+        ``"relaxed"`` (default): the model's relaxed state at the record's first input,
+        as in the fit; the record's own warm-up is not scored. ``"rest"``: relaxed at
+        zero input before the first sample (a stage switched on from rest; the input
+        steps from 0 to its first value). ``"warmup"``: relaxed at the first input,
+        and the first ``warmup_s`` seconds simulated but not scored. ``"periodic"``:
+        the record holds whole periods of a periodic input; it is simulated
+        ``periods`` times in a row from the relaxed state and the last repetition is
+        scored whole (periodic steady state).
+    warmup_s : float
+        Leading seconds not scored (``"warmup"`` only) [s].
+    periods : int
+        Repetitions of the record simulated (``"periodic"`` only), at least 2.
+    """
+
+    kind: Kind = "relaxed"
+    warmup_s: float = 0.0
+    periods: int = 3
+
+    def __post_init__(self) -> None:
+        if self.kind not in _KINDS:
+            raise ParameterError(f"initial condition: expected one of {_KINDS}, got "
+                                 f"{self.kind!r}")
+        w = self.warmup_s
+        if isinstance(w, bool) or not isinstance(w, int | float) or not math.isfinite(w) \
+                or w < 0:
+            raise ParameterError(f"initial condition: warmup_s must be a finite number of "
+                                 f"seconds >= 0, got {w!r}")
+        if self.kind == "warmup" and w <= 0:
+            raise ParameterError("initial condition 'warmup' needs warmup_s > 0 seconds")
+        k = self.periods
+        if isinstance(k, bool) or not isinstance(k, int | np.integer) or k < 2:
+            raise ParameterError(f"initial condition: periods must be an integer >= 2 (the "
+                                 f"last of them is scored), got {k!r}")
+
+    @classmethod
+    def parse(cls, text: str) -> InitialCondition:
+        """From ``"relaxed"``, ``"rest"``, ``"warmup:0.5"`` (seconds) or ``"periodic:3"``.
+
+        Raises
+        ------
+        ParameterError
+            Anything else, naming what was given.
+        """
+        m = re.fullmatch(r"\s*(relaxed|rest|warmup|periodic)\s*(?::\s*([^\s]+)\s*)?", text)
+        if m is None:
+            raise ParameterError(f"initial condition: expected relaxed, rest, warmup:SECONDS "
+                                 f"or periodic[:PERIODS], got {text!r}")
+        kind, arg = m.group(1), m.group(2)
+        try:
+            if kind == "warmup":
+                if arg is None:
+                    raise ParameterError("initial condition 'warmup' needs its span: "
+                                         "warmup:SECONDS, e.g. warmup:0.5")
+                return cls("warmup", warmup_s=float(arg))
+            if kind == "periodic":
+                return cls("periodic", periods=3 if arg is None else int(arg))
+        except ValueError as exc:
+            raise ParameterError(f"initial condition {text!r}: {arg!r} is not a number") \
+                from exc
+        if arg is not None:
+            raise ParameterError(f"initial condition {kind!r} takes no argument, got {text!r}")
+        return cls(kind)
+
+    def describe(self) -> str:
+        """One line saying how the state was set, for outputs."""
+        return {
+            "relaxed": "relaxed at each record's first input (as in the fit); the record's "
+                       "warm-up not scored",
+            "rest": "at rest: relaxed at zero input before the first sample",
+            "warmup": f"relaxed at the first input; the first {self.warmup_s:g} s simulated, "
+                      "not scored",
+            "periodic": f"periodic steady state: each record played {self.periods} times "
+                        "from the relaxed state, the last scored",
+        }[self.kind]
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready fields with :meth:`describe`."""
+        out: dict[str, Any] = {"kind": self.kind, "description": self.describe()}
+        if self.kind == "warmup":
+            out["warmup_s"] = self.warmup_s
+        if self.kind == "periodic":
+            out["periods"] = int(self.periods)
+        return out
+
+
+# ------------------------------------------------------------------------ records
+
+
+def group_key(record: Record) -> str:
+    """The group a record is scored in: its frequency, its band, or ``"unknown"``.
+
+    ``"10 Hz"`` for a record with an excitation frequency; ``"band 5-150 Hz"`` for a
+    broadband record whose metadata give ``band_hz``; else ``"unknown"``.
+    """
+    if record.frequency_hz is not None:
+        return frequency_label(record.frequency_hz)
+    band = record.metadata.get("band_hz")
+    if isinstance(band, Sequence) and len(band) == 2:
+        return f"band {float(band[0]):.3g}-{float(band[1]):.3g} Hz"
+    return "unknown"
+
+
+@dataclass(frozen=True)
+class RecordPrediction:
+    """The posterior predictive of one record, sample by sample.
+
+    Attributes
+    ----------
+    name : str
+    group : str
+        Its frequency or band (:func:`group_key`).
+    t, u, y : ndarray, shape (n,)
+        Time [s], input and measured output [the fit's units].
+    scored : ndarray of bool, shape (n,)
+        The samples the scores count.
+    mean, sd : ndarray, shape (n,)
+        Mean and standard deviation of the noise-free prediction over draws [output].
+    bands : ndarray, shape (4, n)
+        Quantiles 5, 25, 75 and 95 % of the predictive (noise included) [output].
+    pit : ndarray, shape (n,)
+        ``P(y_rep <= y)`` under the predictive; NaN where not scored.
+    n_failed : int
+        Draws whose simulation of this record failed (left out).
+    outside_input : float
+        Share of the scored samples whose input lies outside the range the fit saw.
+    """
+
+    name: str
+    group: str
+    t: np.ndarray = field(repr=False)
+    u: np.ndarray = field(repr=False)
+    y: np.ndarray = field(repr=False)
+    scored: np.ndarray = field(repr=False)
+    mean: np.ndarray = field(repr=False)
+    sd: np.ndarray = field(repr=False)
+    bands: np.ndarray = field(repr=False)
+    pit: np.ndarray = field(repr=False)
+    n_failed: int = 0
+    outside_input: float = 0.0
+
+    def band(self, level: float) -> tuple[np.ndarray, np.ndarray]:
+        """Lower and upper edge of the central ``level`` (0.5 or 0.9) band."""
+        if level == 0.9:
+            return self.bands[0], self.bands[3]
+        if level == 0.5:
+            return self.bands[1], self.bands[2]
+        raise ParameterError(f"band level: expected 0.5 or 0.9, got {level!r}")
+
+    def to_dataframe(self) -> Any:
+        """One row per sample: t, u, y, mean, sd, the band edges, PIT, scored."""
+        import pandas as pd
+
+        return pd.DataFrame({"record": self.name, "t": self.t, "u": self.u, "y": self.y,
+                             "mean": self.mean, "sd": self.sd, "lo90": self.bands[0],
+                             "lo50": self.bands[1], "hi50": self.bands[2],
+                             "hi90": self.bands[3], "pit": self.pit, "scored": self.scored})
+
+
+@dataclass(frozen=True)
+class PredictionScore(TableRecord):
+    """How well the predictive matched the measurement over a set of scored samples.
+
+    Attributes
+    ----------
+    scope : str
+        ``"record"``, ``"group"`` (a frequency or band) or ``"all"``.
+    name : str
+        The record's name, the group's label or ``"all"``.
+    n_samples : int
+    rmse, max_error : float
+        Of the predictive mean [output unit].
+    nrmse_percent : float
+        RMSE in per cent of the measured peak-to-peak output.
+    fit_percent : float
+        ``100 (1 - ||y - yhat|| / ||y - mean(y)||)``: 100 is a perfect fit, 0 no better
+        than the measured mean.
+    coverage : dict
+        ``level -> share`` of the samples inside the central 50 % and 90 % bands.
+    expected_range : dict
+        ``level -> (lo, hi)`` where a calibrated predictive's coverage falls 95 % of the
+        time (binomial on ``n_effective``).
+    n_effective : float
+        Effective number of independent samples of the PIT series.
+    pit_histogram : tuple of float
+        Share of the PIT values in 10 equal bins (0.1 each when calibrated).
+    """
+
+    scope: str
+    name: str
+    n_samples: int
+    rmse: float
+    nrmse_percent: float
+    fit_percent: float
+    max_error: float
+    coverage: dict[float, float]
+    expected_range: dict[float, tuple[float, float]]
+    n_effective: float
+    pit_histogram: tuple[float, ...]
+
+    @property
+    def calibrated(self) -> bool:
+        """Whether every band's coverage is inside its expected range."""
+        return all(lo <= self.coverage[p] <= hi for p, (lo, hi) in self.expected_range.items())
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready fields (coverage keyed ``coverage_50``, ``coverage_90``)."""
+        out: dict[str, Any] = {
+            "scope": self.scope, "name": self.name, "n_samples": self.n_samples,
+            "rmse": self.rmse, "nrmse_percent": self.nrmse_percent,
+            "fit_percent": self.fit_percent, "max_error": self.max_error,
+            "n_effective": self.n_effective, "calibrated": self.calibrated}
+        for p in LEVELS:
+            out[f"coverage_{int(100 * p)}"] = self.coverage[p]
+            out[f"expected_{int(100 * p)}"] = list(self.expected_range[p])
+        out["pit_histogram"] = list(self.pit_histogram)
+        return out
+
+    def to_dataframe(self) -> Any:
+        """One row: the fields of :meth:`to_dict` without the histogram."""
+        return frame([self.to_dict()], drop=("pit_histogram",))
+
+    def __str__(self) -> str:
+        cov = ", ".join(f"{int(100 * p)} % band {100 * c:.1f} % (calibrated "
+                        f"{100 * self.expected_range[p][0]:.0f}-"
+                        f"{100 * self.expected_range[p][1]:.0f} %)"
+                        for p, c in self.coverage.items())
+        return (f"{self.name:>16}: RMSE {self.rmse:.4g} ({self.nrmse_percent:.3g} %), fit "
+                f"{self.fit_percent:.2f} %, max {self.max_error:.4g}; {cov}; n={self.n_samples}")
+
+
+def _score(scope: str, name: str, parts: Sequence[RecordPrediction]) -> PredictionScore:
+    y = np.concatenate([p.y[p.scored] for p in parts])
+    yhat = np.concatenate([p.mean[p.scored] for p in parts])
+    pits = [p.pit[p.scored] for p in parts]
+    e = y - yhat
+    ptp = float(np.ptp(y))
+    rmse = float(np.sqrt(np.mean(e**2)))
+    spread = float(np.linalg.norm(y - y.mean()))
+    fit = 100.0 * (1.0 - float(np.linalg.norm(e)) / spread) if spread > 0 else math.nan
+    allp = np.concatenate(pits)
+    ok = np.isfinite(allp)
+    n_eff = float(sum(effective_size(p[np.isfinite(p)]) for p in pits))
+    cov, expected = {}, {}
+    for level in LEVELS:
+        # the share inside the bands as written (not |PIT - 1/2| <= level / 2, which
+        # differs from the interpolated quantiles of a few hundred draws by a sample or so)
+        inside = [((p.y >= p.band(level)[0]) & (p.y <= p.band(level)[1]))[p.scored]
+                  for p in parts]
+        cov[level] = float(np.mean(np.concatenate(inside)))
+        expected[level] = binomial_range(n_eff, level)
+    hist, _ = np.histogram(allp[ok], bins=PIT_BINS, range=(0.0, 1.0))
+    return PredictionScore(scope, name, int(y.size), rmse,
+                           100.0 * rmse / ptp if ptp > 0 else math.nan, fit,
+                           float(np.max(np.abs(e))), cov, expected, n_eff,
+                           tuple(float(h) for h in hist / max(1, int(ok.sum()))))
+
+
+@dataclass(frozen=True)
+class PredictionResult(TableRecord):
+    """A fit's posterior predictive on records, scored against their measurements.
+
+    Attributes
+    ----------
+    model : str
+        The fitted model's spec.
+    source : str
+        What predicted (a saved fit's path, "fit", a GP's name).
+    initial : InitialCondition
+    records : tuple of RecordPrediction
+    per_record, per_group : tuple of PredictionScore
+        Scores of each record and of each frequency or band (:func:`group_key`).
+    overall : PredictionScore
+    n_draws : int
+        Posterior draws simulated (0 for a predictor given as mean and sd).
+    units : dict
+        ``t``, ``u``, ``y`` units of the predictions (the fit's).
+    method : str
+        How the bands were made (draws + noise, or a Gaussian from mean and sd).
+    steady_state_change : float or None
+        Periodic prediction only: largest change of the mean between the last two
+        periods [output unit].
+    warnings : tuple of str
+    notes : tuple of str
+        Unit conversions and other facts worth saying.
+    """
+
+    model: str
+    source: str
+    initial: InitialCondition
+    records: tuple[RecordPrediction, ...] = field(repr=False)
+    per_record: tuple[PredictionScore, ...]
+    per_group: tuple[PredictionScore, ...]
+    overall: PredictionScore
+    n_draws: int
+    units: dict[str, str]
+    method: str
+    steady_state_change: float | None = None
+    warnings: tuple[str, ...] = ()
+    notes: tuple[str, ...] = ()
+
+    def __getitem__(self, name: str) -> RecordPrediction:
+        for r in self.records:
+            if r.name == name:
+                return r
+        raise KeyError(f"no record {name!r}; records: {[r.name for r in self.records]}")
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready summary (no per-sample arrays)."""
+        return {"model": self.model, "source": self.source,
+                "initial_condition": self.initial.to_dict(), "n_draws": self.n_draws,
+                "method": self.method, "units": dict(self.units),
+                "overall": self.overall.to_dict(),
+                "per_group": [s.to_dict() for s in self.per_group],
+                "per_record": [{**s.to_dict(), "group": r.group, "n_failed": r.n_failed,
+                                "outside_input": r.outside_input}
+                               for s, r in zip(self.per_record, self.records, strict=True)],
+                "steady_state_change": self.steady_state_change,
+                "warnings": list(self.warnings), "notes": list(self.notes)}
+
+    def to_dataframe(self) -> Any:
+        """One row per score: every record, every group, then overall."""
+        return frame([s.to_dict() for s in (*self.per_record, *self.per_group, self.overall)],
+                     drop=("pit_histogram",))
+
+    def predictions_frame(self) -> Any:
+        """Every record's samples (:meth:`RecordPrediction.to_dataframe`), end to end."""
+        import pandas as pd
+
+        return pd.concat([r.to_dataframe() for r in self.records], ignore_index=True)
+
+    def __str__(self) -> str:
+        y = self.units.get("y", "")
+        lines = [f"prediction of {len(self.records)} record(s) by {self.model} ({self.source}; "
+                 f"{self.method}); initial state {self.initial.describe()}; output in {y}",
+                 str(self.overall)]
+        if len(self.per_group) > 1 or len(self.records) > 1:
+            lines += [str(s) for s in self.per_group]
+        lines += [f"note: {n}" for n in self.notes]
+        lines += [f"warning: {w}" for w in self.warnings]
+        return "\n".join(lines)
+
+
+# ------------------------------------------------------------------------ computation
+
+
+def _records(data: Dataset | Record) -> list[Record]:
+    if isinstance(data, Record):
+        return [data]
+    if isinstance(data, Dataset):
+        return list(data)
+    raise DataError(f"data: expected a Dataset or a Record, found {type(data).__name__}")
+
+
+def _in_units(records: list[Record], units: Mapping[str, str], notes: list[str]
+              ) -> list[Record]:
+    """The records in the fit's units: converted where they differ, else refused."""
+    target = {k: units[k] for k in ("t", "u", "y") if k in units}
+    out = []
+    for rec in records:
+        given = {k: rec.units.get(k) for k in target}
+        if given == target:
+            out.append(rec)
+            continue
+        from bayeshyst.data.units import convert_units  # the data layer's one converter
+
+        out.append(convert_units(rec, target))
+        changed = ", ".join(f"{k} {given[k]} -> {target[k]}" for k in target
+                            if given[k] != target[k])
+        notes.append(f"record {rec.name!r} converted to the fit's units ({changed})")
+    return out
+
+
+def _check_whole_periods(rec: Record) -> None:
+    """Refuse a record that is not whole periods of its input (periodic prediction)."""
+    u = rec.u
+    steps = np.diff(u)
+    if rec.frequency_hz is not None:
+        per_period = 1.0 / (rec.frequency_hz * rec.dt)  # samples per period
+        periods = rec.n / per_period
+        if abs(periods - round(periods)) * per_period > 1.0 or round(periods) < 1:
+            raise DataError(f"record {rec.name!r}: periodic prediction needs whole periods of "
+                            f"the input; it holds {periods:.3f} periods of "
+                            f"{rec.frequency_hz:g} Hz ({rec.n} samples, "
+                            f"{per_period:.2f} per period). Trim it to whole periods or "
+                            "choose another initial condition")
+        return
+    # without a frequency: the record played twice must join seamlessly, i.e. its last
+    # sample must lead into its first like any other pair of samples (in value and in
+    # slope); a record cut mid-period has a jump or a kink there
+    jump = abs(u[0] - u[-1])
+    # the change of slope at both samples next to the seam (a sine cut after half a
+    # period joins without a jump and bends at its first sample)
+    kink = max(abs((u[0] - u[-1]) - (u[-1] - u[-2])), abs((u[1] - u[0]) - (u[0] - u[-1])))
+    tol = 1.5 * float(np.max(np.abs(steps))) if steps.size else 0.0
+    tol2 = 1.5 * float(np.max(np.abs(np.diff(steps)))) if steps.size > 1 else 0.0
+    if jump > tol or kink > tol2:
+        raise DataError(f"record {rec.name!r}: periodic prediction needs whole periods of the "
+                        f"input, but its last sample does not lead into its first (step "
+                        f"{jump:.4g} against steps up to {tol / 1.5:.4g}, change of slope "
+                        f"{kink:.4g} against up to {tol2 / 1.5:.4g}). Trim it to whole periods "
+                        "or choose another initial condition")
+
+
+def _extended(rec: Record, initial: InitialCondition) -> tuple[Record, slice]:
+    """The record the model runs on, and where the given record lies in it."""
+    n = rec.n
+    if initial.kind in ("relaxed", "warmup"):
+        return rec, slice(0, n)
+    cov = dict(rec.covariates)
+    if initial.kind == "rest":
+        # the stage at rest before the record: zero input one sample before the first
+        t = np.concatenate([[rec.t[0] - rec.dt], rec.t])
+        u = np.concatenate([[0.0], rec.u])
+        y = np.concatenate([[rec.y[0]], rec.y])
+        cov = {k: np.concatenate([[v[0]], v]) for k, v in cov.items()}
+        return Record(t, u, y, metadata=dict(rec.metadata), units=dict(rec.units),
+                      name=rec.name, covariates=cov), slice(1, n + 1)
+    _check_whole_periods(rec)
+    k = int(initial.periods)
+    period = rec.duration + rec.dt
+    t = np.concatenate([rec.t + j * period for j in range(k)])
+    tile = {k_: np.tile(v, k) for k_, v in cov.items()}
+    return (Record(t, np.tile(rec.u, k), np.tile(rec.y, k), metadata=dict(rec.metadata),
+                   units=dict(rec.units), name=rec.name, covariates=tile),
+            slice((k - 1) * n, k * n))
+
+
+def _scored(rec: Record, initial: InitialCondition) -> np.ndarray:
+    mask = np.zeros(rec.n, dtype=bool)
+    if initial.kind == "periodic":
+        mask[:] = True  # the earlier periods are the warm-up
+    else:
+        mask[rec.warmup:] = True
+        if initial.kind == "warmup":
+            mask &= rec.t >= rec.t[0] + initial.warmup_s
+    if mask.sum() < 2:
+        raise DataError(f"record {rec.name!r}: {int(mask.sum())} sample(s) left to score after "
+                        f"the warm-up ({initial.describe()}); expected at least 2")
+    return mask
+
+
+def _input_range(fit_data: Dataset | None) -> tuple[float, float] | None:
+    if fit_data is None:
+        return None
+    return (min(float(r.u.min()) for r in fit_data), max(float(r.u.max()) for r in fit_data))
+
+
+def _outside(rec: Record, scored: np.ndarray, lim: tuple[float, float] | None) -> float:
+    if lim is None:
+        return 0.0
+    u = rec.u[scored]
+    return float(np.mean((u < lim[0]) | (u > lim[1])))
+
+
+def _finish(model: str, source: str, initial: InitialCondition,
+            preds: list[RecordPrediction], n_draws: int, units: Mapping[str, str],
+            method: str, lim: tuple[float, float] | None, steady: float | None,
+            steady_limit: float | None, warnings: list[str], notes: list[str]
+            ) -> PredictionResult:
+    """Scores per record, group and overall, and the warnings every path gives."""
+    u_unit = units.get("u", "")
+    for p in preds:
+        if p.outside_input > 0 and lim is not None:
+            warnings.append(f"record {p.name!r}: {100 * p.outside_input:.1f} % of the scored "
+                            f"samples have an input outside the range the fit saw "
+                            f"({lim[0]:.4g} to {lim[1]:.4g} {u_unit}): the model extrapolates")
+        if p.n_failed:
+            warnings.append(f"record {p.name!r}: {p.n_failed} of {n_draws} draws' simulations "
+                            "failed and were left out")
+    if steady is not None and steady_limit is not None and steady > steady_limit:
+        warnings.append(f"periodic steady state not reached after {initial.periods} periods: "
+                        f"the last two differ by up to {steady:.4g} {units.get('y', '')} "
+                        f"(more than {STEADY_STATE_SHARE:g} of the median predictive sd); "
+                        "use more periods")
+    per_record = tuple(_score("record", p.name, [p]) for p in preds)
+    groups: dict[str, list[RecordPrediction]] = {}
+    for p in preds:
+        groups.setdefault(p.group, []).append(p)
+    per_group = tuple(_score("group", g, ps) for g, ps in groups.items())
+    overall = _score("all", "all", preds)
+    # the groups when there are several, else the whole: one warning per miscalibration
+    for s in per_group if len(groups) > 1 else (overall,):
+        if not s.calibrated:
+            warnings.append(f"{s.name}: the predictive bands are not calibrated on these "
+                            "records: " + ", ".join(
+                                f"{int(100 * p)} % band covers {100 * c:.1f} % (a calibrated "
+                                f"one {100 * s.expected_range[p][0]:.0f}-"
+                                f"{100 * s.expected_range[p][1]:.0f} %)"
+                                for p, c in s.coverage.items()))
+    return PredictionResult(model, source, initial, tuple(preds), per_record, per_group,
+                            overall, n_draws, {k: str(units.get(k, "")) for k in "tuy"},
+                            method, steady, tuple(warnings), tuple(notes))
+
+
+def predict_posterior(posterior: Posterior, z: np.ndarray, data: Dataset | Record, *,
+                      initial: InitialCondition | None = None, seed: int = 0,
+                      source: str = "posterior", warnings: Sequence[str] = ()
+                      ) -> PredictionResult:
+    """The posterior predictive of draws ``z`` on ``data``, scored (see the module).
+
+    Parameters
+    ----------
+    posterior : Posterior
+        The fitted posterior (model, offset, discrepancy, noise).
+    z : ndarray, shape (S, ndim)
+        Its draws.
+    data : Dataset or Record
+        Records with measured outputs; converted to the fitted data's units.
+    initial : InitialCondition, optional
+        Default relaxed at each record's first input.
+    seed : int
+        Seeds the noise draws and the PIT's tie-breaking.
+    source : str
+        Said in the result.
+    warnings : sequence of str
+        Carried into the result (e.g. the fit did not converge).
+
+    Returns
+    -------
+    PredictionResult
+
+    Raises
+    ------
+    DataError
+        A record in units that do not convert, without whole periods (periodic), with
+        fewer than two samples to score, lacking a channel the model reads, or whose
+        simulation failed for every draw.
+    """
+    initial = initial or InitialCondition()
+    z = np.atleast_2d(np.asarray(z, dtype=float))
+    notes: list[str] = []
+    units = dict(posterior.data[0].units)
+    records = _in_units(_records(data), units, notes)
+    runs = [_extended(r, initial) for r in records]
+    sims = posterior.predict_records(z, [ext for ext, _ in runs])
+    rng = np.random.default_rng(seed)
+    kept, reps = [], []
+    for rec, (_, keep), s in zip(records, runs, sims, strict=True):
+        ok = np.all(np.isfinite(s[:, keep]), axis=1)
+        if not ok.any():
+            raise DataError(f"record {rec.name!r}: the simulation failed for every one of the "
+                            f"{z.shape[0]} draws")
+        kept.append(ok)
+        # every record's noise first, in record order: the same draws as the fit's own
+        # posterior predictive (calibration.predictive_draws) on the fitted records
+        reps.append(s[ok][:, keep] + posterior.noise_draws(z[ok], rec.n, rng))
+    lim = _input_range(posterior.data)
+    preds: list[RecordPrediction] = []
+    steady, steady_limit = None, None
+    for rec, (_, keep), s, ok, y_rep in zip(records, runs, sims, kept, reps, strict=True):
+        scored = _scored(rec, initial)
+        good = s[ok][:, keep]
+        pit = pit_values(rec.y, y_rep, rng)
+        pit[~scored] = np.nan
+        preds.append(RecordPrediction(
+            rec.name, group_key(rec), rec.t, rec.u, rec.y, scored, good.mean(axis=0),
+            good.std(axis=0), np.quantile(y_rep, QUANTILES, axis=0), pit,
+            int(np.count_nonzero(~ok)), _outside(rec, scored, lim)))
+        if initial.kind == "periodic":
+            before = s[ok][:, keep.start - rec.n:keep.start].mean(axis=0)
+            change = float(np.max(np.abs(before - preds[-1].mean)))
+            limit = STEADY_STATE_SHARE * float(np.median(y_rep.std(axis=0)))
+            steady = change if steady is None else max(steady, change)
+            steady_limit = limit if steady_limit is None else min(steady_limit, limit)
+    method = (f"{z.shape[0]} posterior draws simulated, {posterior.likelihood.name} noise "
+              "added to each")
+    return _finish(posterior.model.name, source, initial, preds, int(z.shape[0]), units,
+                   method, lim, steady, steady_limit, list(warnings), notes)
+
+
+def predict_predictor(predictor: Predictor, data: Dataset | Record, *,
+                      fit_data: Dataset | None = None, model: str = "predictor",
+                      initial: InitialCondition | None = None, source: str = "predictor",
+                      warnings: Sequence[str] = ()) -> PredictionResult:
+    """The predictive of any :class:`Predictor` (the GP) on ``data``, scored.
+
+    The predictor gives a mean, a latent sd and a noise sd per sample; the bands and
+    the PIT are those of the Gaussian with that mean and the total variance.
+
+    Parameters
+    ----------
+    predictor : Predictor
+    data : Dataset or Record
+    fit_data : Dataset, optional
+        The data it was fitted to: their units are the target units, their input range
+        is checked. Default: the records' own units, no range check.
+    model : str
+        Its name, said in the result.
+    initial : InitialCondition, optional
+        ``"rest"`` is refused (a predictor has no state to set); the others as for
+        :func:`predict_posterior`.
+    source : str
+    warnings : sequence of str
+
+    Returns
+    -------
+    PredictionResult
+    """
+    initial = initial or InitialCondition()
+    if initial.kind == "rest":
+        raise ParameterError(f"initial condition 'rest': {model} exposes no state to set at "
+                             "rest; use relaxed, warmup or periodic")
+    notes: list[str] = []
+    records = _records(data)
+    if fit_data is not None:
+        units = dict(fit_data[0].units)
+        records = _in_units(records, units, notes)
+    else:
+        units = dict(records[0].units)
+        notes.append("the fitted data were not given: units taken as they are, the input "
+                     "range not checked")
+    runs = [_extended(r, initial) for r in records]
+    ext = Dataset([e for e, _ in runs], name="predict")
+    out = predictor.predict_records(ext)
+    lim = _input_range(fit_data)
+    preds: list[RecordPrediction] = []
+    steady, steady_limit = None, None
+    for rec, (_, keep), p in zip(records, runs, out, strict=True):
+        scored = _scored(rec, initial)
+        mean, sd = np.asarray(p.mean, float)[keep], np.asarray(p.std, float)[keep]
+        total = np.sqrt(sd**2 + float(p.noise_std) ** 2)
+        bands = mean[None, :] + special.ndtri(np.asarray(QUANTILES))[:, None] * total[None, :]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            pit = special.ndtr((rec.y - mean) / total)
+        pit[~scored] = np.nan
+        preds.append(RecordPrediction(rec.name, group_key(rec), rec.t, rec.u, rec.y, scored,
+                                      mean, sd, bands, pit, 0, _outside(rec, scored, lim)))
+        if initial.kind == "periodic":
+            before = np.asarray(p.mean, float)[keep.start - rec.n:keep.start]
+            steady = max(steady or 0.0, float(np.max(np.abs(before - mean))))
+            limit = STEADY_STATE_SHARE * float(np.median(total))
+            steady_limit = limit if steady_limit is None else min(steady_limit, limit)
+    return _finish(model, source, initial, preds, 0, units,
+                   "Gaussian predictive from the predictor's mean, latent and noise sd", lim,
+                   steady, steady_limit, list(warnings), notes)
+
+
+def predict(fit: Any, data: Dataset | Record, *, initial: InitialCondition | str | None = None,
+            n_draws: int = 400, seed: int = 0) -> PredictionResult:
+    """The posterior predictive of a fit on records it may never have seen, scored.
+
+    Parameters
+    ----------
+    fit : SavedFit, FitResult, Predictor, or path
+        A saved fit (or the path of one, :func:`bayeshyst.inference.saved.load_fit`), a
+        fit in memory, or any :class:`Predictor` (the GP).
+    data : Dataset or Record
+        Records with their measured outputs.
+    initial : InitialCondition or str, optional
+        How each record's initial state is set (:class:`InitialCondition`, or its text
+        form ``"periodic:3"``); default relaxed at the first input.
+    n_draws : int
+        Posterior draws simulated (at most the stored ones).
+    seed : int
+        Seeds the choice of draws, the noise and the PIT.
+
+    Returns
+    -------
+    PredictionResult
+    """
+    from pathlib import Path
+
+    from bayeshyst.inference.fit import FitResult
+    from bayeshyst.inference.saved import SavedFit, load_fit
+
+    if isinstance(initial, str):
+        initial = InitialCondition.parse(initial)
+    if isinstance(n_draws, bool) or not isinstance(n_draws, int | np.integer) or n_draws < 1:
+        raise ParameterError(f"n_draws: expected an integer >= 1, got {n_draws!r}")
+    if isinstance(fit, str | Path):
+        fit = load_fit(fit)
+    if isinstance(fit, SavedFit):
+        return fit.predict(data, initial=initial, n_draws=n_draws, seed=seed)
+    if isinstance(fit, FitResult):
+        return fit.predict(data, initial=initial, n_draws=n_draws, seed=seed)
+    if isinstance(fit, Predictor):
+        return predict_predictor(fit, data, initial=initial, model=type(fit).__name__,
+                                 source=type(fit).__name__)
+    raise ParameterError(f"fit: expected a SavedFit, a FitResult, a Predictor or the path of a "
+                         f"saved fit, got {type(fit).__name__}")
