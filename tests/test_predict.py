@@ -32,7 +32,6 @@ from bayeshyst.inference.posterior import Posterior
 from bayeshyst.inference.predict import (
     QUANTILES,
     InitialCondition,
-    group_key,
     predict,
     predict_posterior,
     predict_predictor,
@@ -104,7 +103,7 @@ def test_scores_on_another_record_match_an_independent_simulation(fitted):
     r = got.records[0]
     inside90 = (rec.y >= r.bands[0]) & (rec.y <= r.bands[3])
     assert s.coverage[0.9] == inside90.mean()
-    assert got.overall.rmse == s.rmse and group_key(rec) == "5 Hz"
+    assert got.overall.rmse == s.rmse and rec.group == "5 Hz"
     assert got.source == str(fit.path) and got.n_draws == 50
 
 

@@ -404,7 +404,10 @@ def _classify(record: Record) -> tuple[Excitation, CycleSplit | None, list[list[
         band = _band(x, dt, period, noise)
         why = f"{why}; fundamental holds {share:.0%} of the AC power"
         if share >= FUNDAMENTAL_SHARE:
-            f0 = estimate_frequency(record)
+            # few periods: the period found by repetition (the spectral peak of two
+            # Hann-windowed cycles is biased by ~0.5 %); more: the refined spectral peak
+            f0 = (1.0 / (period * dt) if n_per < SPECTRAL_CYCLES
+                  else estimate_frequency(record))
             return (Excitation("periodic", period * dt, f0, band, n_per, why), split,
                     blocks)
         return Excitation("multisine", period * dt, None, band, n_per, why), split, blocks

@@ -374,6 +374,31 @@ class Record:
         return frequency_key(self.metadata.get("frequency_hz"))
 
     @property
+    def band_hz(self) -> tuple[float, float] | None:
+        """The input's band [Hz] (``metadata["band_hz"]``, set when the excitation was
+        classified), or None.
+        """
+        band = self.metadata.get("band_hz")
+        if isinstance(band, tuple | list) and len(band) == 2:
+            return float(band[0]), float(band[1])
+        return None
+
+    @property
+    def group(self) -> str:
+        """The group a record is reported in: ``"10 Hz"``, ``"band 5-150 Hz"`` or ``"unknown"``.
+
+        Its excitation frequency when it has one; else, for a multisine or broadband
+        record, its band (records driven over the same band are one group); else
+        ``"unknown"``.
+        """
+        if self.frequency_hz is not None:
+            return frequency_label(self.frequency_hz)
+        band = self.band_hz
+        if band is not None:
+            return f"band {band[0]:.3g}-{band[1]:.3g} Hz"
+        return "unknown"
+
+    @property
     def source(self) -> str | None:
         """Provenance (``metadata["source"]``), or None."""
         source = self.metadata.get("source")

@@ -38,7 +38,7 @@ import numpy as np
 from scipy import special
 
 from bayeshyst.data.dataset import Dataset
-from bayeshyst.data.record import Record, frequency_label
+from bayeshyst.data.record import Record
 from bayeshyst.errors import DataError, ParameterError
 from bayeshyst.inference.calibration import (
     LEVELS,
@@ -52,7 +52,7 @@ from bayeshyst.inference.protocols import Predictor
 from bayeshyst.tables import TableRecord, frame
 
 __all__ = ["InitialCondition", "PredictionResult", "PredictionScore", "RecordPrediction",
-           "group_key", "predict", "predict_posterior", "predict_predictor"]
+           "predict", "predict_posterior", "predict_predictor"]
 
 #: quantiles of the central 50 % and 90 % predictive bands, in the order the records keep
 QUANTILES = (0.05, 0.25, 0.75, 0.95)
@@ -160,20 +160,6 @@ class InitialCondition:
 # ------------------------------------------------------------------------ records
 
 
-def group_key(record: Record) -> str:
-    """The group a record is scored in: its frequency, its band, or ``"unknown"``.
-
-    ``"10 Hz"`` for a record with an excitation frequency; ``"band 5-150 Hz"`` for a
-    broadband record whose metadata give ``band_hz``; else ``"unknown"``.
-    """
-    if record.frequency_hz is not None:
-        return frequency_label(record.frequency_hz)
-    band = record.metadata.get("band_hz")
-    if isinstance(band, Sequence) and len(band) == 2:
-        return f"band {float(band[0]):.3g}-{float(band[1]):.3g} Hz"
-    return "unknown"
-
-
 @dataclass(frozen=True)
 class RecordPrediction:
     """The posterior predictive of one record, sample by sample.
@@ -182,7 +168,7 @@ class RecordPrediction:
     ----------
     name : str
     group : str
-        Its frequency or band (:func:`group_key`).
+        Its frequency or band (:attr:`Record.group`).
     t, u, y : ndarray, shape (n,)
         Time [s], input and measured output [the fit's units].
     scored : ndarray of bool, shape (n,)
@@ -342,7 +328,7 @@ class PredictionResult(TableRecord):
     initial : InitialCondition
     records : tuple of RecordPrediction
     per_record, per_group : tuple of PredictionScore
-        Scores of each record and of each frequency or band (:func:`group_key`).
+        Scores of each record and of each frequency or band (:attr:`Record.group`).
     overall : PredictionScore
     n_draws : int
         Posterior draws simulated (0 for a predictor given as mean and sd).
@@ -627,7 +613,7 @@ def predict_posterior(posterior: Posterior, z: np.ndarray, data: Dataset | Recor
         pit = pit_values(rec.y, y_rep, rng)
         pit[~scored] = np.nan
         preds.append(RecordPrediction(
-            rec.name, group_key(rec), rec.t, rec.u, rec.y, scored, good.mean(axis=0),
+            rec.name, rec.group, rec.t, rec.u, rec.y, scored, good.mean(axis=0),
             good.std(axis=0), np.quantile(y_rep, QUANTILES, axis=0), pit,
             int(np.count_nonzero(~ok)), _outside(rec, scored, lim)))
         if initial.kind == "periodic":
@@ -697,7 +683,7 @@ def predict_predictor(predictor: Predictor, data: Dataset | Record, *,
         with np.errstate(divide="ignore", invalid="ignore"):
             pit = special.ndtr((rec.y - mean) / total)
         pit[~scored] = np.nan
-        preds.append(RecordPrediction(rec.name, group_key(rec), rec.t, rec.u, rec.y, scored,
+        preds.append(RecordPrediction(rec.name, rec.group, rec.t, rec.u, rec.y, scored,
                                       mean, sd, bands, pit, 0, _outside(rec, scored, lim)))
         if initial.kind == "periodic":
             before = np.asarray(p.mean, float)[keep.start - rec.n:keep.start]
