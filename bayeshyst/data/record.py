@@ -375,8 +375,9 @@ class Record:
 
     @property
     def band_hz(self) -> tuple[float, float] | None:
-        """The input's band [Hz] (``metadata["band_hz"]``, set when the excitation was
-        classified), or None.
+        """The input's band [Hz] from ``metadata["band_hz"]``, or None.
+
+        Set when the record's excitation was classified (a multisine or broadband input).
         """
         band = self.metadata.get("band_hz")
         if isinstance(band, tuple | list) and len(band) == 2:
