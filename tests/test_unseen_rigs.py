@@ -155,3 +155,27 @@ def test_a_fit_on_one_random_drive_predicts_another_of_the_same_rig(tmp_path, ca
         np.asarray(theta["obs.offset"])[0])
     e = recs[1].y - sim
     assert abs(got.overall.rmse - np.sqrt(np.mean(e**2))) <= 1e-9 * np.ptp(recs[1].y)
+
+
+def test_a_fit_of_a_random_drive_says_its_held_out_units_are_time_blocks(tmp_path, capsys):
+    import json
+
+    from bayeshyst.cli import main
+    from bayeshyst.inference.posterior import cycle_units
+
+    fs, n = 500.0, 2000
+    x = 5.0 * _band_limited(n, fs, 1.0, 20.0, 3)
+    path = _write(tmp_path / "damper.csv", ["Time [s]", "Displacement [mm]", "Force [N]"],
+                  [np.arange(n) / fs, x, _damper_force(x, fs)])
+    (rec,) = _read(path, capsys)[0]
+    spans = cycle_units(rec)
+    # contiguous blocks that partition the scored samples, none a fake cycle
+    assert len(spans) >= 2 and spans[0][0] == rec.warmup and spans[-1][1] == rec.n
+    assert all(a[1] == b[0] for a, b in zip(spans, spans[1:], strict=False))
+    out = tmp_path / "fit"
+    assert main(["fit", str(path), "--model", "pi_play(n_operators=3)", "--steps", "200",
+                 "--no-figures", "--quiet", "--out", str(out)]) == 0
+    (saved,) = json.loads((out / "summary.json").read_text())["data"]["records"]
+    assert saved["excitation"] == "broadband" and saved["frequency_hz"] is None
+    assert saved["loo_units"] == f"{len(spans)} time blocks"
+    assert saved["group"] == rec.group and saved["group"].startswith("band ")

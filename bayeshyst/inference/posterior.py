@@ -19,6 +19,7 @@ from typing import Any
 
 import numpy as np
 
+from bayeshyst.data.classify import block_bounds
 from bayeshyst.data.dataset import Dataset
 from bayeshyst.data.record import Record
 from bayeshyst.data.segment import cycle_labels
@@ -30,7 +31,8 @@ from bayeshyst.models.base import HysteresisModel
 from bayeshyst.params import Normal, Param, ParamSpace
 from bayeshyst.threads import with_single_threaded_blas
 
-__all__ = ["EvalCounts", "Posterior", "Unit", "cycle_units", "record_covariates"]
+__all__ = ["EvalCounts", "Posterior", "Unit", "cycle_units", "record_covariates",
+           "unit_kind"]
 
 OBS, NOISE = "obs", "noise"
 
@@ -106,26 +108,39 @@ def cycle_units(record: Record) -> list[tuple[int, int]]:
     list of (int, int)
         Consecutive ranges covering the scored samples ``[warmup, n)``.
     """
-    from bayeshyst.data.classify import block_bounds  # local: classify imports segment
+    return _units(record)[0]
 
+
+def unit_kind(record: Record) -> str:
+    """What the leave-one-out units of ``record`` are, in words: ``"8 time blocks"``.
+
+    ``"<n> cycles"``, ``"<n> periods"`` (a multisine) or ``"<n> time blocks"`` (a
+    broadband record, or one without whole cycles), as :func:`cycle_units` cuts them;
+    said in the outputs so that a reader knows what a held-out unit was.
+    """
+    spans, kind = _units(record)
+    return f"{len(spans)} {kind}" if len(spans) != 1 else f"1 {kind.rstrip('s')}"
+
+
+def _units(record: Record) -> tuple[list[tuple[int, int]], str]:
     start, stop = record.scored.start or 0, record.n
     kind = record.metadata.get("excitation")
     if kind == "multisine" and record.metadata.get("period_s"):
         period = round(float(record.metadata["period_s"]) / record.dt)
-        return block_bounds(stop, start, period=period)
+        return block_bounds(stop, start, period=period), "periods"
     if kind in ("broadband", "multisine"):
-        return block_bounds(stop, start)
+        return block_bounds(stop, start), "time blocks"
     try:
         labels = cycle_labels(record)
     except DataError:
-        return block_bounds(stop, start)
+        return block_bounds(stop, start), "time blocks"
     labels = labels[start:stop]
     ids = np.unique(labels[labels >= 0])
     if ids.size == 0:
-        return block_bounds(stop, start)
+        return block_bounds(stop, start), "time blocks"
     bounds = [start + int(np.flatnonzero(labels == i)[0]) for i in ids] + [stop]
     bounds[0] = start
-    return [(bounds[j], bounds[j + 1]) for j in range(len(ids))]
+    return [(bounds[j], bounds[j + 1]) for j in range(len(ids))], "cycles"
 
 
 def record_covariates(model: HysteresisModel, record: Record) -> dict[str, np.ndarray] | None:

@@ -14,6 +14,7 @@ from typing import Any
 import numpy as np
 
 from bayeshyst.inference.fit import FitResult
+from bayeshyst.inference.posterior import unit_kind
 from bayeshyst.outputs.files import nonfinite_fields, write_figures, write_json
 
 __all__ = ["fit_summary", "write_fit_outputs"]
@@ -48,7 +49,9 @@ def fit_summary(fit: FitResult, *, data_path: str | None = None,
     -> mean, sd, hdi_5, hdi_95, unit: a 90 % HDI), ``map``, ``correlations``
     (|r| >= 0.5, in the sampler's unconstrained coordinates), ``rmse``,
     ``nrmse_percent``, ``max_error``, ``max_error_percent``, ``per_frequency``,
-    ``runtime_s``, ``seed``, ``settings``, ``data``, ``files``, ``warnings``.
+    ``runtime_s``, ``seed``, ``settings``, ``data`` (each record with its group, its
+    excitation and what its leave-one-out units are: ``loo_units``, e.g. "8 time
+    blocks"), ``files``, ``warnings``.
 
     A number that is not finite (an overflow, a statistic the chains cannot give) is
     ``inf``/``nan`` here, ``null`` in ``summary.json``, and named in ``warnings``.
@@ -112,7 +115,10 @@ def fit_summary(fit: FitResult, *, data_path: str | None = None,
         "settings": s.settings,
         "data": {"path": data_path, "name": post.data.name, "records": [
             {"name": r.name, "n": r.n, "fs_hz": r.fs, "frequency_hz": r.frequency_hz,
-             "warmup": r.warmup, "units": dict(r.units)} for r in post.data]},
+             "group": r.group, "excitation": r.metadata.get("excitation"),
+             "warmup": r.warmup, "units": dict(r.units),
+             # what a leave-one-out unit of this record is: cycles, periods, time blocks
+             "loo_units": unit_kind(r)} for r in post.data]},
         "files": files or {},
         "discrepancy": (None if post.discrepancy is None else
                         {**post.discrepancy.to_dict(),
