@@ -11,6 +11,8 @@ cut into cycles, one closed loop is one cycle) and say nothing false about the d
 
 from __future__ import annotations
 
+import itertools
+
 import numpy as np
 import pytest
 
@@ -171,7 +173,7 @@ def test_a_fit_of_a_random_drive_says_its_held_out_units_are_time_blocks(tmp_pat
     spans = cycle_units(rec)
     # contiguous blocks that partition the scored samples, none a fake cycle
     assert len(spans) >= 2 and spans[0][0] == rec.warmup and spans[-1][1] == rec.n
-    assert all(a[1] == b[0] for a, b in zip(spans, spans[1:], strict=False))
+    assert all(a[1] == b[0] for a, b in itertools.pairwise(spans))
     out = tmp_path / "fit"
     assert main(["fit", str(path), "--model", "pi_play(n_operators=3)", "--steps", "200",
                  "--no-figures", "--quiet", "--out", str(out)]) == 0
