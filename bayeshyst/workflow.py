@@ -212,7 +212,9 @@ class ReportResult(TableRecord):
         avg = {} if self.averaged is None else {r.frequency_hz: r for r in self.averaged.rows}
         rows = []
         for fc in self.comparison.per_frequency:
-            c, a = comp.get(fc.frequency_hz), avg.get(fc.frequency_hz)
+            # a band group has no frequency, hence no feedforward design of its own
+            c, a = ((None, None) if fc.band is not None
+                    else (comp.get(fc.frequency_hz), avg.get(fc.frequency_hz)))
             rows.append({
                 "frequency": fc.label, "best": fc.best, "best_lofo": fc.best_lofo,
                 "compensated_with": self.chosen_model,
@@ -295,7 +297,8 @@ def run_report(
     Parameters
     ----------
     data : Dataset or Record
-        Measured loops; records grouped by ``frequency_hz``.
+        Measured loops; records grouped by ``frequency_hz``, multisine and broadband
+        records by band (see :func:`~bayeshyst.selection.compare_models`).
     models : tuple of str or comma-separated str
         Model specs to compare (``"gp"``/``"gp_memory"`` take part in the comparison only).
     settings : ReportSettings, optional

@@ -325,3 +325,32 @@ def test_a_gaussian_process_predicts_through_the_predictor_protocol(fitted):
     e = (rec.y - p.mean)[rec.t >= 0.2]
     assert got.overall.rmse == pytest.approx(np.sqrt(np.mean(e**2)), rel=1e-12)
     assert got.n_draws == 0 and "Gaussian predictive" in got.method
+
+
+def test_a_broadband_record_gets_its_error_spectrum_per_octave(fitted, tmp_path):
+    from bayeshyst.inference.error_spectrum import error_spectrum
+
+    model, theta, post, res, _ = fitted
+    fs, n = 1000.0, 4000
+    rng = np.random.default_rng(3)
+    spec = np.fft.rfft(rng.normal(size=n))
+    spec[(np.fft.rfftfreq(n, 1 / fs) < 2) | (np.fft.rfftfreq(n, 1 / fs) > 30)] = 0
+    x = np.fft.irfft(spec, n)
+    t = np.arange(n) / fs
+    u = 75 + 50 * x / np.max(np.abs(x))
+    y = model.simulate(u, t, theta) + 0.4 + rng.normal(0, 0.05, n)
+    rec = Record(t=t, u=u, y=y, name="rand", warmup=200,
+                 metadata={"excitation": "broadband", "band_hz": (2.0, 30.0)})
+    got = predict_posterior(post, res.draws(10, seed=0), rec)
+    (band, rows), = got.spectra
+    assert band.label == rec.group == "band 2-30 Hz"
+    # the oracle: the error spectrum of the record's scored samples and the mean
+    want = error_spectrum(rec, got.records[0].mean)
+    assert rows == want and rows[0].lo_hz == 2.0 and rows[-1].hi_hz == fs / 2
+    dest = tmp_path / "p"
+    from bayeshyst.outputs.predict_outputs import write_predict_outputs
+
+    summary = write_predict_outputs(got, dest, fit_path="f", data_path="d")
+    assert summary["files"]["spectrum"] == "spectrum.csv"
+    assert summary["error_spectra"][0]["group"] == "band 2-30 Hz"
+    assert "error spectrum of band 2-30 Hz" in str(got)

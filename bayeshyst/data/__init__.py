@@ -23,6 +23,7 @@ from __future__ import annotations
 from bayeshyst.data import excitation
 from bayeshyst.data.classify import Excitation, classify_excitation
 from bayeshyst.data.dataset import Dataset
+from bayeshyst.data.groups import Band, group_key, group_label
 from bayeshyst.data.hdf5 import read_hdf5
 from bayeshyst.data.io import load, read_csv, read_mat, read_npz
 from bayeshyst.data.measured import (
@@ -67,6 +68,7 @@ __all__ = [
     "DEFAULT_UNITS",
     "MIN_SAMPLES",
     "STROKE_UM",
+    "Band",
     "BipolarActuator",
     "CycleSplit",
     "Dataset",
@@ -84,6 +86,8 @@ __all__ = [
     "excitation",
     "find_reversals",
     "frequency_key",
+    "group_key",
+    "group_label",
     "hysteresis_only",
     "hysteresis_percent",
     "input_noise_sd",

@@ -15,6 +15,7 @@ from typing import Any
 
 import numpy as np
 
+from bayeshyst.data.groups import group_key, group_label, group_order
 from bayeshyst.data.record import MAGNITUDE_MAX, RESOLUTION_MIN, SPAN_MIN, Record
 from bayeshyst.errors import DataError
 
@@ -180,6 +181,32 @@ class Dataset:
             k: Dataset(groups[k], name=f"{self.name}@{'?' if k is None else f'{k:g}'}Hz")
             for k in keys
         }
+
+    def by_group(self) -> dict[Any, Dataset]:
+        """Group records by :func:`~bayeshyst.data.groups.group_key`, in group order.
+
+        As :meth:`by_frequency`, but records without a frequency that carry a band
+        (multisine, broadband) form one group per band label; only records with neither
+        go under None.
+
+        Returns
+        -------
+        dict
+            ``{key: Dataset}`` (key a frequency, a :class:`~bayeshyst.data.groups.Band`
+            or None), frequencies ascending, then bands by lower edge, None last; a
+            frequency group is named as in :meth:`by_frequency`, a band group
+            ``"<name>@band5-150Hz"``.
+        """
+        groups: dict[Any, list[Record]] = {}
+        for rec in self.records:
+            groups.setdefault(group_key(rec), []).append(rec)
+
+        def name(k: Any) -> str:
+            if k is None or isinstance(k, float):
+                return f"{self.name}@{'?' if k is None else f'{k:g}'}Hz"
+            return f"{self.name}@{group_label(k).replace(' ', '')}"
+
+        return {k: Dataset(groups[k], name=name(k)) for k in sorted(groups, key=group_order)}
 
     def select(
         self,

@@ -392,12 +392,10 @@ class Record:
         record, its band (records driven over the same band are one group); else
         ``"unknown"``.
         """
-        if self.frequency_hz is not None:
-            return frequency_label(self.frequency_hz)
-        band = self.band_hz
-        if band is not None:
-            return f"band {band[0]:.3g}-{band[1]:.3g} Hz"
-        return "unknown"
+        # deferred: groups imports this module (its identity is the one label source)
+        from bayeshyst.data.groups import group_key, group_label
+
+        return group_label(group_key(self))
 
     @property
     def source(self) -> str | None:

@@ -38,6 +38,7 @@ import numpy as np
 from scipy import special
 
 from bayeshyst.data.dataset import Dataset
+from bayeshyst.data.groups import Band
 from bayeshyst.data.record import Record
 from bayeshyst.errors import DataError, ParameterError
 from bayeshyst.inference.calibration import (
@@ -47,6 +48,7 @@ from bayeshyst.inference.calibration import (
     effective_size,
     pit_values,
 )
+from bayeshyst.inference.error_spectrum import SpectrumBand, band_spectra
 from bayeshyst.inference.posterior import Posterior
 from bayeshyst.inference.protocols import Predictor
 from bayeshyst.tables import TableRecord, frame
@@ -339,6 +341,11 @@ class PredictionResult(TableRecord):
     steady_state_change : float or None
         Periodic prediction only: largest change of the mean between the last two
         periods [output unit].
+    spectra : tuple of (Band, tuple of SpectrumBand)
+        For each band group (multisine and broadband records), the RMS of the error of
+        the predictive mean and of the input per octave
+        (:func:`bayeshyst.inference.error_spectrum.band_spectra`): where in frequency
+        the model misses, which a per-frequency error cannot say for such records.
     warnings : tuple of str
     notes : tuple of str
         Unit conversions and other facts worth saying.
@@ -357,6 +364,7 @@ class PredictionResult(TableRecord):
     steady_state_change: float | None = None
     warnings: tuple[str, ...] = ()
     notes: tuple[str, ...] = ()
+    spectra: tuple[tuple[Band, tuple[SpectrumBand, ...]], ...] = ()
 
     def __getitem__(self, name: str) -> RecordPrediction:
         for r in self.records:
@@ -375,6 +383,9 @@ class PredictionResult(TableRecord):
                                 "outside_input": r.outside_input}
                                for s, r in zip(self.per_record, self.records, strict=True)],
                 "steady_state_change": self.steady_state_change,
+                "error_spectra": [{"group": band.label, "band_hz": band.to_list(),
+                                   "octaves": [row.to_dict() for row in rows]}
+                                  for band, rows in self.spectra],
                 "warnings": list(self.warnings), "notes": list(self.notes)}
 
     def to_dataframe(self) -> Any:
@@ -395,6 +406,11 @@ class PredictionResult(TableRecord):
                  str(self.overall)]
         if len(self.per_group) > 1 or len(self.records) > 1:
             lines += [str(s) for s in self.per_group]
+        for band, rows in self.spectra:
+            lines.append(f"error spectrum of {band.label} (RMS per octave, error [{y}] / "
+                         f"input [{self.units.get('u', '')}]): " + ", ".join(
+                             f"{r.lo_hz:.3g}-{r.hi_hz:.3g} Hz {r.error_rms:.3g} / "
+                             f"{r.input_rms:.3g}" for r in rows))
         lines += [f"note: {n}" for n in self.notes]
         lines += [f"warning: {w}" for w in self.warnings]
         return "\n".join(lines)
@@ -512,7 +528,17 @@ def _outside(rec: Record, scored: np.ndarray, lim: tuple[float, float] | None) -
     return float(np.mean((u < lim[0]) | (u > lim[1])))
 
 
-def _finish(model: str, source: str, initial: InitialCondition,
+def _spectra(records: list[Record], preds: list[RecordPrediction]
+             ) -> tuple[tuple[Band, tuple[SpectrumBand, ...]], ...]:
+    """The error spectra of the band groups, over each record's scored samples."""
+    scored = []
+    for r, p in zip(records, preds, strict=True):
+        first = int(np.argmax(p.scored))  # the scored samples run from here to the end
+        scored.append(r if first == r.warmup else r.with_(warmup=first))
+    return band_spectra(scored, [p.mean for p in preds])
+
+
+def _finish(model: str, source: str, initial: InitialCondition, records: list[Record],
             preds: list[RecordPrediction], n_draws: int, units: Mapping[str, str],
             method: str, lim: tuple[float, float] | None, steady: float | None,
             steady_limit: float | None, warnings: list[str], notes: list[str]
@@ -549,7 +575,8 @@ def _finish(model: str, source: str, initial: InitialCondition,
                                 for p, c in s.coverage.items()))
     return PredictionResult(model, source, initial, tuple(preds), per_record, per_group,
                             overall, n_draws, {k: str(units.get(k, "")) for k in "tuy"},
-                            method, steady, tuple(warnings), tuple(notes))
+                            method, steady, tuple(warnings), tuple(notes),
+                            _spectra(records, preds))
 
 
 def predict_posterior(posterior: Posterior, z: np.ndarray, data: Dataset | Record, *,
@@ -624,8 +651,8 @@ def predict_posterior(posterior: Posterior, z: np.ndarray, data: Dataset | Recor
             steady_limit = limit if steady_limit is None else min(steady_limit, limit)
     method = (f"{z.shape[0]} posterior draws simulated, {posterior.likelihood.name} noise "
               "added to each")
-    return _finish(posterior.model.name, source, initial, preds, int(z.shape[0]), units,
-                   method, lim, steady, steady_limit, list(warnings), notes)
+    return _finish(posterior.model.name, source, initial, records, preds, int(z.shape[0]),
+                   units, method, lim, steady, steady_limit, list(warnings), notes)
 
 
 def predict_predictor(predictor: Predictor, data: Dataset | Record, *,
@@ -690,7 +717,7 @@ def predict_predictor(predictor: Predictor, data: Dataset | Record, *,
             steady = max(steady or 0.0, float(np.max(np.abs(before - mean))))
             limit = STEADY_STATE_SHARE * float(np.median(total))
             steady_limit = limit if steady_limit is None else min(steady_limit, limit)
-    return _finish(model, source, initial, preds, 0, units,
+    return _finish(model, source, initial, records, preds, 0, units,
                    "Gaussian predictive from the predictor's mean, latent and noise sd", lim,
                    steady, steady_limit, list(warnings), notes)
 

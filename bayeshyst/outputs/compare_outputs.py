@@ -21,7 +21,8 @@ from bayeshyst.files import atomic_path
 from bayeshyst.outputs.files import write_figures, write_json
 from bayeshyst.selection import ComparisonResult, FrequencyComparison
 
-__all__ = ["CSV_COLUMNS", "comparison_summary", "write_comparison_outputs"]
+__all__ = ["CSV_COLUMNS", "comparison_summary", "error_spectrum_entry",
+           "write_comparison_outputs"]
 
 CSV_COLUMNS = ("frequency_hz", "rank", "model", "elpd_loo", "se", "delta_elpd", "delta_se",
                "weight", "p_loo", "elpd_waic", "waic_se", "elpd_lofo", "lofo_se",
@@ -52,19 +53,39 @@ def _statement(fc: FrequencyComparison) -> str:
     return text + "."
 
 
+def error_spectrum_entry(result: ComparisonResult, fc: FrequencyComparison,
+                         model: str | None) -> dict[str, Any] | None:
+    """The error spectrum of ``model`` in the band group ``fc``, as ``summary.json`` holds it.
+
+    ``{"model", "bands": [{lo_hz, hi_hz, error_rms, input_rms, n_samples}, ...]}`` from
+    the fit behind the group's ranking (:meth:`ComparisonResult.fit_of`); None for a
+    frequency group, or when that fit failed or scored no octave.
+    """
+    if fc.band is None or model is None:
+        return None
+    task = result.fit_of(model, fc.key)
+    rows = None if task is None else dict(task.error_spectra).get(fc.band)
+    if not rows:
+        return None
+    return {"model": model, "bands": [r.to_dict() for r in rows]}
+
+
 def comparison_summary(result: ComparisonResult, *, data_path: str | None = None,
                        files: dict[str, Any] | None = None) -> dict[str, Any]:
     """The machine-readable summary of a comparison.
 
-    Keys: ``models``, ``per_frequency`` (each ``frequency_hz``, ``best``,
-    ``best_lofo``, ``ranking`` — a list of ``{model, elpd_loo, se, weight,
-    nrmse_percent, ...}`` best first — and ``statement``), ``overall`` (all
+    Keys: ``models``, ``per_frequency`` (each ``frequency_hz``, ``group`` (its label),
+    ``band_hz``, ``best``, ``best_lofo``, ``ranking`` — a list of ``{model, elpd_loo,
+    se, weight, nrmse_percent, ...}`` best first — ``statement`` and, for a band
+    group, ``error_spectrum`` of its best model, :func:`error_spectrum_entry`), ``overall`` (all
     frequencies jointly), ``winners``, ``statements``, ``failed_fits``, ``fits``,
     ``settings``, ``runtime_s``, ``data``, ``files``, ``warnings``.
     """
     out = result.to_dict()
     for entry, fc in zip(out["per_frequency"], result.per_frequency, strict=True):
         entry["statement"] = _statement(fc)
+        if fc.band is not None:
+            entry["error_spectrum"] = error_spectrum_entry(result, fc, fc.best)
     out["overall"]["statement"] = _statement(result.overall)
     out["statements"] = [_statement(fc) for fc in (*result.per_frequency, result.overall)]
     warnings = []
@@ -84,7 +105,9 @@ def _csv_text(result: ComparisonResult) -> str:
     writer = csv.writer(buf, lineterminator="\n")
     writer.writerow(CSV_COLUMNS)
     for fc in (*result.per_frequency, result.overall):
-        freq = "all" if fc.joint else ("" if fc.frequency_hz is None else fc.frequency_hz)
+        # a band group by its label, as the frequency column names "all" the joint rows
+        freq = ("all" if fc.joint else fc.label if fc.band is not None
+                else "" if fc.frequency_hz is None else fc.frequency_hz)
         for rank, s in enumerate(fc.scores, start=1):
             d = s.to_dict()
             row = [freq, rank] + ["" if d[c] is None else d[c] for c in CSV_COLUMNS[2:]]

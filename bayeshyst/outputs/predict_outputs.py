@@ -4,9 +4,10 @@
 (input unit), ``y`` (measured), ``mean``, ``sd`` (the noise-free prediction over draws),
 ``lo90``, ``lo50``, ``hi50``, ``hi90`` (the predictive bands, noise included), ``pit``
 (empty where not scored) and ``scored``. ``scores.csv`` has one row per record, per
-frequency or band, and overall. The figures are handed in by the caller
-(:func:`bayeshyst.outputs.assemble.prediction_figures`). Every file is written
-atomically, ``summary.json`` last.
+frequency or band, and overall; ``spectrum.csv``, for band groups (multisine and
+broadband records), the RMS of the error and of the input per octave. The figures are
+handed in by the caller (:func:`bayeshyst.outputs.assemble.prediction_figures`). Every
+file is written atomically, ``summary.json`` last.
 """
 
 from __future__ import annotations
@@ -17,7 +18,13 @@ from typing import Any
 
 from bayeshyst.files import atomic_path
 from bayeshyst.inference.predict import PredictionResult
-from bayeshyst.outputs.files import jsonable, nonfinite_fields, write_figures, write_json
+from bayeshyst.outputs.files import (
+    jsonable,
+    nonfinite_fields,
+    write_figures,
+    write_json,
+    write_rows_csv,
+)
 
 __all__ = ["write_predict_outputs"]
 
@@ -53,6 +60,12 @@ def write_predict_outputs(result: PredictionResult, out: str | Path, *, fit_path
         result.to_dataframe().to_csv(tmp, index=False, float_format="%.6g")
     files = {"predictions": "predictions.csv", "scores": "scores.csv",
              "figures": write_figures(out, figures), "summary": "summary.json"}
+    if result.spectra:
+        rows = [{"group": band.label, **row.to_dict()} for band, rows in result.spectra
+                for row in rows]
+        write_rows_csv(out / "spectrum.csv", ("group", "lo_hz", "hi_hz", "error_rms",
+                                              "input_rms", "n_samples"), rows)
+        files["spectrum"] = "spectrum.csv"
     u, y = result.units.get("u", ""), result.units.get("y", "")
     body = result.to_dict()
     warnings = list(body.pop("warnings"))

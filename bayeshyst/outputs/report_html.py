@@ -142,9 +142,13 @@ def _selection_html(summary: dict[str, Any], out: Path) -> H.Markup:
         "input cycle as the left-out unit (Δelpd and its paired standard error relative to "
         "the best; a difference under about 2 se is not a difference). elpd LOFO: the "
         "model fitted to all other frequencies, scored on this one (extrapolation across "
-        "frequency). NRMSE: posterior-mean tracking error in % of the measured stroke.")]
+        "frequency). NRMSE: posterior-mean tracking error in % of the measured stroke. "
+        "Multisine and broadband records are grouped by the band their input covers; "
+        "for such a group the chosen model's error spectrum stands in for a "
+        "per-frequency error.")]
     for fc in [*summary["per_frequency"], summary["overall"]]:
         label = ("all frequencies jointly" if fc is summary["overall"] else
+                 fc["group"] if fc.get("band_hz") is not None else
                  ("unknown frequency" if fc["frequency_hz"] is None
                   else f"{fc['frequency_hz']:g} Hz"))
         rows = []
@@ -164,6 +168,8 @@ def _selection_html(summary: dict[str, Any], out: Path) -> H.Markup:
                              numeric=[False, True, True, True, True, True, True, True, False],
                              formats=[None, ".1f", ".1f", ".1f", ".1f", ".2f", ".1f", ".3f",
                                       None]))
+        if fc.get("band_hz") is not None:
+            parts.append(_spectrum_html(fc.get("error_spectrum")))
     fig = out / "figures" / "model_loops.png"
     if fig.is_file():
         parts.append(H.figure(fig, "Each compared model's predicted loop (posterior mean) "
@@ -175,6 +181,21 @@ def _selection_html(summary: dict[str, Any], out: Path) -> H.Markup:
         parts.append(H.figure(fig, "elpd and tracking error of every model against "
                                    "excitation frequency."))
     return H.join(parts)
+
+
+def _spectrum_html(spectrum: dict[str, Any] | None) -> H.Markup:
+    """A band group's error spectrum (its records have no frequency to tabulate by)."""
+    if not spectrum:
+        return H.paragraph("No error spectrum: the chosen model's fit to this band failed "
+                           "or did not run.", cls="warn")
+    y, u = H.unit_text(spectrum.get("y_unit", "")), H.unit_text(spectrum.get("u_unit", ""))
+    rows = [[f"{b['lo_hz']:.3g}–{b['hi_hz']:.3g}", b["error_rms"], b["input_rms"]]
+            for b in spectrum["bands"]]
+    return H.table(["octave [Hz]", f"error RMS [{y}]", f"input RMS [{u}]"], rows,
+                   numeric=[False, True, True], formats=[None, ".4g", ".4g"],
+                   caption=f"Error spectrum of {spectrum['model']}: RMS of measured minus "
+                           "posterior-mean prediction per octave, from the band's lower "
+                           "edge to Nyquist, beside the input's (periodogram)")
 
 
 # ------------------------------------------------------------------------ diagnosis

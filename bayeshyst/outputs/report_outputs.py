@@ -35,7 +35,7 @@ from bayeshyst._version import __version__
 from bayeshyst.data.dataset import Dataset
 from bayeshyst.files import atomic_path, json_text
 from bayeshyst.outputs.assemble import corner_figure_name, joint_tasks
-from bayeshyst.outputs.compare_outputs import write_comparison_outputs
+from bayeshyst.outputs.compare_outputs import error_spectrum_entry, write_comparison_outputs
 from bayeshyst.outputs.compensate_outputs import write_compensation_outputs
 from bayeshyst.outputs.diagnose_outputs import evidence_figures, write_diagnosis_outputs
 from bayeshyst.outputs.files import jsonable, write_figures, write_json
@@ -65,6 +65,24 @@ def data_overview(data: Dataset, data_path: str | None) -> dict[str, Any]:
     return {"path": data_path, "name": data.name, "n_records": len(data),
             "n_samples": data.n_samples, "frequencies_hz": list(data.frequencies),
             "records": recs}
+
+
+# ------------------------------------------------------------------ model selection
+def _band_spectra(result: ReportResult, sel: dict[str, Any]) -> None:
+    """Each band group's error spectrum, of the chosen model, into the section ``sel``.
+
+    A band group has no excitation frequency to give a per-frequency error; the report
+    shows where in frequency the chosen model's error lies instead (the comparison's
+    own summary shows the group's best model's).
+    """
+    units = dict(result.data[0].units)
+    for entry, fc in zip(sel["per_frequency"], result.comparison.per_frequency, strict=True):
+        if fc.band is None:
+            continue
+        spectrum = error_spectrum_entry(result.comparison, fc, result.chosen_model)
+        if spectrum is not None:
+            spectrum.update(y_unit=units.get("y", ""), u_unit=units.get("u", ""))
+        entry["error_spectrum"] = spectrum
 
 
 # ----------------------------------------------------------------------- posteriors
@@ -213,6 +231,7 @@ def write_report_outputs(result: ReportResult, out_dir: str | Path, *,
     overview = overview if "figures/data_loops.png" in figures else None
     sel = write_comparison_outputs(result.comparison, out / "compare", data_path=data_path,
                                    figures=_under(figures, "compare"))
+    _band_spectra(result, sel)
     dg = comp = None
     evidence: list[str] = []
     if result.diagnosis is not None:

@@ -36,6 +36,7 @@ from typing import Any
 import numpy as np
 
 from bayeshyst.data.dataset import Dataset
+from bayeshyst.data.groups import Band, band_of, frequency_of, group_label
 from bayeshyst.data.record import Record
 from bayeshyst.errors import DataError, ModelError, ParameterError
 from bayeshyst.inference.settings import SamplerSettings
@@ -100,14 +101,14 @@ def check_models(models: Sequence[str] | str) -> tuple[str, ...]:
     return names
 
 
-def _tasks(models: tuple[str, ...], keys: list[float | None], lofo: bool) -> list[TaskSpec]:
+def _tasks(models: tuple[str, ...], keys: list[Any], lofo: bool) -> list[TaskSpec]:
     out = []
     for m in models:
         out.append(TaskSpec(m, "joint"))
         if len(keys) > 1:
-            out += [TaskSpec(m, "frequency", f, True) for f in keys]
+            out += [TaskSpec.at(m, "frequency", f) for f in keys]
             if lofo:
-                out += [TaskSpec(m, "lofo", f, True) for f in keys]
+                out += [TaskSpec.at(m, "lofo", f) for f in keys]
     return out
 
 
@@ -206,21 +207,24 @@ def _run_all(data: Dataset, tasks: list[TaskSpec], settings: CompareSettings, se
     return done
 
 
-def _nrmse(task: TaskResult | None, freq: float | None, joint: bool) -> tuple[float, float]:
+def _nrmse(task: TaskResult | None, freq: Any, joint: bool) -> tuple[float, float]:
     if task is None or not task.ok or task.overall is None:
         return math.nan, math.nan
     if joint:
         return task.overall.nrmse_percent, task.overall.max_error_percent
-    for e in task.per_frequency:
-        if e.frequency_hz == freq:
-            return e.nrmse_percent, e.max_error_percent
+    # the tracking errors are per frequency: a band group's fit scores its own records
+    # only (or all of them, when it is the only group), whose error is the overall one
+    if not isinstance(freq, Band):
+        for e in task.per_frequency:
+            if e.frequency_hz == freq:
+                return e.nrmse_percent, e.max_error_percent
     return task.overall.nrmse_percent, task.overall.max_error_percent
 
 
-def _assemble(models: tuple[str, ...], freq: float | None, joint: bool,
+def _assemble(models: tuple[str, ...], freq: Any, joint: bool,
               fit: dict[str, TaskResult | None], lofo: dict[str, list[TaskResult]],
               jointfit: dict[str, TaskResult]) -> FrequencyComparison:
-    """Rank the models at one frequency (or jointly)."""
+    """Rank the models in one group (``freq`` its key: a frequency, a Band, None) or jointly."""
     pre: list[dict[str, Any]] = []
     for m in models:
         t = fit.get(m)
@@ -253,7 +257,7 @@ def _assemble(models: tuple[str, ...], freq: float | None, joint: bool,
         ranked = {x.model: x for x in rank_by_elpd({r["model"]: r["pw"] for r in ok},
                                                    stacking=True)}
     except ModelError as exc:
-        raise ModelError(f"at {freq}: {exc}") from None
+        raise ModelError(f"at {'all' if joint else group_label(freq)}: {exc}") from None
     scores = []
     for r in pre:
         m = r["model"]
@@ -294,7 +298,8 @@ def _assemble(models: tuple[str, ...], freq: float | None, joint: bool,
     best = scores[0].model if scores and not scores[0].error else None
     lofo_ok = [s for s in scores if math.isfinite(s.elpd_lofo)]
     best_lofo = max(lofo_ok, key=lambda s: s.elpd_lofo).model if lofo_ok else None
-    return FrequencyComparison(freq, tuple(scores), best, best_lofo, joint)
+    return FrequencyComparison(frequency_of(freq), tuple(scores), best, best_lofo, joint,
+                               band_of(freq))
 
 
 def compare_models(
@@ -318,8 +323,11 @@ def compare_models(
     Parameters
     ----------
     data : Dataset or Record
-        Measured records; records are grouped by ``frequency_hz`` (records without one
-        form an "unknown" group).
+        Measured records; records are grouped by ``frequency_hz``, records without one
+        by their band (``metadata["band_hz"]`` of a multisine or broadband record: one
+        group per band label, :meth:`~bayeshyst.data.dataset.Dataset.by_group`); records
+        with neither form an "unknown" group. Frequencies come first, ascending, then
+        bands by lower edge, then "unknown".
     models : sequence of str, or a comma-separated str
         Model spec strings (``"pi_play"``, ``"bouc_wen+second_order"``), and ``"gp"``
         (Gaussian process on (u, du/dt), ref. [64]) or ``"gp_memory"`` (with reversal
@@ -383,8 +391,7 @@ def compare_models(
     settings = CompareSettings(likelihood, sampler.replace(checkpoint=None, progress=False),
                                int(draws_per_chain), int(n_lofo_draws), int(max_refits),
                                int(gp_n_train), gp_sampling=gp_sampling)
-    groups = data.by_frequency()
-    keys = sorted(k for k in groups if k is not None) + ([None] if None in groups else [])
+    keys = list(data.by_group())
     tasks = _tasks(names, keys, lofo)
     out = None if out_dir is None else Path(out_dir)
     t0 = time.perf_counter()
@@ -401,9 +408,9 @@ def compare_models(
     per = []
     for f in keys:
         fit = ({s.model: r for s, r in done.items() if s.scope == "frequency"
-                and s.frequency_hz == f} if len(keys) > 1 else dict(joint))
+                and s.group_key == f} if len(keys) > 1 else dict(joint))
         lofo_f = {m: [r for s, r in done.items() if s.scope == "lofo" and s.model == m
-                      and s.frequency_hz == f] for m in names}
+                      and s.group_key == f] for m in names}
         per.append(_assemble(names, f, False, fit, lofo_f, joint))
     lofo_all = {m: [r for s, r in done.items() if s.scope == "lofo" and s.model == m]
                 for m in names}

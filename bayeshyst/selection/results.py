@@ -13,6 +13,7 @@ from typing import Any
 
 import numpy as np
 
+from bayeshyst.data.groups import Band, group_label
 from bayeshyst.errors import ParameterError
 from bayeshyst.selection.ranking import paired_difference
 from bayeshyst.selection.tasks import TaskResult
@@ -21,13 +22,18 @@ from bayeshyst.tables import TableRecord, frame
 __all__ = ["ComparisonResult", "FrequencyComparison", "ModelScore", "cycles_at"]
 
 
-def cycles_at(task: TaskResult, freq: float | None, joint: bool) -> np.ndarray:
-    """Mask (n_cycles,) of a task's scored cycles at frequency ``freq``.
+def cycles_at(task: TaskResult, freq: Any, joint: bool) -> np.ndarray:
+    """Mask (n_cycles,) of a task's scored cycles in the group ``freq``.
 
-    All of them with ``joint``; the cycles of unknown frequency for ``freq`` None.
+    ``freq`` is a group key (:mod:`bayeshyst.data.groups`): a frequency, a
+    :class:`~bayeshyst.data.groups.Band`, or None for the unknown group. All cycles
+    with ``joint``.
     """
     if joint:
         return np.ones(task.pointwise.size, dtype=bool)
+    if task.unit_group:
+        return np.array([g == freq for g in task.unit_group], dtype=bool)
+    # a result without group keys: its cycles are told apart by frequency only
     if freq is None:
         return np.isnan(task.unit_frequency)
     return task.unit_frequency == freq
@@ -115,10 +121,12 @@ class ModelScore(TableRecord):
 
 @dataclass(frozen=True)
 class FrequencyComparison(TableRecord):
-    """The ranking at one excitation frequency.
+    """The ranking in one group: an excitation frequency or a band.
 
-    With ``frequency_hz`` None it ranks all frequencies jointly when ``joint`` is True,
-    and the records of unknown frequency otherwise.
+    ``frequency_hz`` is the group's frequency; ``band`` its band for a group of
+    multisine or broadband records (``frequency_hz`` None then). With both None it
+    ranks all groups jointly when ``joint`` is True, and the records of the unknown
+    group otherwise.
 
     ``scores`` are ranked by ``elpd_loo`` (failed fits last); ``best`` is the first;
     ``best_lofo`` the model with the highest leave-one-frequency-out elpd.
@@ -129,13 +137,17 @@ class FrequencyComparison(TableRecord):
     best: str | None
     best_lofo: str | None
     joint: bool = False
+    band: Band | None = None
+
+    @property
+    def key(self) -> Any:
+        """The group key (:mod:`bayeshyst.data.groups`): the frequency, the band or None."""
+        return self.band if self.band is not None else self.frequency_hz
 
     @property
     def label(self) -> str:
-        """``"10 Hz"``, ``"all"`` or ``"unknown"``."""
-        if self.joint:
-            return "all"
-        return "unknown" if self.frequency_hz is None else f"{self.frequency_hz:g} Hz"
+        """``"10 Hz"``, ``"band 5-150 Hz"``, ``"all"`` or ``"unknown"``."""
+        return "all" if self.joint else group_label(self.key)
 
     def score(self, model: str) -> ModelScore:
         """The row of ``model``."""
@@ -153,6 +165,8 @@ class FrequencyComparison(TableRecord):
         """The ``per_frequency`` entry of ``summary.json``."""
         return {
             "frequency_hz": self.frequency_hz,
+            "group": self.label,
+            "band_hz": None if self.band is None else self.band.to_list(),
             "best": self.best,
             "best_lofo": self.best_lofo,
             "ranking": [s.to_dict() for s in self.scores],
@@ -204,19 +218,21 @@ class ComparisonResult(TableRecord):
     settings: dict[str, Any] = field(default_factory=dict)
     runtime_s: float = 0.0
 
-    def fit_of(self, model: str, frequency_hz: float | None = None, *,
+    def fit_of(self, model: str, frequency_hz: Any = None, *,
                joint: bool = False) -> TaskResult | None:
-        """The successful fit of ``model`` behind the ranking at one frequency.
+        """The successful fit of ``model`` behind the ranking in one group.
 
-        The fit to that frequency's records; the joint fit (all records) with ``joint``
-        or when the data have one frequency, as the comparison ranks them. None if that
+        ``frequency_hz`` is the group's key (a frequency, a
+        :class:`~bayeshyst.data.groups.Band` or None: :attr:`FrequencyComparison.key`).
+        The fit to that group's records; the joint fit (all records) with ``joint``
+        or when the data have one group, as the comparison ranks them. None if that
         fit failed or did not run.
         """
         joint = joint or len(self.per_frequency) == 1
         for t in self.tasks:
             if t.ok and t.spec.model == model and (
                     t.spec.scope == "joint" if joint else
-                    (t.spec.scope == "frequency" and t.spec.frequency_hz == frequency_hz)):
+                    (t.spec.scope == "frequency" and t.spec.group_key == frequency_hz)):
                 return t
         return None
 
@@ -228,8 +244,8 @@ class ComparisonResult(TableRecord):
         ----------
         a, b : str
             Model specs of this comparison.
-        frequency_hz : float or None
-            The frequency (``None``: records of unknown frequency, or all frequencies
+        frequency_hz : float, Band or None
+            The group's key (``None``: records of the unknown group, or all groups
             with ``joint=True``).
         joint : bool
             Compare the joint fits over all frequencies.
@@ -266,7 +282,10 @@ class ComparisonResult(TableRecord):
             "winners": self.winners(),
             "failed_fits": [t.error for t in self.failed],
             "fits": [{"key": t.spec.key, "model": t.spec.model, "scope": t.spec.scope,
-                      "frequency_hz": t.spec.frequency_hz, "converged": t.converged,
+                      "frequency_hz": t.spec.frequency_hz,
+                      "group": group_label(t.spec.group_key) if t.spec.group else "all",
+                      "band_hz": None if t.spec.band is None else t.spec.band.to_list(),
+                      "converged": t.converged,
                       "runtime_s": round(t.runtime_s, 2), "n_refits": t.n_refits,
                       "failed_simulations": t.failed_simulations,
                       "move_acceptance": {k: round(v, 4) for k, v in

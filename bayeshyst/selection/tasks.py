@@ -44,9 +44,11 @@ import numpy as np
 from scipy.special import logsumexp
 
 from bayeshyst.data.dataset import Dataset
+from bayeshyst.data.groups import Band, group_key, group_label
 from bayeshyst.diagnostics import PARETO_K_BAD, loo, save_netcdf, to_inference_data, waic
 from bayeshyst.errors import DataError, ModelError, ParameterError, SimulationError
 from bayeshyst.gp import gp_from_spec
+from bayeshyst.inference.error_spectrum import SpectrumBand, band_spectra
 from bayeshyst.inference.fit import TrackingError, errors_by_frequency, tracking_errors
 from bayeshyst.inference.linear import LinearStructure
 from bayeshyst.inference.optimize import MAPResult, conditional_start, find_map
@@ -140,23 +142,40 @@ def is_parametric(model: object) -> bool:
 class TaskSpec:
     """One fit: ``model`` on ``scope`` data.
 
-    ``frequency_hz`` is the frequency fitted (``"frequency"``) or held out (``"lofo"``),
-    ``None`` for ``"joint"``.
+    The group fitted (``"frequency"``) or held out (``"lofo"``) is ``frequency_hz``
+    for a frequency group, ``band`` for a band group (multisine or broadband records,
+    :mod:`bayeshyst.data.groups`); both are None for ``"joint"`` and for the group of
+    records with neither (never both set: build one for a group key with :meth:`at`).
 
-    ``group`` distinguishes "records of unknown frequency" (``frequency_hz`` None,
-    ``group`` True) from "all records" (``group`` False).
+    ``group`` distinguishes "records of the unknown group" (``frequency_hz`` and
+    ``band`` None, ``group`` True) from "all records" (``group`` False).
     """
 
     model: str
     scope: str
     frequency_hz: float | None = None
     group: bool = False
+    band: Band | None = None
+
+    @classmethod
+    def at(cls, model: str, scope: str, key: Any) -> TaskSpec:
+        """The task of ``model`` on (or holding out) the group ``key`` (a GroupKey)."""
+        if isinstance(key, Band):
+            return cls(model, scope, None, True, key)
+        return cls(model, scope, key, True)
+
+    @property
+    def group_key(self) -> Any:
+        """The group fitted or held out (a frequency, a Band or None; None for joint)."""
+        return self.band if self.band is not None else self.frequency_hz
 
     @property
     def key(self) -> str:
-        """A readable, file-name-safe identifier (``bouc_wen__lofo_10Hz``)."""
+        """A readable, file-name-safe identifier (``bouc_wen__lofo_10Hz``, ``..._band5-150Hz``)."""
         where = "all" if not self.group else (
-            "unknown" if self.frequency_hz is None else f"{self.frequency_hz:g}Hz")
+            "unknown" if self.group_key is None
+            else group_label(self.band).replace(" ", "") if self.band is not None
+            else f"{self.frequency_hz:g}Hz")
         name = slug(self.model)
         if name != self.model:  # two specs that differ only in punctuation stay apart
             name += f"-{zlib.crc32(self.model.encode()):08x}"
@@ -215,6 +234,13 @@ class TaskResult:
         output folder was given).
     error : str or None
         Why the task failed (the comparison goes on without it).
+    unit_group : tuple
+        Group key (:func:`~bayeshyst.data.groups.group_key`: a frequency, a Band or
+        None) of each scored cycle; empty in results made before band groups existed
+        (their cycles are told apart by ``unit_frequency``).
+    error_spectra : tuple of (Band, tuple of SpectrumBand)
+        Per band group among the scored records, the error spectrum of the
+        posterior-mean prediction (:func:`~bayeshyst.inference.error_spectrum.band_spectra`).
     """
 
     spec: TaskSpec
@@ -237,6 +263,8 @@ class TaskResult:
     netcdf: str | None = None
     error: str | None = None
     extra: dict[str, Any] = field(default_factory=dict)
+    unit_group: tuple[Any, ...] = ()
+    error_spectra: tuple[tuple[Band, tuple[SpectrumBand, ...]], ...] = ()
 
     @property
     def ok(self) -> bool:
@@ -247,7 +275,7 @@ class TaskResult:
 def split_data(data: Dataset, spec: TaskSpec) -> tuple[Dataset, Dataset]:
     """(fit data, scored data) of a task."""
     def at(rec: Any) -> bool:
-        return rec.frequency_hz == spec.frequency_hz
+        return group_key(rec) == spec.group_key
 
     if spec.scope == "joint":
         return data, data
@@ -261,13 +289,15 @@ def split_data(data: Dataset, spec: TaskSpec) -> tuple[Dataset, Dataset]:
     return Dataset(outside, name=data.name), Dataset(inside, name=data.name)
 
 
-def _units_meta(data: Dataset) -> tuple[np.ndarray, tuple[str, ...]]:
-    freqs, labels = [], []
+def _units_meta(data: Dataset) -> tuple[np.ndarray, tuple[str, ...], tuple[Any, ...]]:
+    """Frequency (NaN if none), ``record#cycle`` label and group key of every cycle."""
+    freqs, labels, groups = [], [], []
     for rec in data:
         for i, _ in enumerate(cycle_units(rec)):
             freqs.append(math.nan if rec.frequency_hz is None else float(rec.frequency_hz))
             labels.append(f"{rec.name}#{i}")
-    return np.asarray(freqs, dtype=float), tuple(labels)
+            groups.append(group_key(rec))
+    return np.asarray(freqs, dtype=float), tuple(labels), tuple(groups)
 
 
 def fit_identity(post: Posterior, sampler: SamplerSettings) -> str:
@@ -442,25 +472,26 @@ def _run_parametric(data: Dataset, spec: TaskSpec, settings: CompareSettings, se
     res = sample_posterior(post, sampler)
     seed = sampler.seed
     notes = [] if res.converged else ["the sampler did not converge within its budget"]
-    freqs, labels = _units_meta(test)
+    freqs, labels, groups = _units_meta(test)
     failed = res.counts.failed
     if spec.scope == "lofo":
         pw, test_post, zt = heldout_log_density(post, test,
                                                 res.draws(settings.n_lofo_draws, seed=seed))
         failed += test_post.counts.failed
-        overall, per, _ = tracking_errors(test_post, zt)
+        overall, per, means = tracking_errors(test_post, zt)
         return TaskResult(spec, pw, freqs, labels, n_params=post.ndim,
                           converged=res.converged, overall=overall, per_frequency=tuple(per),
                           warnings=tuple(notes), runtime_s=time.perf_counter() - t0,
                           failed_simulations=failed,
-                          move_acceptance=dict(res.move_acceptance))
+                          move_acceptance=dict(res.move_acceptance), unit_group=groups,
+                          error_spectra=band_spectra(test, means))
     scores = loo_scores(post, res, settings, seed, notes)
     idata, wa, pw, k, n_refits = (scores.idata, scores.waic, scores.pointwise,
                                   scores.pareto_k, scores.n_refits)
     ll_map = float(np.sum(post.log_likelihood_units(res.start.z[None, :])))
     n_obs = sum(r.n_scored for r in train)
     bic = post.ndim * math.log(n_obs) - 2.0 * ll_map
-    overall, per, _ = tracking_errors(post, res.draws(settings.n_lofo_draws, seed=seed))
+    overall, per, means = tracking_errors(post, res.draws(settings.n_lofo_draws, seed=seed))
     path = None
     if out_dir is not None:
         path = str(save_netcdf(idata, out_dir / "posteriors" / f"{spec.key}.nc"))
@@ -469,7 +500,8 @@ def _run_parametric(data: Dataset, spec: TaskSpec, settings: CompareSettings, se
                       converged=res.converged, n_refits=n_refits, overall=overall,
                       per_frequency=tuple(per), warnings=tuple(notes),
                       runtime_s=time.perf_counter() - t0, failed_simulations=failed,
-                      move_acceptance=dict(res.move_acceptance), netcdf=path)
+                      move_acceptance=dict(res.move_acceptance), netcdf=path,
+                      unit_group=groups, error_spectra=band_spectra(test, means))
 
 
 def _run_gp(gp: GPHysteresis, data: Dataset, spec: TaskSpec, settings: CompareSettings,
@@ -518,13 +550,14 @@ def _run_gp(gp: GPHysteresis, data: Dataset, spec: TaskSpec, settings: CompareSe
                          f"reproduce the training records (RMSE "
                          f"{gp.hyperparameter_free_run_ratio_:.3g} times the one-step RMSE)")
     scores = gp.log_density_units(test) if spec.scope == "lofo" else gp.loo_units(test)
-    freqs, labels = _units_meta(test)
+    freqs, labels, groups = _units_meta(test)
     preds = [p.mean for p in gp.predict_records(test)]
     overall, per = errors_by_frequency(test, preds)
     return TaskResult(spec, np.asarray(scores.values, dtype=float), freqs, labels,
                       n_params=int(gp.n_hyperparameters_), converged=bool(gp.converged_),
                       overall=overall, per_frequency=tuple(per), warnings=tuple(notes),
-                      runtime_s=time.perf_counter() - t0, move_acceptance=moves)
+                      runtime_s=time.perf_counter() - t0, move_acceptance=moves,
+                      unit_group=groups, error_spectra=band_spectra(test, preds))
 
 
 def run_task(data: Dataset, spec: TaskSpec, settings: CompareSettings, seed: int,

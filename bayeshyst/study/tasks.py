@@ -100,7 +100,14 @@ class StudyTask:
 
     @property
     def spec(self) -> TaskSpec:
-        """The comparison task this fit is: the model on the records at one frequency."""
+        """The comparison task this fit is: the model on the records at one frequency.
+
+        The records without a frequency (the study's "unknown" group) are fitted all
+        together, whatever band a multisine or broadband one covers: the study groups
+        by frequency only, and hands each task exactly its group's records.
+        """
+        if self.frequency_hz is None:
+            return TaskSpec(self.model, "joint")
         return TaskSpec(self.model, "frequency", self.frequency_hz, True)
 
     @property
