@@ -86,9 +86,17 @@ def test_ambiguous_or_contradicting_headers_are_refused_in_words(tmp_path):
     with pytest.raises(DataError, match=r"the header says 'nm', the declared unit of 'y' "
                                         r"is 'mm'"):
         load(clash, units={"y": "mm"})
-    none = _write(tmp_path / "none.csv", ["a", "b", "c"], [t, u, y])
+    # four columns named nothing a role is called: which is which cannot be guessed
+    none = _write(tmp_path / "none.csv", ["a", "b", "c", "d"], [t, u, y, y])
     with pytest.raises(DataError, match=r"column 't': missing"):
         load(none)
+    # three: read in their order as t, u, y, and said so
+    (rec,) = load(_write(tmp_path / "three.csv", ["a", "b", "c"], [t, u, y]))
+    np.testing.assert_array_equal(rec.u, u)
+    np.testing.assert_array_equal(rec.y, y)
+    assert rec.metadata["column_roles"] == (
+        "columns taken in their order as t, u, y: t = 'a', u = 'b', y = 'c' (name them "
+        "with --columns t=...,u=...,y=... otherwise)",)
 
 
 def test_time_in_ms_read_as_seconds_is_flagged(tmp_path):

@@ -182,7 +182,7 @@ def test_a_file_without_units_is_unknown_and_its_parameters_never_say_um(tmp_pat
     mag = _write(tmp_path / "magnet.csv", ["t", "H [A/m]", "B [T]"], [t, 1e3 * u, 1e-2 * y])
     (m,) = load(mag, columns={"u": "H [A/m]", "y": "B [T]"})
     w = Posterior(Dataset([m]), "pi_play").space["w"]
-    assert w.unit == "T/A/m"
+    assert w.unit == "T/(A/m)"
 
 
 def test_the_bundled_demo_data_read_as_volts_and_micrometres():
