@@ -27,12 +27,13 @@ import numpy as np
 from bayeshyst.data.groups import Band, group_key
 from bayeshyst.data.record import Record
 from bayeshyst.errors import ParameterError
+from bayeshyst.tables import TableRecord, frame
 
 __all__ = ["SpectrumBand", "band_spectra", "error_spectrum", "group_error_spectrum", "octave_edges"]
 
 
 @dataclass(frozen=True)
-class SpectrumBand:
+class SpectrumBand(TableRecord):
     """One octave of an error spectrum.
 
     Attributes
@@ -57,6 +58,14 @@ class SpectrumBand:
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready dict."""
         return dict(self.__dict__)
+
+    def to_dataframe(self) -> Any:
+        """One row: the fields of :meth:`to_dict`."""
+        return frame([self.to_dict()])
+
+    def __str__(self) -> str:
+        return (f"{self.lo_hz:.3g}-{self.hi_hz:.3g} Hz: error RMS {self.error_rms:.4g}, "
+                f"input RMS {self.input_rms:.4g} (n={self.n_samples})")
 
 
 def octave_edges(lo_hz: float, nyquist_hz: float) -> np.ndarray:
