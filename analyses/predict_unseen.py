@@ -205,7 +205,8 @@ def _benchmark(cfg: dict[str, Any], args: argparse.Namespace, out: Path,
     # part starts from the state the multisine left (the file's first period from rest)
     part = train.slice(train.n - scored - warm, train.n, warmup=warm,
                        name=f"train_last_{scored}")
-    saved = _fit("boucwen_benchmark", Dataset((part,), name="boucwen_train"),
+    # classified as a file is: a multisine (its held-out units periods, not fake cycles)
+    saved = _fit("boucwen_benchmark", label_frequencies(Dataset((part,), name="boucwen_train")),
                  cfg["bw_model"], cfg, out, say)
     # classified as the command line classifies a file: the sweep and the one-period
     # multisine are kept whole and scored in their band groups (with an error spectrum)

@@ -266,3 +266,15 @@ def test_the_cli_says_how_each_record_was_classified(tmp_path, capsys):
     assert len(lines) == 2
     assert "record 'noise': broadband," in lines[1] and "(no cycles cut)" in lines[1]
     assert "7.3 Hz" in err
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_two_periods_with_the_first_as_warm_up_are_a_multisine(seed):
+    # the repetition is judged on the whole input (the warm-up is the same excitation),
+    # and a dip at exactly half the record is a candidate period
+    lo, hi = _band_of(seed)
+    _, one = ex.multisine(lo, hi, FS, 0.2, rng=seed)
+    rec = _rec(np.tile(one, 2), warmup=one.size)
+    exc = classify_excitation(rec)
+    assert exc.kind == "multisine"
+    assert exc.period_s == pytest.approx(0.2, abs=1.0 / FS)

@@ -249,13 +249,15 @@ def _find_period(x: np.ndarray, noise: float) -> tuple[float | None, str]:
     max_lag = n // 2
     if max_lag < 3 or not np.any(x):
         return None, "too short or constant for a period"
+    # one lag past half the record, so that a record of exactly two periods has its
+    # dip at n / 2 tested as a local minimum
     r, m = _mismatch_curve(x, min(max_lag + 1, n - 1))
     neg = np.flatnonzero(r[1:] <= 0)
     if neg.size == 0:
         return None, "the autocorrelation stays positive up to half the record (drift)"
     first = int(neg[0]) + 1
     core = m[first : max_lag + 1]
-    inner = np.arange(first + 1, min(max_lag + 1, m.size - 1))
+    inner = np.arange(first + 1, min(max_lag, m.size - 2) + 1)
     is_min = (m[inner] <= m[inner - 1]) & (m[inner] <= m[inner + 1]) & (m[inner] < 0.5)
     cands = inner[is_min][:_MAX_CANDIDATES]
     best = (0.0, float(core.min()) if core.size else 1.0, 0.0, 0)
@@ -391,7 +393,9 @@ def _stepped(record: Record, split: CycleSplit, noise: float,
 
 def _classify(record: Record) -> tuple[Excitation, CycleSplit | None, list[list[int]]]:
     """:func:`classify_excitation`, plus the cycles and blocks of a stepped record."""
-    u, dt = _uniform(record)
+    # the whole input, warm-up included: it is the same excitation, and a record whose
+    # warm-up is one of its two periods repeats only with it
+    u, dt = _uniform(record.with_(warmup=0) if record.warmup else record)
     x = u - float(np.mean(u))
     noise = _noise_var(u)
     duration = dt * (u.size - 1)

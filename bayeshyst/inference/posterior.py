@@ -127,7 +127,9 @@ def _units(record: Record) -> tuple[list[tuple[int, int]], str]:
     kind = record.metadata.get("excitation")
     if kind == "multisine" and record.metadata.get("period_s"):
         period = round(float(record.metadata["period_s"]) / record.dt)
-        return block_bounds(stop, start, period=period), "periods"
+        # one block per period where two or more are scored, else time blocks
+        return (block_bounds(stop, start, period=period),
+                "periods" if (stop - start) // max(period, 1) >= 2 else "time blocks")
     if kind in ("broadband", "multisine"):
         return block_bounds(stop, start), "time blocks"
     try:
