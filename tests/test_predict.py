@@ -354,3 +354,15 @@ def test_a_broadband_record_gets_its_error_spectrum_per_octave(fitted, tmp_path)
     assert summary["files"]["spectrum"] == "spectrum.csv"
     assert summary["error_spectra"][0]["group"] == "band 2-30 Hz"
     assert "error spectrum of band 2-30 Hz" in str(got)
+
+
+def test_every_entry_point_refuses_a_bad_request_in_words(fitted):
+    model, theta, _, _, out = fitted
+    fit = load_fit(out)
+    rec = _other(model, theta)
+    for bad, match in (({"n_draws": 0}, "n_draws"), ({"n_draws": True}, "n_draws"),
+                       ({"n_draws": 2.5}, "n_draws"), ({"initial": "steady"}, "initial"),
+                       ({"initial": 3}, "initial")):
+        for call in (fit.predict, lambda d, **kw: predict(fit, d, **kw)):
+            with pytest.raises(ParameterError, match=match):
+                call(rec, **bad)

@@ -40,7 +40,13 @@ import numpy as np
 
 from bayeshyst.data.dataset import Dataset
 from bayeshyst.data.io import _assemble, _vector
-from bayeshyst.data.parsing import OPTIONAL_ROLES, REQUIRED_ROLES, check_file, read_sidecar
+from bayeshyst.data.parsing import (
+    OPTIONAL_ROLES,
+    REQUIRED_ROLES,
+    check_file,
+    explicit_roles,
+    read_sidecar,
+)
 from bayeshyst.data.units import ROLE_NAMES, split_header
 from bayeshyst.errors import DataError
 
@@ -91,21 +97,10 @@ def _resolve(
     """Role -> dataset path (explicit > sidecar > found by name); ``t`` may be absent."""
     available = _datasets(f)
     mapping: dict[str, str] = {}
-    for origin, given in (
-        (f"{side[0]}: key 'columns'" if side else "", side[1].get("columns") if side else None),
-        (f"{path}: columns argument", columns),
-    ):
-        if not given:
-            continue
-        for role, name in given.items():
-            if role not in _ROLES:
-                raise DataError(
-                    f"{origin}: unknown column role {role!r} (mapped to {name!r}); "
-                    f"expected one of {list(_ROLES)}"
-                )
-            if not isinstance(name, str) or not name.strip("/"):
-                raise DataError(f"{origin}: role {role!r}: expected a dataset path, got {name!r}")
-            mapping[role] = name.strip("/")  # "/multisine/u" and "multisine/u" are one path
+    for role, name in explicit_roles(columns, side, path).items():
+        if not name.strip("/"):
+            raise DataError(f"{path}: role {role!r}: expected a dataset path, got {name!r}")
+        mapping[role] = name.strip("/")  # "/multisine/u" and "multisine/u" are one path
     resolved: dict[str, str] = {}
     for role, name in mapping.items():
         obj = f.get(name)

@@ -431,6 +431,36 @@ def encode_sidecar(name: str, records: Sequence[Record], path: Path) -> bytes:
 
 
 # ----------------------------------------------------------------------------- roles
+def explicit_roles(columns: Mapping[str, str] | None,
+                   side: tuple[Path, dict[str, Any]] | None, path: Path) -> dict[str, str]:
+    """Role -> name as the sidecar's ``columns`` and the ``columns`` argument give them.
+
+    The argument wins over the sidecar. Every reader starts from this mapping.
+
+    Raises
+    ------
+    DataError
+        An unknown role or a name that is not a string, naming where it was given.
+    """
+    mapping: dict[str, str] = {}
+    for origin, given in (
+        (f"{side[0]}: key 'columns'" if side else "", side[1].get("columns") if side else None),
+        (f"{path}: columns argument", columns),
+    ):
+        if not given:
+            continue
+        for role, name in given.items():
+            if role not in _ROLES:
+                raise DataError(
+                    f"{origin}: unknown column role {role!r} (mapped to {name!r}); "
+                    f"expected one of {list(_ROLES)}"
+                )
+            if not isinstance(name, str):
+                raise DataError(f"{origin}: role {role!r}: expected a string, got {name!r}")
+            mapping[role] = name
+    return mapping
+
+
 def resolve_roles(
     columns: Mapping[str, str] | None,
     side: tuple[Path, dict[str, Any]] | None,
@@ -476,22 +506,7 @@ def resolve_roles(
     DataError
         Unknown role, missing required (or explicitly mapped) name, a name used twice.
     """
-    mapping: dict[str, str] = {}
-    for origin, given in (
-        (f"{side[0]}: key 'columns'" if side else "", side[1].get("columns") if side else None),
-        (f"{path}: columns argument", columns),
-    ):
-        if not given:
-            continue
-        for role, name in given.items():
-            if role not in _ROLES:
-                raise DataError(
-                    f"{origin}: unknown column role {role!r} (mapped to {name!r}); "
-                    f"expected one of {list(_ROLES)}"
-                )
-            if not isinstance(name, str):
-                raise DataError(f"{origin}: role {role!r}: expected a string, got {name!r}")
-            mapping[role] = name
+    mapping = explicit_roles(columns, side, path)
     resolved: dict[str, str] = {}
     for role in _ROLES:
         name = mapping.get(role, role)

@@ -26,7 +26,12 @@ from bayeshyst.inference.calibration import (
 from bayeshyst.inference.discrepancy_fit import DiscrepancyScales, attach_discrepancy
 from bayeshyst.inference.optimize import find_map
 from bayeshyst.inference.posterior import Posterior
-from bayeshyst.inference.predict import InitialCondition, PredictionResult, predict_posterior
+from bayeshyst.inference.predict import (
+    InitialCondition,
+    PredictionResult,
+    checked_request,
+    predict_posterior,
+)
 from bayeshyst.inference.sampling import sample_posterior
 from bayeshyst.inference.sampling_result import SamplingResult
 from bayeshyst.inference.settings import SamplerSettings
@@ -203,8 +208,7 @@ class FitResult(TableRecord):
         :meth:`SamplingResult.draws` ``(n_draws, seed=seed)``; a fit that did not converge
         says so in the result's warnings.
         """
-        if isinstance(initial, str):
-            initial = InitialCondition.parse(initial)
+        initial, n_draws = checked_request(initial, n_draws)
         warnings = () if self.converged else (
             "the fit did NOT converge: " + "; ".join(self.sampling.convergence.reasons),)
         return predict_posterior(self.posterior, self.sampling.draws(int(n_draws), seed=seed),

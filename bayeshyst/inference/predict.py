@@ -54,7 +54,7 @@ from bayeshyst.inference.protocols import Predictor
 from bayeshyst.tables import TableRecord, frame
 
 __all__ = ["InitialCondition", "PredictionResult", "PredictionScore", "RecordPrediction",
-           "predict", "predict_posterior", "predict_predictor"]
+           "checked_request", "predict", "predict_posterior", "predict_predictor"]
 
 #: quantiles of the central 50 % and 90 % predictive bands, in the order the records keep
 QUANTILES = (0.05, 0.25, 0.75, 0.95)
@@ -722,6 +722,27 @@ def predict_predictor(predictor: Predictor, data: Dataset | Record, *,
                    steady, steady_limit, list(warnings), notes)
 
 
+def checked_request(initial: InitialCondition | str | None, n_draws: Any
+                    ) -> tuple[InitialCondition, int]:
+    """The initial condition (parsed from text) and the number of draws, checked once.
+
+    Raises
+    ------
+    ParameterError
+        An initial condition that does not parse, or ``n_draws`` not an integer >= 1.
+    """
+    if isinstance(initial, str):
+        initial = InitialCondition.parse(initial)
+    elif initial is None:
+        initial = InitialCondition()
+    elif not isinstance(initial, InitialCondition):
+        raise ParameterError(f"initial: expected an InitialCondition or its text form, got "
+                             f"{type(initial).__name__}")
+    if isinstance(n_draws, bool) or not isinstance(n_draws, int | np.integer) or n_draws < 1:
+        raise ParameterError(f"n_draws: expected an integer >= 1, got {n_draws!r}")
+    return initial, int(n_draws)
+
+
 def predict(fit: Any, data: Dataset | Record, *, initial: InitialCondition | str | None = None,
             n_draws: int = 400, seed: int = 0) -> PredictionResult:
     """The posterior predictive of a fit on records it may never have seen, scored.
@@ -750,10 +771,7 @@ def predict(fit: Any, data: Dataset | Record, *, initial: InitialCondition | str
     from bayeshyst.inference.fit import FitResult
     from bayeshyst.inference.saved import SavedFit, load_fit
 
-    if isinstance(initial, str):
-        initial = InitialCondition.parse(initial)
-    if isinstance(n_draws, bool) or not isinstance(n_draws, int | np.integer) or n_draws < 1:
-        raise ParameterError(f"n_draws: expected an integer >= 1, got {n_draws!r}")
+    initial, n_draws = checked_request(initial, n_draws)
     if isinstance(fit, str | Path):
         fit = load_fit(fit)
     if isinstance(fit, SavedFit):

@@ -33,7 +33,12 @@ from bayeshyst.data.record import Record
 from bayeshyst.discrepancy import Discrepancy
 from bayeshyst.errors import DataError, ModelError, ParameterError
 from bayeshyst.inference.posterior import Posterior
-from bayeshyst.inference.predict import InitialCondition, PredictionResult, predict_posterior
+from bayeshyst.inference.predict import (
+    InitialCondition,
+    PredictionResult,
+    checked_request,
+    predict_posterior,
+)
 from bayeshyst.models import get as get_model
 from bayeshyst.models.compose import model_spec
 from bayeshyst.tables import TableRecord
@@ -403,9 +408,8 @@ class SavedFit(TableRecord):
         -------
         PredictionResult
         """
-        if isinstance(initial, str):
-            initial = InitialCondition.parse(initial)
-        z = self.draws(min(int(n_draws), self.n_draws), seed=seed)
+        initial, n_draws = checked_request(initial, n_draws)
+        z = self.draws(min(n_draws, self.n_draws), seed=seed)
         return predict_posterior(self.posterior, z, data, initial=initial, seed=seed,
                                  source=str(self.path), warnings=self.warnings)
 
