@@ -364,3 +364,26 @@ def test_a_compound_input_unit_is_parenthesised_in_derived_parameter_units():
     assert M.get("bouc_wen").param_space(piezo)["beta"].unit == "1/(V um^(n-1))"
     assert M.get("pi_rate").param_space(field)["udot0"].unit == "(A/m)/s"
     assert M.get("mbw").param_space(field)["lam"].unit == "1/(A/m)"
+
+
+def test_plausibility_flags_a_broadband_input_that_reaches_nyquist(tmp_path):
+    # band-limited noise classified from its own spectrum: 2-40 Hz at 1 kHz is quiet,
+    # 2-450 Hz (90 % of the 500 Hz Nyquist frequency) is cautioned, naming the numbers
+    from bayeshyst.data import label_frequencies
+
+    n, fs = 8000, 1000.0
+    rng = np.random.default_rng(4)
+    f = np.fft.rfftfreq(n, 1 / fs)
+    records = []
+    for name, hi in (("low", 40.0), ("high", 450.0)):
+        spec = np.fft.rfft(rng.normal(size=n))
+        spec[(f < 2.0) | (f > hi)] = 0
+        u = np.fft.irfft(spec, n)
+        records.append(Record(np.arange(n) / fs, u, 0.3 * u, name=name,
+                              units={"t": "s", "u": "V", "y": "um"}))
+    data = label_frequencies(Dataset(records, name="d"))
+    band = data[1].band_hz
+    assert band[1] > 0.8 * 500.0 and data[0].band_hz[1] < 0.8 * 500.0
+    (warning,) = plausibility(data)
+    assert warning.startswith(f"high: the input's band reaches {band[1]:.4g} Hz, "
+                              f"{100 * band[1] / 500.0:.0f} % of the Nyquist frequency 500 Hz")

@@ -307,8 +307,13 @@ def _band(x: np.ndarray, dt: float, period: float | None,
         floor = 2.0 * noise * dt  # one-sided density of white noise
     # the input's measurement noise is not excitation: a white-noise bin exceeds five
     # times its mean with probability e^-5, so this removes it from band and power
-    psd = np.maximum(np.asarray(psd, dtype=float) - 5.0 * floor, 0.0)
-    psd[0] = 0.0  # the mean was removed; DC is no excitation
+    raw = np.asarray(psd, dtype=float)
+    raw[0] = 0.0  # the mean was removed; DC is no excitation
+    psd = np.maximum(raw - 5.0 * floor, 0.0)
+    if float(psd.max()) <= 0:
+        # nothing stands above the "noise": the noise estimate (second differences) is
+        # the excitation itself, a broadband input reaching Nyquist; its own spectrum
+        psd = raw
     top = float(psd.max())
     if top <= 0:
         return None

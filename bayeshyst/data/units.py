@@ -446,6 +446,10 @@ MIN_SAMPLES_PER_CYCLE = 10
 MAX_STEP_SPREAD = 0.05
 #: Ratio between the declared frequency and the input's own at which the two contradict.
 FREQUENCY_CONTRADICTION = 20.0
+#: Share of the Nyquist frequency that a broadband input's band may reach without a
+#: caution: the passband of the anti-aliasing filters of acquisition systems ends near
+#: 0.4 fs; content above it is attenuated, folded, or both
+MAX_BAND_SHARE = 0.8
 
 
 def _input_frequency(rec: Any) -> float | None:
@@ -472,7 +476,11 @@ def plausibility(data: Any) -> list[str]:
     * irregular sampling: time steps whose sd exceeds :data:`MAX_STEP_SPREAD` of the
       median step (jitter or gaps), with their range;
     * a ``frequency_hz`` that the input's own cycles contradict by a factor of
-      :data:`FREQUENCY_CONTRADICTION` or more (time in ms read as s, or the reverse).
+      :data:`FREQUENCY_CONTRADICTION` or more (time in ms read as s, or the reverse);
+    * a broadband or multisine input (``metadata["band_hz"]``, from
+      :func:`~bayeshyst.data.label_frequencies`) whose band reaches past
+      :data:`MAX_BAND_SHARE` of the Nyquist frequency (content that an acquisition
+      system's anti-aliasing filter attenuates or folds).
 
     Parameters
     ----------
@@ -494,6 +502,16 @@ def plausibility(data: Any) -> list[str]:
                        f"{100 * spread:.3g} % of it); expected uniform steps -- gaps or "
                        "time-stamp jitter?")
         f = rec.frequency_hz
+        band = rec.metadata.get("band_hz")
+        if f is None and isinstance(band, tuple | list) and len(band) == 2 and median > 0:
+            nyquist = 0.5 / median
+            if float(band[1]) > MAX_BAND_SHARE * nyquist:
+                out.append(f"{rec.name}: the input's band reaches {float(band[1]):.4g} Hz, "
+                           f"{100 * float(band[1]) / nyquist:.0f} % of the Nyquist "
+                           f"frequency {nyquist:.4g} Hz ({1 / (float(band[1]) * median):.3g} "
+                           f"samples per period at its top); expected at most "
+                           f"{100 * MAX_BAND_SHARE:.0f} % -- content may be aliased and "
+                           "fast dynamics unresolved")
         if f is None:
             continue
         per_cycle = 1.0 / (f * median) if median > 0 else math.inf
