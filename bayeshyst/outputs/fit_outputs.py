@@ -13,8 +13,8 @@ from typing import Any
 
 import numpy as np
 
+from bayeshyst.inference.cv_units import unit_kind
 from bayeshyst.inference.fit import FitResult
-from bayeshyst.inference.posterior import unit_kind
 from bayeshyst.outputs.files import nonfinite_fields, write_figures, write_json
 
 __all__ = ["fit_summary", "write_fit_outputs"]
