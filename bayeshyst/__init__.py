@@ -27,6 +27,7 @@ _LAZY: dict[str, tuple[str, str]] = {
     "diagnose": ("bayeshyst.diagnosis.loop", "diagnose"),
     "compensate": ("bayeshyst.inverse.compensate", "compensate"),
     "report": ("bayeshyst.workflow", "run_report"),
+    "predict": ("bayeshyst.inference.predict", "predict"),
     # records and settings they take and return
     "Posterior": ("bayeshyst.inference.posterior", "Posterior"),
     "SamplerSettings": ("bayeshyst.inference.settings", "SamplerSettings"),
@@ -37,6 +38,8 @@ _LAZY: dict[str, tuple[str, str]] = {
     "ReportResult": ("bayeshyst.workflow", "ReportResult"),
     "ReportSettings": ("bayeshyst.workflow", "ReportSettings"),
     "SavedFit": ("bayeshyst.inference.saved", "SavedFit"),
+    "PredictionResult": ("bayeshyst.inference.predictive", "PredictionResult"),
+    "InitialCondition": ("bayeshyst.inference.predictive", "InitialCondition"),
     # a fit written by fit/compare/diagnose/report, read back with its draws
     "load_fit": ("bayeshyst.inference.saved", "load_fit"),
     # the same functions under their long names, and the two inference steps
