@@ -16,7 +16,6 @@ import pytest
 from analyses import (
     hidden_effects,
     model_selection_study,
-    predict_unseen,
     robust_feedforward,
     transfer_check,
     uncertainty_report,
@@ -293,35 +292,6 @@ def test_transfer_check_predicts_the_test_file_from_its_own_voltage(shared_data_
         assert (r["tracking_inside"] == "True") == (lo <= float(r["tracking_percent"]) <= hi)
     assert summary["alignment"]["test_sensor_later_by_samples"] == 1
     assert ("NOT converged" in (out / "transfer.txt").read_text()) is not summary["converged"]
-    _no_nan_or_tmp(out)
-
-
-@pytest.mark.shared_data
-def test_predict_unseen_fits_one_record_and_predicts_the_others(shared_data_dir, tmp_path):
-    out = tmp_path / "out"
-    assert predict_unseen.main(["--quick", "--quiet", "--out", str(out)]) == 0
-    rows = _rows(out / "predictions.csv")
-    summary = json.loads((out / "summary.json").read_text())
-    # the MR damper: every other amplitude's record at 0.5 A; the benchmark: both tests
-    mr = [r["record"] for r in rows if r["case"] == "mr_damper_0.5A"]
-    assert sorted(mr) == sorted(["25mm0x1Hz0x5A", "25mm0x5Hz0x5A", "10mm1Hz0x5A",
-                                 "5mm3Hz0x5A", "2mm5Hz0x5A"])
-    bw = {r["record"]: r for r in rows if r["case"] == "boucwen_benchmark"}
-    assert set(bw) == {"test_multisine", "test_sweep"}
-    assert (bw["test_multisine"]["initial"], bw["test_sweep"]["initial"]) == ("periodic",
-                                                                              "rest")
-    for r in summary["rows"]:
-        # each RMSE agrees with an independent one-draw-at-a-time simulation (the script
-        # refuses a gap above 1e-9 of the output span; the RMSE is a few % of the span)
-        assert r["independent_rmse_error"] <= 1e-9 * r["rmse"]
-        assert 0 <= r["coverage_90"] <= 1 and r["expected_90_lo"] <= r["expected_90_hi"]
-    # the benchmark's metres: the record's um converted back
-    for r in bw.values():
-        assert float(r["rmse_m"]) == pytest.approx(1e-6 * float(r["rmse"]), rel=1e-9)
-        assert r["unit"] == "um"
-    predicted = out / "boucwen_benchmark" / "predict_boucwen_benchmark_test_sweep"
-    assert json.loads((predicted / "summary.json").read_text())["initial_condition"][
-        "kind"] == "rest"
     _no_nan_or_tmp(out)
 
 
