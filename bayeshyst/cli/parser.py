@@ -99,7 +99,7 @@ EXAMPLES = {
     "invert": ["bayeshyst invert fit-bw --reference ref.csv --objective robust --out cmd"],
     "predict": ["bayeshyst predict fit-bw other-record.csv --out pred",
                 "bayeshyst predict fit-bw test-multisine.h5 --columns u=multisine/u,"
-                "y=multisine/y --initial periodic:3 --out pred-ms"],
+                "y=multisine/y --units u=N,y=m --initial periodic:3 --out pred-ms"],
     "export": ["bayeshyst export fit-pi --format c --reference ref.csv --out ctrl"],
     "diagnose": ["bayeshyst diagnose data/virtual_multifreq.csv --model pi_play --out diag"],
     "report": ["bayeshyst report data/virtual_multifreq.csv --models pi_play,bouc_wen,gp_memory "

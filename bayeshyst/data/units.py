@@ -399,7 +399,8 @@ def _convert_record(rec: Any, units: Mapping[str, str]) -> Any:
             if src_unknown and dst_unknown:
                 continue
             raise DataError(f"{what}: cannot convert {source!r} to {target!r}: one of them is "
-                            "unknown; give the record's unit (units=, sidecar or header)")
+                            "unknown; give the record's unit (in the header, a sidecar, "
+                            "units= or the command line's --units u=...,y=...)")
         src = _parse_or_refuse(source, f"{what}, unit of the record")
         dst = _parse_or_refuse(str(target), f"{what}, target unit")
         if _same(src, dst):
