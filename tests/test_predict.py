@@ -366,3 +366,32 @@ def test_every_entry_point_refuses_a_bad_request_in_words(fitted):
         for call in (fit.predict, lambda d, **kw: predict(fit, d, **kw)):
             with pytest.raises(ParameterError, match=match):
                 call(rec, **bad)
+
+
+def test_an_input_alone_is_predicted_and_not_scored(fitted, tmp_path, capsys):
+    model, theta, _post, _res, out = fitted
+    rec = _other(model, theta)
+    path = tmp_path / "command.csv"
+    rows = "\n".join(f"{a:.17g},{b:.17g}" for a, b in zip(rec.t, rec.u, strict=True))
+    path.write_text("t [s],u [V]\n" + rows + "\n")
+    dest = tmp_path / "pred"
+    assert main(["predict", str(out), str(path), "--out", str(dest), "--draws", "30",
+                 "--quiet", "--json"]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["overall"] is None and summary["per_group"] == []
+    (entry,) = summary["per_record"]
+    assert entry["measured"] is False and entry["name"] == "command"
+    assert summary["units"]["y"] == "um"  # the fit's: the output is the model's
+    import pandas as pd
+
+    pred = pd.read_csv(dest / "predictions.csv")
+    assert pred["y"].isna().all() and pred["pit"].isna().all()
+    # the mean is the same draws' simulation as for the measured twin of the record
+    fit = load_fit(out)
+    twin = fit.predict(rec, n_draws=30, seed=0)
+    np.testing.assert_allclose(pred["mean"], twin.records[0].mean, rtol=1e-9)
+    assert len(summary["files"]["figures"]) == 1
+    # fit and the other commands still need the output
+    assert main(["fit", str(path), "--model", "pi_play", "--out", str(tmp_path / "f"),
+                 "--quiet"]) == 2
+    assert "column 'y': missing" in capsys.readouterr().err

@@ -53,7 +53,9 @@ def load_data(args: argparse.Namespace) -> Any:
     from bayeshyst.data import label_frequencies, load
     from bayeshyst.data.units import plausibility
 
-    data = load(args.data, columns=args.columns, units=args.units)
+    # predict takes an input alone too (a command whose output is what is asked for)
+    data = load(args.data, columns=args.columns, units=args.units,
+                require_output=args.command != "predict")
     if not args.no_frequency_labels:
         data = label_frequencies(data)
     if not args.quiet:

@@ -86,6 +86,8 @@ __all__ = [
 _log = logging.getLogger(__name__)
 
 _INTEGER_ROLES = ("segment", "record")  # columns whose values must be integers
+#: the name the output role has in messages when a file holds no output column
+NO_OUTPUT = "(no output column)"
 
 
 # -------------------------------------------------------------------------- assembly
@@ -290,6 +292,7 @@ def read_csv(
     units: Mapping[str, str] | None = None,
     name: str | None = None,
     fittable: bool = True,
+    require_output: bool = True,
 ) -> Dataset:
     r"""Read a delimited text file with header ``t,u,y[,segment][,frequency_hz]``.
 
@@ -321,6 +324,11 @@ def read_csv(
         Refuse data no model can be fitted to (:func:`~bayeshyst.data.dataset.check_fittable`:
         a constant input or output, magnitudes outside the supported range). False
         reads any finite data, e.g. to convert or plot it.
+    require_output : bool, default True
+        False accepts a file without an output column (an input to predict the output
+        of): its records get ``y`` zeros, ``metadata["output_measured"]`` False
+        (:attr:`Record.measured_output`) and are not checked as fittable; two columns
+        whose names say too little are then read in their order as t, u.
 
     Returns
     -------
@@ -340,7 +348,8 @@ def read_csv(
     table = read_table(p, delimiter=delimiter)
     header = f"line {table.header_line} (header)"
     order: list[str] = []
-    resolved = resolve_roles(columns, side, table.names, p, "column", header, notes=order)
+    resolved = resolve_roles(columns, side, table.names, p, "column", header, notes=order,
+                             required=REQUIRED_ROLES if require_output else ("t", "u"))
     if order:
         metadata = {**(metadata or {}), "column_roles": tuple(order)}
     label = role_labels(resolved, "column")
@@ -348,6 +357,12 @@ def read_csv(
         role: table.floats(col, label=label[role], integer=role in _INTEGER_ROLES)
         for role, col in resolved.items()
     }
+    measured = "y" in resolved
+    if not measured:
+        # an input alone: the output is what a model is asked for; zeros hold its place
+        resolved = {**resolved, "y": NO_OUTPUT}
+        cols["y"] = np.zeros_like(cols["t"])
+        metadata = {**(metadata or {}), "output_measured": False}
     covariates, ignored = {}, []
     for c in table.names:
         if c in resolved.values():
@@ -361,7 +376,7 @@ def read_csv(
     return _assemble(
         p, cols, lambda i: f"line {table.lines[i]}", resolved, side,
         warmup=warmup, metadata=metadata, units=units, name=name, ignored=ignored,
-        covariates=covariates, fittable=fittable, header=header,
+        covariates=covariates, fittable=fittable and measured, header=header,
     )
 
 
@@ -572,7 +587,9 @@ def load(path: str | os.PathLike[str], **options: Any) -> Dataset:
         Passed to the reader (``columns``, ``warmup``, ``metadata``, ``units``, ``name``,
         ``fittable``; ``delimiter`` for text; ``fs`` [Hz] for HDF5 without a time
         dataset). For HDF5, ``columns`` maps roles to dataset paths, e.g.
-        ``{"u": "multisine/u", "y": "multisine/y"}``.
+        ``{"u": "multisine/u", "y": "multisine/y"}``. ``require_output=False`` lets a
+        text file hold an input alone (:func:`read_csv`); the other formats always need
+        their output.
 
     Raises
     ------
@@ -586,6 +603,9 @@ def load(path: str | os.PathLike[str], **options: Any) -> Dataset:
         raise DataError(
             f"{p}: unknown file suffix {p.suffix!r}; expected one of {sorted(SUFFIXES)}"
         )
+    if reader is not read_csv:
+        # only a text file may hold an input alone: the other formats need their output
+        options = {k: v for k, v in options.items() if k != "require_output"}
     data = reader(p, **options)
     _log.info("%s: %d record(s), %d samples, frequencies %s", p, len(data), data.n_samples,
               list(data.frequencies) or "none given")

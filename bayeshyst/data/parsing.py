@@ -469,6 +469,7 @@ def resolve_roles(
     kind: str,
     header: str,
     notes: list[str] | None = None,
+    required: Sequence[str] = REQUIRED_ROLES,
 ) -> dict[str, str]:
     """Map each role present to the name used in the file (explicit > sidecar > role).
 
@@ -495,6 +496,9 @@ def resolve_roles(
     notes : list of str, optional
         Receives one line when the roles were taken from the column order; without it
         (archives, HDF5) the order is never used.
+    required : sequence of str
+        The roles that must be found: t, u, y, or t and u for a file that may hold no
+        measured output (a command to predict the output of).
 
     Returns
     -------
@@ -527,10 +531,12 @@ def resolve_roles(
         # an instrument's header: roles recognised by name where exactly one column fits
         found, ambiguous = recognise_roles(available, resolved)
         resolved.update({r: c for r, c in found.items() if r in missing})
-        still = [r for r in REQUIRED_ROLES if r not in resolved]
-        if still and notes is not None and not mapping and len(available) == 3:
-            resolved = dict(zip(REQUIRED_ROLES, available, strict=True))
-            notes.append("columns taken in their order as t, u, y: "
+        still = [r for r in required if r not in resolved]
+        order = REQUIRED_ROLES[:len(available)]
+        if still and notes is not None and not mapping and 2 <= len(available) <= 3 \
+                and set(required) <= set(order):
+            resolved = dict(zip(order, available, strict=True))
+            notes.append(f"columns taken in their order as {', '.join(order)}: "
                          + ", ".join(f"{r} = {c!r}" for r, c in resolved.items())
                          + " (name them with --columns t=...,u=...,y=... otherwise)")
             still = []

@@ -374,6 +374,15 @@ class Record:
         return frequency_key(self.metadata.get("frequency_hz"))
 
     @property
+    def measured_output(self) -> bool:
+        """Whether ``y`` was measured (False for an input read alone, ``y`` zeros).
+
+        ``metadata["output_measured"]``, set by a reader given a file without an output
+        column; True when absent.
+        """
+        return bool(self.metadata.get("output_measured", True))
+
+    @property
     def band_hz(self) -> tuple[float, float] | None:
         """The input's band [Hz] from ``metadata["band_hz"]``, or None.
 

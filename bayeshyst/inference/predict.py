@@ -74,9 +74,12 @@ def _records(data: Dataset | Record) -> list[Record]:
 def _in_units(records: list[Record], units: Mapping[str, str], notes: list[str]
               ) -> list[Record]:
     """The records in the fit's units: converted where they differ, else refused."""
-    target = {k: units[k] for k in ("t", "u", "y") if k in units}
     out = []
     for rec in records:
+        if not rec.measured_output and "y" in units:
+            # an input alone: its output is the model's, in the fit's unit
+            rec = rec.with_(units={**rec.units, "y": units["y"]})
+        target = {k: units[k] for k in ("t", "u", "y") if k in units}
         given = {k: rec.units.get(k) for k in target}
         if given == target:
             out.append(rec)
@@ -172,14 +175,24 @@ def _outside(rec: Record, scored: np.ndarray, lim: tuple[float, float] | None) -
     return float(np.mean((u < lim[0]) | (u > lim[1])))
 
 
+def _measured(rec: Record, pit: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The measured output and its PIT, both NaN for an input read alone."""
+    if rec.measured_output:
+        return rec.y, pit
+    return np.full(rec.n, np.nan), np.full(rec.n, np.nan)
+
+
 def _spectra(records: list[Record], preds: list[RecordPrediction]
              ) -> tuple[tuple[Band, tuple[SpectrumBand, ...]], ...]:
     """The error spectra of the band groups, over each record's scored samples."""
-    scored = []
+    scored, means = [], []
     for r, p in zip(records, preds, strict=True):
+        if not p.measured:
+            continue
         first = int(np.argmax(p.scored))  # the scored samples run from here to the end
         scored.append(r if first == r.warmup else r.with_(warmup=first))
-    return band_spectra(scored, [p.mean for p in preds])
+        means.append(p.mean)
+    return band_spectra(scored, means)
 
 
 def _finish(model: str, source: str, initial: InitialCondition, records: list[Record],
@@ -202,14 +215,15 @@ def _finish(model: str, source: str, initial: InitialCondition, records: list[Re
                         f"the last two differ by up to {steady:.4g} {units.get('y', '')} "
                         f"(more than {STEADY_STATE_SHARE:g} of the median predictive sd); "
                         "use more periods")
-    per_record = tuple(score_records("record", p.name, [p]) for p in preds)
+    measured = [p for p in preds if p.measured]
+    per_record = tuple(score_records("record", p.name, [p]) for p in measured)
     groups: dict[str, list[RecordPrediction]] = {}
-    for p in preds:
+    for p in measured:
         groups.setdefault(p.group, []).append(p)
     per_group = tuple(score_records("group", g, ps) for g, ps in groups.items())
-    overall = score_records("all", "all", preds)
+    overall = score_records("all", "all", measured) if measured else None
     # the groups when there are several, else the whole: one warning per miscalibration
-    for s in per_group if len(groups) > 1 else (overall,):
+    for s in per_group if len(groups) > 1 else (() if overall is None else (overall,)):
         if not s.calibrated:
             warnings.append(f"{s.name}: the predictive bands are not calibrated on these "
                             "records: " + ", ".join(
@@ -283,10 +297,11 @@ def predict_posterior(posterior: Posterior, z: np.ndarray, data: Dataset | Recor
         good = s[ok][:, keep]
         pit = pit_values(rec.y, y_rep, rng)
         pit[~scored] = np.nan
+        y, pit = _measured(rec, pit)
         preds.append(RecordPrediction(
-            rec.name, rec.group, rec.t, rec.u, rec.y, scored, good.mean(axis=0),
-            good.std(axis=0), np.quantile(y_rep, QUANTILES, axis=0), pit,
-            int(np.count_nonzero(~ok)), _outside(rec, scored, lim)))
+            rec.name, rec.group, rec.t, rec.u, y, scored, good.mean(axis=0), good.std(axis=0),
+            np.quantile(y_rep, QUANTILES, axis=0), pit, int(np.count_nonzero(~ok)),
+            _outside(rec, scored, lim), rec.measured_output))
         if initial.kind == "periodic":
             before = s[ok][:, keep.start - rec.n:keep.start].mean(axis=0)
             change = float(np.max(np.abs(before - preds[-1].mean)))
@@ -354,8 +369,10 @@ def predict_predictor(predictor: Predictor, data: Dataset | Record, *,
         with np.errstate(divide="ignore", invalid="ignore"):
             pit = special.ndtr((rec.y - mean) / total)
         pit[~scored] = np.nan
-        preds.append(RecordPrediction(rec.name, rec.group, rec.t, rec.u, rec.y, scored,
-                                      mean, sd, bands, pit, 0, _outside(rec, scored, lim)))
+        y, pit = _measured(rec, pit)
+        preds.append(RecordPrediction(rec.name, rec.group, rec.t, rec.u, y, scored, mean, sd,
+                                      bands, pit, 0, _outside(rec, scored, lim),
+                                      rec.measured_output))
         if initial.kind == "periodic":
             before = np.asarray(p.mean, float)[keep.start - rec.n:keep.start]
             steady = max(steady or 0.0, float(np.max(np.abs(before - mean))))

@@ -151,6 +151,9 @@ class RecordPrediction:
         Draws whose simulation of this record failed (left out).
     outside_input : float
         Share of the scored samples whose input lies outside the range the fit saw.
+    measured : bool
+        Whether the record has a measured output (else ``y`` and ``pit`` are NaN and it
+        is not scored).
     """
 
     name: str
@@ -165,6 +168,7 @@ class RecordPrediction:
     pit: np.ndarray = field(repr=False)
     n_failed: int = 0
     outside_input: float = 0.0
+    measured: bool = True
 
     def band(self, level: float) -> tuple[np.ndarray, np.ndarray]:
         """Lower and upper edge of the central ``level`` (0.5 or 0.9) band."""
@@ -302,8 +306,11 @@ class PredictionResult(TableRecord):
     initial : InitialCondition
     records : tuple of RecordPrediction
     per_record, per_group : tuple of PredictionScore
-        Scores of each record and of each frequency or band (:attr:`Record.group`).
-    overall : PredictionScore
+        Scores of each record with a measured output (in record order) and of each
+        frequency or band (:attr:`Record.group`).
+    overall : PredictionScore or None
+        Of every measured record; None when no record has a measured output (an input
+        read alone: predictions only).
     n_draws : int
         Posterior draws simulated (0 for a predictor given as mean and sd).
     units : dict
@@ -329,7 +336,7 @@ class PredictionResult(TableRecord):
     records: tuple[RecordPrediction, ...] = field(repr=False)
     per_record: tuple[PredictionScore, ...]
     per_group: tuple[PredictionScore, ...]
-    overall: PredictionScore
+    overall: PredictionScore | None
     n_draws: int
     units: dict[str, str]
     method: str
@@ -346,14 +353,17 @@ class PredictionResult(TableRecord):
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready summary (no per-sample arrays)."""
+        scores = {sc.name: sc for sc in self.per_record}
         return {"model": self.model, "source": self.source,
                 "initial_condition": self.initial.to_dict(), "n_draws": self.n_draws,
                 "method": self.method, "units": dict(self.units),
-                "overall": self.overall.to_dict(),
+                "overall": None if self.overall is None else self.overall.to_dict(),
                 "per_group": [s.to_dict() for s in self.per_group],
-                "per_record": [{**s.to_dict(), "group": r.group, "n_failed": r.n_failed,
-                                "outside_input": r.outside_input}
-                               for s, r in zip(self.per_record, self.records, strict=True)],
+                "per_record": [{**(scores[r.name].to_dict() if r.name in scores else
+                                   {"scope": "record", "name": r.name}),
+                                "measured": r.measured, "group": r.group,
+                                "n_failed": r.n_failed, "outside_input": r.outside_input}
+                               for r in self.records],
                 "steady_state_change": self.steady_state_change,
                 "error_spectra": [{"group": band.label, "band_hz": band.to_list(),
                                    "octaves": [row.to_dict() for row in rows]}
@@ -361,9 +371,10 @@ class PredictionResult(TableRecord):
                 "warnings": list(self.warnings), "notes": list(self.notes)}
 
     def to_dataframe(self) -> Any:
-        """One row per score: every record, every group, then overall."""
-        return frame([s.to_dict() for s in (*self.per_record, *self.per_group, self.overall)],
-                     drop=("pit_histogram",))
+        """One row per score: every measured record, every group, then overall."""
+        rows = (*self.per_record, *self.per_group, *(() if self.overall is None
+                                                     else (self.overall,)))
+        return frame([s.to_dict() for s in rows], drop=("pit_histogram",))
 
     def predictions_frame(self) -> Any:
         """Every record's samples (:meth:`RecordPrediction.to_dataframe`), end to end."""
@@ -375,7 +386,8 @@ class PredictionResult(TableRecord):
         y = self.units.get("y", "")
         lines = [f"prediction of {len(self.records)} record(s) by {self.model} ({self.source}; "
                  f"{self.method}); initial state {self.initial.describe()}; output in {y}",
-                 str(self.overall)]
+                 "no measured output: predictions only" if self.overall is None
+                 else str(self.overall)]
         if len(self.per_group) > 1 or len(self.records) > 1:
             lines += [str(s) for s in self.per_group]
         for band, rows in self.spectra:

@@ -64,7 +64,7 @@ def prediction_figure(result: Any, record: str | None = None, *,
     Figure
     """
     rec = _record(result, record)
-    score = result.per_record[[r.name for r in result.records].index(rec.name)]
+    score = next((s for s in result.per_record if s.name == rec.name), None)
     fig = new_figure(fig, 11.0, 7.0)
     grid = fig.add_gridspec(2, 3)
     ax_t = fig.add_subplot(grid[0, :2])
@@ -79,7 +79,8 @@ def prediction_figure(result: Any, record: str | None = None, *,
     lo50, hi50 = rec.band(0.5)
     ax_t.fill_between(t, lo90[k], hi90[k], color="C0", alpha=0.18, lw=0, label="90 % band")
     ax_t.fill_between(t, lo50[k], hi50[k], color="C0", alpha=0.35, lw=0, label="50 % band")
-    ax_t.plot(t, rec.y[k], color="k", lw=0.7, label="measured")
+    if rec.measured:
+        ax_t.plot(t, rec.y[k], color="k", lw=0.7, label="measured")
     ax_t.plot(t, rec.mean[k], color="C0", lw=0.9, label="predicted mean")
     if not rec.scored.all():
         # the samples not scored (warm-up): shaded so that nobody reads the error there
@@ -95,21 +96,29 @@ def prediction_figure(result: Any, record: str | None = None, *,
                       lw=0)
     ax_e.fill_between(t, (lo50 - rec.mean)[k], (hi50 - rec.mean)[k], color="C0", alpha=0.35,
                       lw=0)
-    ax_e.plot(t, err, color="k", lw=0.6)
+    if rec.measured:
+        ax_e.plot(t, err, color="k", lw=0.6)
     ax_e.axhline(0.0, color="0.5", lw=0.5)
-    ax_e.set_ylabel(label("measured - predicted", y_unit))
+    ax_e.set_ylabel(label("measured - predicted" if rec.measured else "band about the mean",
+                          y_unit))
     ax_e.set_xlabel(t_label)
-    ax_l.plot(rec.u[k], rec.y[k], color="k", lw=0.6, label="measured")
+    if rec.measured:
+        ax_l.plot(rec.u[k], rec.y[k], color="k", lw=0.6, label="measured")
     ax_l.plot(rec.u[k], rec.mean[k], color="C0", lw=0.8, label="predicted")
     ax_l.set_xlabel(label("input", u_unit))
     ax_l.set_ylabel(label("output", y_unit))
     ax_l.legend(loc="best", fontsize=8)
-    cov = ", ".join(f"{int(100 * p)} % band {100 * c:.1f} %" for p, c in score.coverage.items())
     text = (f"{result.model} on {rec.name} ({rec.group}); initial state: "
-            f"{result.initial.kind}\nRMSE {fmt(score.rmse)} {unit(y_unit)} "
-            f"({fmt(score.nrmse_percent, '.3g')} %), fit {fmt(score.fit_percent, '.2f')} %, "
-            f"{cov}")
-    calibrated = score.calibrated
+            f"{result.initial.kind}\n")
+    if score is None:  # an input alone: nothing measured to score against
+        text += "no measured output: the predictive mean and its 50 / 90 % bands"
+    else:
+        cov = ", ".join(f"{int(100 * p)} % band {100 * c:.1f} %"
+                        for p, c in score.coverage.items())
+        text += (f"RMSE {fmt(score.rmse)} {unit(y_unit)} "
+                 f"({fmt(score.nrmse_percent, '.3g')} %), fit "
+                 f"{fmt(score.fit_percent, '.2f')} %, {cov}")
+    calibrated = score is None or score.calibrated
     if not calibrated:
         text += " - bands NOT calibrated here"
     fig.suptitle(wrap_title(text, fig), fontsize=10,
