@@ -287,6 +287,7 @@ class ComparisonResult(TableRecord):
                       "band_hz": None if t.spec.band is None else t.spec.band.to_list(),
                       "converged": t.converged,
                       "runtime_s": round(t.runtime_s, 2), "n_refits": t.n_refits,
+                      "n_moment_matched": t.n_moment_matched,
                       "failed_simulations": t.failed_simulations,
                       "move_acceptance": {k: round(v, 4) for k, v in
                                           t.move_acceptance.items()},

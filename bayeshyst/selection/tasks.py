@@ -46,10 +46,12 @@ from scipy.special import logsumexp
 from bayeshyst.data.dataset import Dataset
 from bayeshyst.data.groups import Band, group_key, group_label
 from bayeshyst.diagnostics import PARETO_K_BAD, loo, save_netcdf, to_inference_data, waic
+from bayeshyst.diagnostics.moment_match import MomentMatch, moment_match_loo
 from bayeshyst.errors import DataError, ModelError, ParameterError, SimulationError
 from bayeshyst.gp import gp_from_spec
 from bayeshyst.inference.error_spectrum import SpectrumBand, band_spectra
 from bayeshyst.inference.fit import TrackingError, errors_by_frequency, tracking_errors
+from bayeshyst.inference.held_out import held_out_log_predictive
 from bayeshyst.inference.linear import LinearStructure
 from bayeshyst.inference.optimize import MAPResult, conditional_start, find_map
 from bayeshyst.inference.posterior import Posterior, cycle_units
@@ -221,6 +223,9 @@ class TaskResult:
         Free parameters (noise and offset included); GP: hyperparameters.
     converged : bool
     n_refits : int
+        Cycles refitted exactly (their Pareto k stayed above 0.7 after moment matching).
+    n_moment_matched : int
+        Cycles whose PSIS-LOO was settled by moment matching instead of a refit.
     overall : TrackingError or None
         Of the posterior-mean prediction of the scored records.
     per_frequency : tuple of TrackingError
@@ -254,6 +259,7 @@ class TaskResult:
     n_params: int = 0
     converged: bool = False
     n_refits: int = 0
+    n_moment_matched: int = 0
     overall: TrackingError | None = None
     per_frequency: tuple[TrackingError, ...] = ()
     warnings: tuple[str, ...] = ()
@@ -390,17 +396,87 @@ def _held_out_start(held: Posterior, start: MAPResult, seed: int) -> MAPResult:
                     global_search=False)
 
 
+#: Full-posterior draws the moment matching of a cycle moves (thinned over every chain)
+MOMENT_MATCH_DRAWS = 1000
+#: Points per batch of density evaluations (bounds the simulation's memory)
+_MM_BATCH = 128
+
+
+def _batched(fn: Any) -> Any:
+    """``fn`` over (S, d) points, evaluated ``_MM_BATCH`` at a time."""
+    def run(z: np.ndarray) -> np.ndarray:
+        return np.concatenate([np.asarray(fn(z[a:a + _MM_BATCH]), dtype=float)
+                               for a in range(0, z.shape[0], _MM_BATCH)])
+    return run
+
+
+def _moment_matched(post: Posterior, res: Any, bad: list[int], seed: int
+                    ) -> dict[int, MomentMatch]:
+    """Moment-matched LOO of each cycle in ``bad`` from the full posterior's draws.
+
+    The target of cycle ``i`` is the posterior without it (:meth:`Posterior.holding_out`,
+    so an AR(1) likelihood keeps its conditioning), its predictive the cycle's
+    log-likelihood, as in an exact refit.
+    """
+    z = res.draws(MOMENT_MATCH_DRAWS, seed=seed)
+    z = z[np.all(np.isfinite(z), axis=1)]
+    if z.shape[0] < 20:
+        return {}
+    log_full = _batched(post.log_prob_batch)
+    lf0 = log_full(z)  # shared by every cycle: the proposal's density at the draws
+    out = {}
+    for i in bad:
+        held = post.holding_out([i])
+        out[i] = moment_match_loo(
+            z, log_full, _batched(held.log_prob_batch),
+            _batched(lambda q, i=i: post.log_likelihood_units(q)[:, i]), log_full_z=lf0)
+    return out
+
+
+def _refit_log_predictive(post: Posterior, res: Any, z: np.ndarray, i: int) -> float:
+    """``log p(y_i | y_-i)`` from draws ``z`` of the posterior without cycle ``i``.
+
+    With a linear block it is integrated out exactly for each draw of the other
+    coordinates (:func:`~bayeshyst.inference.held_out.held_out_log_predictive`, as
+    PSIS-LOO does). The plain average of ``p(y_i | theta)`` over the refit's draws is
+    dominated by the few draws nearest the left-out cycle: on the virtual actuator's
+    worst 200 Hz cycle under PI (offset 4 sd away without it) it read -681.6, -679.3
+    and -676.4 nat with 100, 1 000 and 10 000 draws, against -659.2 integrated.
+    """
+    structure = LinearStructure.of(post, reference=res.start.z)
+    if structure is not None:
+        ll = held_out_log_predictive(structure, z)[:, i]
+    else:
+        ll = post.log_likelihood_units(z)[:, i]
+    return float(_logmeanexp(ll[:, None])[0])
+
+
 def _refit_bad_cycles(post: Posterior, res: Any, pointwise: np.ndarray, k: np.ndarray,
                       settings: CompareSettings, seed: int, notes: list[str]
-                      ) -> tuple[np.ndarray, np.ndarray, int, float]:
-    """Exact leave-one-cycle-out for the cycles whose PSIS-LOO is unreliable.
+                      ) -> tuple[np.ndarray, np.ndarray, int, float, int]:
+    """Leave-one-cycle-out for the cycles whose PSIS-LOO is unreliable (Pareto k > 0.7).
 
-    Returns the pointwise elpd and Pareto k (NaN where refitted), the number of
-    refits and the change of ``p_loo`` (``lppd - elpd`` moves by the elpd change).
+    Each such cycle is first moment-matched
+    (:func:`~bayeshyst.diagnostics.moment_match.moment_match_loo`: the full posterior's
+    draws moved by affine maps towards the posterior without it, a few batches of
+    simulations); only the cycles whose k stays above 0.7 are refitted exactly, worst
+    first, up to ``settings.max_refits``. Returns the pointwise elpd, the Pareto k
+    (the moment-matched k; NaN where refitted), the number of refits, the change of
+    ``p_loo`` (``lppd - elpd`` moves by the elpd change) and the number of cycles the
+    moment matching settled.
     """
     bad = [int(i) for i in np.argsort(-k) if k[i] > PARETO_K_BAD]
-    todo = bad[:settings.max_refits]
     pw, kk, dp = pointwise.copy(), k.copy(), 0.0
+    matched = _moment_matched(post, res, bad, seed) if bad else {}
+    settled = [i for i in bad if i in matched and matched[i].reliable]
+    for i in settled:
+        dp += pw[i] - matched[i].elpd
+        pw[i], kk[i] = matched[i].elpd, matched[i].pareto_k
+    for i in bad:
+        if i in matched and i not in settled:
+            kk[i] = min(kk[i], matched[i].pareto_k)
+    still = [i for i in bad if i not in settled]
+    todo = still[:settings.max_refits]
     n_draws = max(400, settings.n_lofo_draws)
     for j, i in enumerate(todo):
         held = post.holding_out([i])
@@ -416,25 +492,30 @@ def _refit_bad_cycles(post: Posterior, res: Any, pointwise: np.ndarray, k: np.nd
         # the run
         sampler = settings.sampler.replace(seed=seed + 1 + j, checkpoint=None, progress=False)
         r = sample_posterior(held, sampler, start=_held_out_start(held, res.start, sampler.seed))
-        ll = post.log_likelihood_units(r.draws(n_draws, seed=seed))[:, i]
-        new = float(_logmeanexp(ll[:, None])[0])
+        new = _refit_log_predictive(post, res, r.draws(n_draws, seed=seed), i)
         dp += pw[i] - new
         pw[i], kk[i] = new, math.nan
         if not r.converged:
             notes.append(f"the exact refit without cycle {i} did not converge")
-    if len(bad) > len(todo):
-        notes.append(f"{len(bad) - len(todo)} more cycles have Pareto k > {PARETO_K_BAD} "
-                     f"and were not refitted (max_refits={settings.max_refits}): their "
-                     f"PSIS-LOO values are unreliable")
-    return pw, kk, len(todo), dp
+    if settled:
+        notes.append(f"{len(settled)} cycles with Pareto k > {PARETO_K_BAD} were moment-"
+                     f"matched (importance-weighted moment matching, k now "
+                     f"{max(matched[i].pareto_k for i in settled):.2f} or less)")
+    if len(still) > len(todo):
+        notes.append(f"{len(still) - len(todo)} more cycles have Pareto k > {PARETO_K_BAD} "
+                     f"after moment matching and were not refitted "
+                     f"(max_refits={settings.max_refits}): their LOO values are unreliable")
+    return pw, kk, len(todo), dp, len(settled)
 
 
 @dataclass(frozen=True)
 class LooScores:
     """Leave-one-cycle-out scores of one sampled posterior (see :func:`loo_scores`).
 
-    ``pointwise`` (n_units,) is the PSIS-LOO elpd of each cycle, exact for the refitted
-    ones (their ``pareto_k`` is NaN); ``p_loo`` includes the refits' correction.
+    ``pointwise`` (n_units,) is the PSIS-LOO elpd of each cycle, moment-matched where
+    plain PSIS had Pareto k > 0.7 (``pareto_k`` then the matched k; ``n_moment_matched``
+    of them), exact for the refitted ones (their ``pareto_k`` is NaN); ``p_loo``
+    includes both corrections.
     """
 
     pointwise: np.ndarray
@@ -443,6 +524,7 @@ class LooScores:
     p_loo: float
     idata: Any
     waic: Any
+    n_moment_matched: int = 0
 
 
 def loo_scores(post: Posterior, res: Any, settings: CompareSettings, seed: int,
@@ -455,11 +537,11 @@ def loo_scores(post: Posterior, res: Any, settings: CompareSettings, seed: int,
                               n_predictive=min(200, settings.n_lofo_draws), seed=seed)
     lo, wa = loo(idata), waic(idata)
     notes += [w for w in lo.warnings if "Pareto k >" not in w and w not in notes]
-    pw, k, n_refits, dp = _refit_bad_cycles(post, res, lo.pointwise, lo.pareto_k, settings,
-                                            seed, notes)
+    pw, k, n_refits, dp, n_mm = _refit_bad_cycles(post, res, lo.pointwise, lo.pareto_k,
+                                                  settings, seed, notes)
     if n_refits:
         notes.append(f"{n_refits} cycles with Pareto k > {PARETO_K_BAD} were refitted exactly")
-    return LooScores(pw, k, n_refits, lo.p + dp, idata, wa)
+    return LooScores(pw, k, n_refits, lo.p + dp, idata, wa, n_mm)
 
 
 def _run_parametric(data: Dataset, spec: TaskSpec, settings: CompareSettings, seed: int,
@@ -497,7 +579,8 @@ def _run_parametric(data: Dataset, spec: TaskSpec, settings: CompareSettings, se
         path = str(save_netcdf(idata, out_dir / "posteriors" / f"{spec.key}.nc"))
     return TaskResult(spec, pw, freqs, labels, p_loo=scores.p_loo, pareto_k=k,
                       waic_pointwise=wa.pointwise, bic=bic, n_params=post.ndim,
-                      converged=res.converged, n_refits=n_refits, overall=overall,
+                      converged=res.converged, n_refits=n_refits,
+                      n_moment_matched=scores.n_moment_matched, overall=overall,
                       per_frequency=tuple(per), warnings=tuple(notes),
                       runtime_s=time.perf_counter() - t0, failed_simulations=failed,
                       move_acceptance=dict(res.move_acceptance), netcdf=path,
