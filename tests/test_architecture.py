@@ -30,7 +30,7 @@ LAYERS: tuple[tuple[str, ...], ...] = (
     ("data",),
     ("params",),
     ("models", "likelihoods"),
-    ("discrepancy",),
+    ("discrepancy", "workers"),
     ("inference",),
     ("diagnostics", "gp"),
     ("selection", "inverse"),

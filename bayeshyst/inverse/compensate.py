@@ -30,8 +30,7 @@ from __future__ import annotations
 
 import logging
 import math
-from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -48,22 +47,20 @@ from bayeshyst.inference.residual import (
     cycle_samples,
 )
 from bayeshyst.inference.settings import SamplerSettings
-from bayeshyst.inverse.closed_form import (
-    NOMINAL_INVERSES,
-    check_closed_form,
-    closed_form_feedforward,
-)
+from bayeshyst.inverse.closed_form import NOMINAL_INVERSES, check_closed_form
 from bayeshyst.inverse.feedforward import (
     BAND,
     DISCREPANCY_TRANSFER,
     Draws,
-    Feedforward,
     PredictionError,
     check_transfer_probability,
-    design_feedforward,
-    predict_outputs,
     predict_record,
-    tracking_percent,
+)
+from bayeshyst.inverse.per_reference import (
+    CompensationRow,
+    PosteriorPlant,
+    VirtualPlant,
+    evaluate_reference,
 )
 from bayeshyst.inverse.references import (
     U_MARGIN,
@@ -75,115 +72,13 @@ from bayeshyst.inverse.references import (
 from bayeshyst.models import get as get_model
 from bayeshyst.models.base import HysteresisModel
 from bayeshyst.tables import TableRecord, frame
+from bayeshyst.workers import process_pool, resolve_jobs
 
 __all__ = ["CompensationResult", "CompensationRow", "compensate"]
 
 _log = logging.getLogger(__name__)
 
 # ------------------------------------------------------------------------------ results
-
-
-@dataclass(frozen=True)
-class CompensationRow(TableRecord):
-    """Tracking errors at one frequency (all in % of the reference's stroke).
-
-    Attributes
-    ----------
-    frequency_hz : float or None
-    reference : str
-    uncompensated_nrmse_percent, uncompensated_max_percent : float
-        The scaled input (a straight line fitted to the measured loop, inverted).
-    nominal_nrmse_percent, nominal_max_percent : float
-        The exact inverse of the MAP.
-    posterior_nrmse_percent, posterior_max_percent : float
-        The posterior-mean inverse.
-    robust_nrmse_percent, robust_max_percent : float
-        The robust inverse (smallest ``robust_quantile`` of ``|error|`` over draws).
-    predicted_band_percent : (float, float)
-        Central 90 % interval of the posterior command's tracking NRMSE predicted from
-        held-out draws.
-    nominal_predicted_band_percent : (float, float)
-        The same for the nominal command.
-    realised_inside_band : bool
-        Whether the plant's NRMSE under the posterior command lies in that interval.
-    output_coverage : float
-        Fraction of scored samples where the plant's output lies in the predicted 90 %
-        pointwise output band.
-    plants_inside_band : float or None
-        With posterior-draw plants: the fraction of held-out plants whose NRMSE lies in
-        the band (≈ 0.9 when the uncertainty is propagated correctly).
-    mean_over_plants : dict or None
-        With posterior-draw plants: the mean NRMSE over plants of each command.
-    n_saturated : int
-        Samples where a designed command hit the command limits.
-    model_error_percent : float
-        Largest deviation of the model's own (posterior-mean) output from the reference
-        under the posterior command: how exactly the inverse was computed.
-    parameter_band_percent : (float, float)
-        The 90 % NRMSE interval of the posterior command from the parameters alone
-        (noise-free outputs, the discrepancy left out).
-    model_band_percent : (float, float)
-        The same from parameters and discrepancy (noise-free outputs); with
-        ``parameter_band_percent`` and ``predicted_band_percent`` (parameters,
-        discrepancy and the resampled residual) the tracking band's budget.
-    residual_rms_percent : float
-        RMS of the training residual resampled onto the command (% of stroke): what the
-        fit leaves unexplained (sensor noise and unmodelled structure).
-    curves : dict
-        ``t``, ``y_d``, ``scored``, the commands ``u_<label>``, the plant outputs
-        ``y_<label>`` (the first plant), the tracking NRMSE on every plant
-        ``nrmse_<label>`` and the 90 % band ``band_lo``/``band_hi`` of the posterior
-        command, for figures and paired comparisons (not in :meth:`to_dict`).
-    """
-
-    frequency_hz: float | None
-    reference: str
-    uncompensated_nrmse_percent: float
-    uncompensated_max_percent: float
-    nominal_nrmse_percent: float
-    nominal_max_percent: float
-    posterior_nrmse_percent: float
-    posterior_max_percent: float
-    robust_nrmse_percent: float
-    robust_max_percent: float
-    predicted_band_percent: tuple[float, float]
-    nominal_predicted_band_percent: tuple[float, float]
-    realised_inside_band: bool
-    output_coverage: float
-    plants_inside_band: float | None
-    mean_over_plants: dict[str, float] | None
-    n_saturated: int
-    model_error_percent: float
-    parameter_band_percent: tuple[float, float] = (0.0, 0.0)
-    model_band_percent: tuple[float, float] = (0.0, 0.0)
-    residual_rms_percent: float = 0.0
-    curves: dict[str, np.ndarray] = field(default_factory=dict, repr=False)
-
-    def to_dataframe(self) -> Any:
-        """One row: :meth:`to_dict` (bands as ``_lo``/``_hi`` columns)."""
-        return frame([self.to_dict()], drop=("mean_over_plants",))
-
-    def to_dict(self) -> dict[str, Any]:
-        """JSON-ready fields (no curves)."""
-        out = {k: getattr(self, k) for k in self.__dataclass_fields__ if k != "curves"}
-        out["predicted_band_percent"] = list(self.predicted_band_percent)
-        out["nominal_predicted_band_percent"] = list(self.nominal_predicted_band_percent)
-        out["model_band_percent"] = list(self.model_band_percent)
-        out["parameter_band_percent"] = list(self.parameter_band_percent)
-        return out
-
-    @property
-    def label(self) -> str:
-        """``"10 Hz"`` or the reference name."""
-        return self.reference if self.frequency_hz is None else f"{self.frequency_hz:g} Hz"
-
-    def __str__(self) -> str:
-        lo, hi = self.predicted_band_percent
-        inside = "inside" if self.realised_inside_band else "OUTSIDE"
-        return (f"{self.label:>10}  none {self.uncompensated_nrmse_percent:7.3f}  nominal "
-                f"{self.nominal_nrmse_percent:7.3f}  posterior {self.posterior_nrmse_percent:7.3f}"
-                f"  robust {self.robust_nrmse_percent:7.3f}  band [{lo:.3f}, {hi:.3f}] "
-                f"{inside}")
 
 
 @dataclass(frozen=True)
@@ -251,12 +146,6 @@ def _validation_residual(post: Any, z: np.ndarray, validation: Dataset) -> Resid
     return ResidualBlocks.from_series(series, freqs, cycles)
 
 
-def _interval(values: np.ndarray) -> tuple[float, float]:
-    """Central :data:`BAND` interval of ``values``."""
-    lo, hi = np.quantile(values, [(1 - BAND) / 2, (1 + BAND) / 2])
-    return float(lo), float(hi)
-
-
 def _split_draws(fit: FitResult, sizes: tuple[int, ...], seed: int) -> list[Draws]:
     """Disjoint sets of posterior draws (design, prediction, plants) as model draws."""
     post = fit.posterior
@@ -270,16 +159,6 @@ def _split_draws(fit: FitResult, sizes: tuple[int, ...], seed: int) -> list[Draw
         out.append(Draws.of(post, z[start:start + size]))
         start += size
     return out
-
-
-def _scaled_input(records: Dataset) -> tuple[float, float]:
-    """``(a, b)`` of the least-squares line ``y = a + b u`` through the measured loops."""
-    u = np.concatenate([r.u[r.scored] for r in records])
-    y = np.concatenate([r.y[r.scored] for r in records])
-    b, a = np.polyfit(u, y, 1)
-    if not b != 0:
-        raise DataError(f"{records.name}: output does not change with the input")
-    return float(a), float(b)
 
 
 def _trend_statements(rows: list[CompensationRow], model: str,
@@ -351,6 +230,7 @@ def compensate(
     validation: Dataset | Record | None = None,
     nominal_inverse: str = "numerical",
     discrepancy_transfer: float = DISCREPANCY_TRANSFER,
+    n_jobs: int | None = None,
 ) -> CompensationResult:
     """Design feedforward from the posterior of ``model`` and evaluate it per frequency.
 
@@ -414,6 +294,12 @@ def compensate(
         (:class:`~bayeshyst.inverse.feedforward.PredictionError`). 1 trusts it
         everywhere -- right only when the commands run the identification data's
         paths. Ignored without a discrepancy and with ``validation`` (which measures it).
+    n_jobs : int, optional
+        Worker processes the references are evaluated in (:mod:`bayeshyst.workers`);
+        default one per core, 1 evaluates them one after the other in this process. The
+        result does not depend on it: every reference draws from its own random
+        streams, and workers and this process compute with the same (serial) kernels
+        and single-threaded BLAS.
 
     Returns
     -------
@@ -475,29 +361,31 @@ def compensate(
     if virtual:
         plant_text = (f"virtual actuator ({', '.join(plant.effects)}), the simulator that "
                       "generated the data, measured with its sensor noise")
-        def run_plant(t: np.ndarray, u: np.ndarray, f: float | None,
-                      rng: np.random.Generator) -> np.ndarray:
-            return plant.simulate(t, u, rng=rng)[None, :]
+        run_plant: VirtualPlant | PosteriorPlant = VirtualPlant(plant)
     else:
         plants = rest[0]
         plant_text = (f"{plants.size} posterior draws of {model.name} held out from design "
                       "and prediction, each with a resampled residual (no ground truth: "
                       "this measures how the model's uncertainty propagates, not how well "
                       "it fits the actuator)")
-        def run_plant(t: np.ndarray, u: np.ndarray, f: float | None,
-                      rng: np.random.Generator) -> np.ndarray:
-            drawn, resid = errors.apply(plants, t.size, f, rng)
-            return predict_outputs(model, u, t, drawn, f) + resid
+        run_plant = PosteriorPlant(model, plants, errors)
     u_limits = command_limits(data, u_margin)
     refs = design_references(data, reference, cycles=cycles, warmup_cycles=warmup_cycles)
-    rows = []
-    for k, (ref, group) in enumerate(refs):
-        rows.append(_evaluate(model, ref, group, nominal, design, predict, run_plant,
-                              u_limits, robust_quantile, virtual, errors, (seed, k),
-                              nominal_inverse))
+    tasks = [(model, ref, group, nominal, design, predict, run_plant, u_limits,
+              robust_quantile, virtual, errors, (seed, k), nominal_inverse)
+             for k, (ref, group) in enumerate(refs)]
+    n_workers = resolve_jobs(n_jobs, len(tasks))
+    if n_workers == 1:
+        rows = [evaluate_reference(*task) for task in tasks]
+    else:
+        # the references are independent (each draws from its own streams): one task
+        # each, the rows back in reference order
+        with process_pool(n_workers) as pool:
+            rows = list(pool.map(evaluate_reference, *zip(*tasks, strict=True)))
+    for row in rows:
         _log.info("%s: realised tracking NRMSE %.3g %% (posterior command), band "
-                  "[%.3g, %.3g] %%", rows[-1].label, rows[-1].posterior_nrmse_percent,
-                  *rows[-1].predicted_band_percent)
+                  "[%.3g, %.3g] %%", row.label, row.posterior_nrmse_percent,
+                  *row.predicted_band_percent)
     statements = _trend_statements(rows, model.name, model.rate_dependent, errors)
     settings = {"reference": reference.kind if isinstance(reference, Reference) else reference,
                 "cycles": cycles, "warmup_cycles": warmup_cycles,
@@ -515,89 +403,3 @@ def compensate(
                               tuple(rows), tuple(statements), bool(fit.converged), settings)
 
 
-def _evaluate(model: HysteresisModel, ref: Reference, group: Dataset, nominal: Draws,
-              design: Draws, predict: Draws, run_plant: Any, u_limits: tuple[float, float],
-              q: float, virtual: bool, errors: PredictionError,
-              key: tuple[int, int], nominal_inverse: str = "numerical") -> CompensationRow:
-    t, y_d, mask, stroke = ref.t, ref.y_d, ref.scored, ref.stroke
-    a, b = _scaled_input(group)
-    u_scaled = (y_d - a) / b
-    f = ref.frequency_hz
-    # one residual series per prediction draw, shared by the four commands (and one
-    # plant noise stream, below), so their errors differ by the commands alone
-    # (with a discrepancy, a share of the prediction draws drops it: PredictionError)
-    predict, resid = errors.apply(predict, t.size, f, np.random.default_rng([*key, 0]))
-    commands: dict[str, Feedforward] = {
-        "uncompensated": Feedforward("uncompensated", u_scaled,
-                                     predict_outputs(model, u_scaled, t, predict, f),
-                                     residual=resid),
-    }
-    common: Mapping[str, Any] = {"u_limits": u_limits, "periodic": ref.periodic,
-                                 "scored": mask, "frequency_hz": f, "residual": resid}
-    if nominal_inverse == "closed_form":
-        commands["nominal"] = closed_form_feedforward(
-            model, y_d, t, nominal, predict, label="nominal", u_limits=u_limits,
-            scored=mask, frequency_hz=f, residual=resid)
-    else:
-        commands["nominal"] = design_feedforward(model, y_d, t, nominal, predict,
-                                                 label="nominal", **common)
-    commands["posterior"] = design_feedforward(model, y_d, t, design, predict,
-                                               label="posterior", **common)
-    # the robust command hedges over whether the discrepancy holds along it, as its band
-    commands["robust"] = design_feedforward(model, y_d, t, errors.hedged(design), predict,
-                                            label="robust", objective="quantile", quantile=q,
-                                            **common)
-    curves: dict[str, np.ndarray] = {"t": t, "y_d": y_d, "scored": mask}
-    realised: dict[str, tuple[float, float]] = {}
-    over_plants: dict[str, float] = {}
-    for label, ff in commands.items():
-        y_plant = run_plant(t, ff.u, f, np.random.default_rng([*key, 1]))
-        nrmse, mx = tracking_percent(y_plant, y_d, stroke, mask)
-        realised[label] = (float(nrmse[0]), float(mx[0]))
-        over_plants[label] = float(np.mean(nrmse))
-        curves[f"nrmse_{label}"] = nrmse
-        curves[f"u_{label}"] = ff.u
-        curves[f"y_{label}"] = y_plant[0]
-        if label == "posterior":
-            posterior_plants = nrmse
-    post_ff = commands["posterior"]
-    band_lo, band_hi = post_ff.band()
-    curves["band_lo"], curves["band_hi"] = band_lo, band_hi
-    lo, hi = np.quantile(post_ff.error_distribution(y_d, stroke, mask),
-                         [(1 - BAND) / 2, (1 + BAND) / 2])
-    nlo, nhi = np.quantile(commands["nominal"].error_distribution(y_d, stroke, mask),
-                           [(1 - BAND) / 2, (1 + BAND) / 2])
-    alone = (post_ff.predicted if predict.delta is None else
-             predict_outputs(model, post_ff.u, t, Draws(predict.theta, predict.offset)))
-    ok = np.all(np.isfinite(alone), axis=1)
-    param_band = _interval(tracking_percent(alone[ok], y_d, stroke, mask)[0])
-    model_band = _interval(post_ff.error_distribution(y_d, stroke, mask, residual=False))
-    y_post = curves["y_posterior"]
-    inside = (y_post >= band_lo) & (y_post <= band_hi)
-    posterior_plants = curves["nrmse_posterior"]
-    return CompensationRow(
-        frequency_hz=ref.frequency_hz, reference=ref.kind,
-        uncompensated_nrmse_percent=realised["uncompensated"][0],
-        uncompensated_max_percent=realised["uncompensated"][1],
-        nominal_nrmse_percent=realised["nominal"][0],
-        nominal_max_percent=realised["nominal"][1],
-        posterior_nrmse_percent=realised["posterior"][0],
-        posterior_max_percent=realised["posterior"][1],
-        robust_nrmse_percent=realised["robust"][0],
-        robust_max_percent=realised["robust"][1],
-        predicted_band_percent=(float(lo), float(hi)),
-        nominal_predicted_band_percent=(float(nlo), float(nhi)),
-        realised_inside_band=bool(lo <= realised["posterior"][0] <= hi),
-        output_coverage=float(np.mean(inside[mask])),
-        plants_inside_band=(None if virtual else
-                            float(np.mean((posterior_plants >= lo) & (posterior_plants <= hi)))),
-        mean_over_plants=None if virtual else over_plants,
-        n_saturated=int(sum(ff.inversion.n_saturated for ff in commands.values()
-                            if ff.inversion is not None)),
-        # the inverter's own forward check: max |posterior-mean output - y_d| when scored
-        model_error_percent=float(100.0 * post_ff.inversion.max_error / stroke),
-        parameter_band_percent=param_band,
-        model_band_percent=model_band,
-        residual_rms_percent=float(100.0 * np.sqrt(np.mean(resid[:, mask] ** 2)) / stroke),
-        curves=curves,
-    )

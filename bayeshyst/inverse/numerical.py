@@ -45,10 +45,11 @@ import numpy as np
 
 from bayeshyst.errors import ParameterError, SimulationError
 from bayeshyst.inverse.lti import deconvolve
-from bayeshyst.inverse.rootfind import solve_increasing
+from bayeshyst.inverse.rootfind import solve_increasing, solve_scalar
 from bayeshyst.models.base import HysteresisModel, check_covariates
 from bayeshyst.models.blocks import EffectBlock
 from bayeshyst.models.compose import Composite, block_namespaces, leading_part
+from bayeshyst.models.onestep import StepChain
 from bayeshyst.params import ParamSpace
 
 __all__ = ["OBJECTIVES", "Inversion", "Member", "invert", "invert_pooled"]
@@ -141,27 +142,26 @@ class Member:
 # ------------------------------------------------------------------------------ stages
 
 
-def _at(covariates: dict[str, np.ndarray] | None, k: int) -> dict[str, np.ndarray] | None:
-    """The measured columns at sample ``k`` (arrays of one sample), or None."""
-    return None if covariates is None else {c: v[k:k + 1] for c, v in covariates.items()}
-
-
 class _FirstStage:
-    """The base model (with the blocks right after it) driven by the shared command."""
+    """The base model (with the blocks right after it) driven by the shared command.
+
+    Evaluated through a :class:`~bayeshyst.models.onestep.StepChain`, prepared once:
+    the per-sample path builds no parameter dictionary and no buffer.
+    """
 
     def __init__(self, model: HysteresisModel, theta: Mapping[str, np.ndarray],
                  covariates: dict[str, np.ndarray] | None = None) -> None:
         self.model = model
         self.theta = theta
         self.covariates = covariates
+        width = max((int(np.shape(v)[0]) for v in theta.values()), default=1)
+        self.chain = StepChain.of_model(model, theta, width, covariates)
 
-    def rest(self, x: float) -> np.ndarray:
-        return self.model._initial_state_with(self.theta, float(x), _at(self.covariates, 0))
+    def rest(self, x: float) -> list[np.ndarray]:
+        return self.chain.rest(x)
 
-    def step(self, x: float, t_k: np.ndarray, states: np.ndarray, k: int):
-        y, s, failed = self.model._run_with(np.array([float(x)]), t_k, self.theta, states,
-                                            _at(self.covariates, k))
-        return y[:, 0], s, failed
+    def step(self, x: float, t_k: np.ndarray, states: list[np.ndarray], k: int):
+        return self.chain.step(x, t_k, states, k)
 
 
 class _Part(NamedTuple):
@@ -177,19 +177,30 @@ class _Part(NamedTuple):
 
 
 class _PooledFirstStage:
-    """The first stages of several models driven by the one shared command, draws pooled."""
+    """The first stages of several models driven by the one shared command, draws pooled.
+
+    :meth:`step` returns arrays that the next call may overwrite (the chains' buffers);
+    :meth:`advance` copies them, to commit a sample.
+    """
 
     def __init__(self, stages: list[_FirstStage]) -> None:
         self.stages = stages
         self.name = " | ".join(st.model.name for st in stages)
 
-    def rest(self, x: float) -> list[np.ndarray]:
+    def rest(self, x: float) -> list[list[np.ndarray]]:
         return [st.rest(x) for st in self.stages]
 
-    def step(self, x: float, t_k: np.ndarray, states: list[np.ndarray], k: int):
+    def step(self, x: float, t_k: np.ndarray, states: list[list[np.ndarray]], k: int):
+        if len(self.stages) == 1:
+            y, s, failed = self.stages[0].step(x, t_k, states[0], k)
+            return y, [s], failed
         out = [st.step(x, t_k, s, k) for st, s in zip(self.stages, states, strict=True)]
         return (np.concatenate([o[0] for o in out]), [o[1] for o in out],
                 np.concatenate([o[2] for o in out]))
+
+    def advance(self, x: float, t_k: np.ndarray, states: list[list[np.ndarray]], k: int):
+        y, new, failed = self.step(x, t_k, states, k)
+        return y.copy(), [[a.copy() for a in s] for s in new], failed.copy()
 
 
 class _BlockStage:
@@ -200,52 +211,42 @@ class _BlockStage:
         self.blocks = blocks
         self.thetas = thetas
         self.covariates = covariates
+        self._chain: StepChain | None = None
 
     @property
     def label(self) -> str:
         return "+".join(b.name for b in self.blocks) + ": per sample"
 
-    def rest(self, x: np.ndarray) -> list[np.ndarray]:
-        states, w = [], np.ascontiguousarray(x, dtype=float)
-        first = _at(self.covariates, 0)
-        for i, (block, th) in enumerate(zip(self.blocks, self.thetas, strict=True)):
-            s = block._initial_state(th, w, math.nan)
-            states.append(s)
-            if i + 1 < len(self.blocks):
-                out, _, _ = block._apply_with(np.ascontiguousarray(w[:, None]), np.zeros(1),
-                                              th, s, first)
-                w = np.ascontiguousarray(out[:, 0])
-        return states
-
-    def step(self, x: np.ndarray, t_k: np.ndarray, states: list[np.ndarray], k: int):
-        w = np.ascontiguousarray(np.asarray(x, dtype=float)[:, None])
-        new, failed = [], np.zeros(w.shape[0], dtype=bool)
-        cov_k = _at(self.covariates, k)
-        for block, th, s in zip(self.blocks, self.thetas, states, strict=True):
-            w, s2, f = block._apply_with(w, t_k, th, s, cov_k)
-            new.append(s2)
-            failed |= f
-        return w[:, 0], new, failed
+    def _chain_for(self, width: int) -> StepChain:
+        # built on first use, when the number of draws is known
+        if self._chain is None or self._chain.width != width:
+            self._chain = StepChain.of_blocks(self.blocks, self.thetas, width,
+                                              self.covariates)
+        return self._chain
 
     def invert(self, v: np.ndarray, t: np.ndarray, ftol: float, xtol: float) -> np.ndarray:
         """Per-draw inputs ``(S, N)`` making this run of blocks output ``v`` (S, N)."""
         n = v.shape[1]
+        chain = self._chain_for(v.shape[0])
         out = np.empty_like(v)
         scale = np.maximum(np.ptp(v, axis=1), 1e-12 * np.maximum(np.abs(v).max(axis=1), 1.0))
+        first = 1e-3 * scale
+        tol = xtol * scale
         x = v[:, 0].copy()
         states = None
         for k in range(n):
             t_k = t[k:k + 1]
+            v_k = v[:, k]
             if states is None:
-                def fun(z, k=k, t_k=t_k):
-                    return self.step(z, t_k, self.rest(z), k)[0] - v[:, k]
+                def fun(z, k=k, t_k=t_k, v_k=v_k):
+                    return chain.step(z, t_k, chain.rest(z), k)[0] - v_k
             else:
-                def fun(z, k=k, t_k=t_k, states=states):
-                    return self.step(z, t_k, states, k)[0] - v[:, k]
-            res = solve_increasing(fun, x, 1e-3 * scale, ftol=ftol, xtol=xtol * scale)
+                def fun(z, k=k, t_k=t_k, v_k=v_k, states=states):
+                    return chain.step(z, t_k, states, k)[0] - v_k
+            res = solve_increasing(fun, x, first, ftol=ftol, xtol=tol)
             x = res.x
-            base = self.rest(x) if states is None else states
-            _, states, failed = self.step(x, t_k, base, k)
+            base = chain.rest(x) if states is None else states
+            _, states, failed = chain.advance(x, t_k, base, k)
             if failed.any():
                 raise SimulationError(f"{self.label}: draw {int(np.flatnonzero(failed)[0])} "
                                       f"failed at sample {k}")
@@ -296,25 +297,30 @@ class _Sample:
 
     def __init__(self, stage: _PooledFirstStage, v_k: np.ndarray, t_k: np.ndarray, states: Any,
                  active: np.ndarray, k: int) -> None:
-        self.stage, self.v_k, self.t_k, self.states, self.active = stage, v_k, t_k, states, active
-        self.k = k
+        self.stage, self.t_k, self.states, self.k = stage, t_k, states, k
+        self.active = active
+        # the draws in play do not change while the sample is solved
+        self.all_active = bool(active.all())
+        self.v_act = v_k if self.all_active else v_k[active]
 
     def residuals(self, z: float) -> np.ndarray:
         s0 = self.stage.rest(z) if self.states is None else self.states
         y, _, failed = self.stage.step(z, self.t_k, s0, self.k)
-        e = (np.where(failed, np.nan, y) - self.v_k)[self.active]
+        if failed.any():
+            y = np.where(failed, np.nan, y)
+        e = (y if self.all_active else y[self.active]) - self.v_act
         # a draw that fails at this candidate is dropped for good once the sample is
         # committed; meanwhile the objective over the others stays defined
-        return e[np.isfinite(e)]
+        fin = np.isfinite(e)
+        return e if fin.all() else e[fin]
 
     def reduced(self, how: str):
-        """``z (1,) -> (1,)``: mean, max or min of the residuals (each non-decreasing in z)."""
-        def fun(z: np.ndarray) -> np.ndarray:
-            e = self.residuals(float(z[0]))
+        """``z -> float``: mean, max or min of the residuals (each non-decreasing in z)."""
+        def fun(z: float) -> float:
+            e = self.residuals(z)
             if e.size == 0:
-                return np.array([math.nan])
-            return np.array([e.mean() if how == "mean" else e.max() if how == "max"
-                             else e.min()])
+                return math.nan
+            return float(e.mean() if how == "mean" else e.max() if how == "max" else e.min())
         return fun
 
     def quantile_loss(self, q: float):
@@ -352,10 +358,9 @@ def _invert_first(stage: _PooledFirstStage, v: np.ndarray, t: np.ndarray, object
     for k in range(n):
         t_k = t[k:k + 1]
         sample = _Sample(stage, v[:, k], t_k, states, active.copy(), k)
-        guess, first = np.array([x]), np.array([step])
         if objective == "mean" or active.sum() == 1:
-            res = solve_increasing(sample.reduced("mean"), guess, first, lo=lo, hi=hi,
-                                   ftol=ftol, xtol=xtol)
+            res = solve_scalar(sample.reduced("mean"), x, step, lo=lo, hi=hi,
+                               ftol=ftol, xtol=xtol)
             n_eval += res.n_evaluations
             xk = float(res.x[0])
             n_sat += int(res.saturated[0])
@@ -363,17 +368,17 @@ def _invert_first(stage: _PooledFirstStage, v: np.ndarray, t: np.ndarray, object
         else:
             # the q-quantile of |e_s| is smallest between the point where every draw is
             # at or below the target and the point where every draw is at or above it
-            r_lo = solve_increasing(sample.reduced("max"), guess, first, lo=lo, hi=hi,
-                                    ftol=ftol, xtol=xtol)
-            r_hi = solve_increasing(sample.reduced("min"), guess, first, lo=lo, hi=hi,
-                                    ftol=ftol, xtol=xtol)
+            r_lo = solve_scalar(sample.reduced("max"), x, step, lo=lo, hi=hi,
+                                ftol=ftol, xtol=xtol)
+            r_hi = solve_scalar(sample.reduced("min"), x, step, lo=lo, hi=hi,
+                                ftol=ftol, xtol=xtol)
             n_eval += r_lo.n_evaluations + r_hi.n_evaluations + GOLDEN_ITER
             n_sat += int(r_lo.saturated[0] and r_hi.saturated[0])
             n_mono += int(r_lo.nonmonotone[0] or r_hi.nonmonotone[0])
             a, b = sorted((float(r_lo.x[0]), float(r_hi.x[0])))
             xk = _golden(sample.quantile_loss(q), a, b, xtol)
         s0 = stage.rest(xk) if states is None else states
-        y, states, failed = stage.step(xk, t_k, s0, k)
+        y, states, failed = stage.advance(xk, t_k, s0, k)
         active &= ~(failed | ~np.isfinite(y))
         if not active.any():
             raise SimulationError(f"{stage.name}: every draw failed by sample {k}")

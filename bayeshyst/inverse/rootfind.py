@@ -18,7 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["RootResult", "solve_increasing"]
+__all__ = ["RootResult", "solve_increasing", "solve_scalar"]
 
 #: Bracket expansions (doublings of the step) before a root is declared out of reach.
 MAX_EXPANSIONS = 60
@@ -82,7 +82,11 @@ def solve_increasing(fun: Callable[[np.ndarray], np.ndarray], x0: np.ndarray,
         # one problem (the shared command of the first stage, every sample): the same
         # algorithm on Python floats, without the ~40 array operations per iteration
         # that cost more than a one-sample model evaluation
-        return _solve_one(fun, float(x[0]), float(step[0]), lo, hi, ftol, xtol)
+        def one(z: float) -> float:
+            return float(fun(np.array([z]))[0])
+
+        return solve_scalar(one, float(x[0]), float(step[0]), lo=lo, hi=hi, ftol=ftol,
+                            xtol=xtol)
     g = fun(x)
     n_eval = 1
     size = x.size
@@ -175,11 +179,35 @@ def solve_increasing(fun: Callable[[np.ndarray], np.ndarray], x0: np.ndarray,
     return RootResult(x, g, saturated, nonmono, n_eval)
 
 
-def _solve_one(fun: Callable[[np.ndarray], np.ndarray], x: float, step: float, lo: float,
-               hi: float, ftol: float, xtol: float) -> RootResult:
-    """:func:`solve_increasing` for a single problem (same steps, scalar arithmetic)."""
-    def f(z: float) -> float:
-        return float(fun(np.array([z]))[0])
+def solve_scalar(f: Callable[[float], float], x: float, step: float, *,
+                 lo: float = -math.inf, hi: float = math.inf, ftol: float,
+                 xtol: float) -> RootResult:
+    """:func:`solve_increasing` for one problem given as a function of a float.
+
+    The same steps on Python floats: the shared command of numerical inversion is one
+    scalar per sample, and wrapping it in arrays costs more than evaluating the model.
+
+    Parameters
+    ----------
+    f : callable
+        ``x (float) -> g (float)``, non-decreasing; a non-finite value stops the search
+        where it is.
+    x : float
+        Starting guess (clipped to ``[lo, hi]``).
+    step : float
+        First expansion step (floored at ``xtol``).
+    lo, hi : float
+        Admissible range of ``x``.
+    ftol, xtol : float
+        As :func:`solve_increasing`.
+
+    Returns
+    -------
+    RootResult
+        With arrays of one element.
+    """
+    x = min(max(float(x), lo), hi)
+    step = max(float(step), xtol)
 
     def result(x: float, g: float, sat: bool, mono: bool, n: int) -> RootResult:
         return RootResult(np.array([x]), np.array([g]), np.array([sat]), np.array([mono]), n)

@@ -24,12 +24,11 @@ the number of workers or the order in which tasks finish.
 from __future__ import annotations
 
 import math
-import multiprocessing as mp
 import os
 import sys
 import time
 from collections.abc import Callable, Sequence
-from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from concurrent.futures import FIRST_COMPLETED, wait
 from pathlib import Path
 from typing import Any
 
@@ -58,6 +57,7 @@ from bayeshyst.selection.tasks import (
     run_task,
     split_data,
 )
+from bayeshyst.workers import process_pool
 
 __all__ = [
     "check_models",
@@ -112,30 +112,6 @@ def _tasks(models: tuple[str, ...], keys: list[Any], lofo: bool) -> list[TaskSpe
     return out
 
 
-def _worker_init() -> None:
-    """Serial kernels and single-threaded BLAS in the workers.
-
-    The pool already uses every core, and a forked child must never enter the parent's
-    numba thread pool (it does not exist there). A BLAS team per worker would spin on
-    the cores the other workers hold (a discrepancy's Gram measured 2-3x slower with
-    the second core busy).
-    """
-    from threadpoolctl import threadpool_limits
-
-    from bayeshyst.models import serial_kernels_in_this_thread
-
-    serial_kernels_in_this_thread()
-    threadpool_limits(1, user_api="blas")
-
-
-def _pool_context() -> Any:
-    # fork where the platform has it: no re-import of the caller's __main__ (scripts
-    # without an ``if __name__ == "__main__"`` guard work) and no start-up cost;
-    # elsewhere spawn, which needs that guard (as every multiprocessing program does)
-    methods = mp.get_all_start_methods()
-    return mp.get_context("fork" if "fork" in methods else "spawn")
-
-
 def _shared_fits(data: Dataset, tasks: list[TaskSpec],
                  settings: CompareSettings) -> dict[TaskSpec, str]:
     """The fit identity of every parametric task.
@@ -187,8 +163,7 @@ def _run_all(data: Dataset, tasks: list[TaskSpec], settings: CompareSettings, se
             first.append(spec)
             if key is not None:
                 waiting[key] = []
-    with ProcessPoolExecutor(max_workers=n_jobs, mp_context=_pool_context(),
-                             initializer=_worker_init) as pool:
+    with process_pool(n_jobs) as pool:
         pending = {pool.submit(run_task, data, spec, settings, seed, out_dir): spec
                    for spec in first}
         while pending:

@@ -1,0 +1,148 @@
+"""Process pools for independent pieces of work, one worker per core.
+
+The stages of a study that split into independent tasks (the fits of a model
+comparison, the references of a feedforward evaluation) run them in a
+:class:`concurrent.futures.ProcessPoolExecutor`: the Python overhead of numerical
+inversion and of the samplers' bookkeeping holds the GIL, so threads would not help.
+Every worker is set up the same way (:func:`worker_init`):
+
+* numba's kernels run **serially** in it: the pool already uses every core, and a
+  worker must never start or enter a numba thread team of its own on cores that the
+  other workers hold (serial and parallel loops give the same bits, see
+  :mod:`bayeshyst.models._kernels`);
+* BLAS runs **single-threaded**: a BLAS team per worker spins on the cores the other
+  workers hold (a discrepancy's Gram measured 2-3x slower with the second core busy).
+
+The workers start by ``fork`` where the platform has it: the caller's ``__main__`` is
+not imported again (a script without an ``if __name__ == "__main__":`` guard works, as
+it always has with the comparison) and a worker costs no start-up. A forked worker
+never enters the parent's numba thread team (its kernels are serial) and runs one BLAS
+thread, so the parent's thread teams, copied idle, are never used. Elsewhere ``spawn``,
+which needs that guard (as every multiprocessing program does).
+
+Examples
+--------
+>>> from bayeshyst.workers import process_pool
+>>> with process_pool(2) as pool:                    # doctest: +SKIP
+...     squares = list(pool.map(abs, [-1, -2, -3]))
+"""
+
+from __future__ import annotations
+
+import multiprocessing as mp
+import os
+from collections.abc import Iterator
+from concurrent.futures import ProcessPoolExecutor
+from contextlib import contextmanager
+from typing import Any
+
+from bayeshyst.errors import ParameterError
+
+__all__ = ["default_jobs", "pool_context", "process_pool", "resolve_jobs",
+           "worker_init"]
+
+def default_jobs() -> int:
+    """Cores this process may run on (its CPU affinity where the platform tells it)."""
+    try:
+        return max(len(os.sched_getaffinity(0)), 1)
+    except AttributeError:  # macOS, Windows: no affinity query
+        return max(os.cpu_count() or 1, 1)
+
+
+def resolve_jobs(n_jobs: int | None, n_tasks: int | None = None) -> int:
+    """The number of workers to use: ``n_jobs`` checked, at most one per task.
+
+    Parameters
+    ----------
+    n_jobs : int or None
+        Requested workers; None: one per core (:func:`default_jobs`).
+    n_tasks : int, optional
+        Number of tasks; no more workers than tasks are started.
+
+    Returns
+    -------
+    int
+        At least 1; 1 means "run in this process".
+
+    Raises
+    ------
+    ParameterError
+        If ``n_jobs`` is not an integer >= 1 (or None).
+    """
+    if n_jobs is None:
+        n = default_jobs()
+    elif isinstance(n_jobs, bool) or not isinstance(n_jobs, int) or n_jobs < 1:
+        raise ParameterError(f"n_jobs must be an integer >= 1 or None, got {n_jobs!r}")
+    else:
+        n = n_jobs
+    if n_tasks is not None:
+        n = min(n, max(int(n_tasks), 1))
+    return n
+
+
+def worker_init() -> None:
+    """Set up a worker process: serial numba kernels and single-threaded BLAS."""
+    # imported here: the function runs first thing in a fresh worker
+    from threadpoolctl import threadpool_limits
+
+    from bayeshyst.models import serial_kernels_in_this_thread
+
+    serial_kernels_in_this_thread()
+    threadpool_limits(1, user_api="blas")
+
+
+def pool_context(start_method: str | None = None) -> Any:
+    """The multiprocessing context the pools start their workers with.
+
+    Parameters
+    ----------
+    start_method : {"fork", "spawn", "forkserver"}, optional
+        Default ``"fork"`` where available, else ``"spawn"`` (module docstring).
+
+    Returns
+    -------
+    multiprocessing.context.BaseContext
+
+    Raises
+    ------
+    ParameterError
+        For a start method this platform does not offer.
+    """
+    methods = mp.get_all_start_methods()
+    if start_method is None:
+        start_method = "fork" if "fork" in methods else "spawn"
+    if start_method not in methods:
+        raise ParameterError(f"start_method must be one of {methods} here, got "
+                             f"{start_method!r}")
+    return mp.get_context(start_method)
+
+
+@contextmanager
+def process_pool(n_jobs: int, *, start_method: str | None = None
+                 ) -> Iterator[ProcessPoolExecutor]:
+    """A process pool of ``n_jobs`` workers set up by :func:`worker_init`.
+
+    Parameters
+    ----------
+    n_jobs : int
+        Number of worker processes (>= 1; :func:`resolve_jobs` picks one).
+    start_method : str, optional
+        As :func:`pool_context`.
+
+    Yields
+    ------
+    concurrent.futures.ProcessPoolExecutor
+        Shut down (waiting for its tasks) when the block ends; submit module-level
+        functions with picklable arguments. ``pool.map`` returns results in the order
+        of its inputs.
+
+    Raises
+    ------
+    ParameterError
+        If ``n_jobs`` is not an integer >= 1.
+    """
+    if isinstance(n_jobs, bool) or not isinstance(n_jobs, int) or n_jobs < 1:
+        raise ParameterError(f"n_jobs must be an integer >= 1, got {n_jobs!r}")
+    with ProcessPoolExecutor(max_workers=n_jobs, mp_context=pool_context(start_method),
+                             initializer=worker_init) as pool:
+        yield pool
