@@ -24,8 +24,9 @@ from bayeshyst.cli.options import EXIT_OK, effect_list, sampler_settings
 from bayeshyst.errors import DataError, ModelError
 from bayeshyst.files import RunOutputs, json_text, removed_on_failure
 
-__all__ = ["cmd_compare", "cmd_compensate", "cmd_demo", "cmd_diagnose", "cmd_export",
-           "cmd_fit", "cmd_invert", "cmd_models", "cmd_predict", "cmd_report", "cmd_study"]
+__all__ = ["FULL_RATE_DRAWS", "cmd_compare", "cmd_compensate", "cmd_demo", "cmd_diagnose",
+           "cmd_export", "cmd_fit", "cmd_invert", "cmd_models", "cmd_predict", "cmd_report",
+           "cmd_study", "working_data"]
 
 
 def load_validation(args: argparse.Namespace) -> Any:
@@ -85,6 +86,65 @@ def load_data(args: argparse.Namespace) -> Any:
         for w in plausibility(data):
             print(f"bayeshyst {args.command}: warning: {w}", file=sys.stderr)
     return data
+
+
+def working_data(args: argparse.Namespace, data: Any) -> tuple[Any, Any]:
+    """The data at their working rate (``--working-rate``), said in one line on stderr.
+
+    Returns ``(data, WorkingRate)`` (:func:`bayeshyst.data.working_rate.to_working_rate`;
+    the same data when every record is kept whole).
+    """
+    from bayeshyst.data.working_rate import to_working_rate
+
+    working, info = to_working_rate(data, rate=args.working_rate)
+    if not args.quiet:
+        print(f"bayeshyst {args.command}: {info.line()}", file=sys.stderr, flush=True)
+    return working, info
+
+
+def _with_working_rate(out: Path, summary: dict[str, Any], entry: dict[str, Any]
+                       ) -> dict[str, Any]:
+    """``summary`` with its ``working_rate`` entry, written again to ``summary.json``.
+
+    The writers know nothing of the working rate; the file is rewritten atomically, so
+    it is still the last file written.
+    """
+    from bayeshyst.files import jsonable, write_json
+
+    summary = {**summary, "working_rate": jsonable(entry)}
+    write_json(out / "summary.json", summary)
+    return summary
+
+
+#: posterior draws the diagnosis' final fit is scored with at full rate
+FULL_RATE_DRAWS = 100
+
+
+def _full_rate_check(fit: Any, full: Any, working: Any, seed: int) -> dict[str, Any]:
+    """The final fit's free-run predictive RMSE on the full-rate and working-rate records.
+
+    Both with :meth:`~bayeshyst.inference.fit.FitResult.predict` (same draws, relaxed at
+    the first sample, warm-up not scored), so the two numbers differ only by the rate;
+    the fit's own posterior-mean RMSE is beside them. An error of the prediction is
+    reported in place of the numbers (the diagnosis itself stands).
+    """
+    from bayeshyst.errors import ParameterError, SimulationError
+
+    try:
+        at_full = fit.predict(full, n_draws=FULL_RATE_DRAWS, seed=seed)
+        at_working = fit.predict(working, n_draws=FULL_RATE_DRAWS, seed=seed)
+    except (DataError, ParameterError, ModelError, SimulationError) as exc:
+        return {"error": f"the final fit could not be scored at full rate: {exc}"}
+    if at_full.overall is None or at_working.overall is None:
+        return {"error": "no measured output to score at full rate"}
+    return {"model": fit.model.name, "n_draws": FULL_RATE_DRAWS,
+            "rmse_working_rate": at_working.overall.rmse,
+            "rmse_full_rate": at_full.overall.rmse,
+            "rmse_fit": fit.overall.rmse,
+            "n_scored_working_rate": int(sum(r.n_scored for r in working)),
+            "n_scored_full_rate": int(sum(r.n_scored for r in full)),
+            "method": "posterior predictive in free run (FitResult.predict), relaxed at "
+                      "the first sample, warm-up not scored"}
 
 
 def _params(space: Any) -> list[dict[str, Any]]:
@@ -236,6 +296,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
     get_likelihood(args.likelihood)
     out = Path(args.out)
     sampler = sampler_settings(args)
+    data, rate = working_data(args, data)
     if not args.quiet:
         freqs = ", ".join(f"{f:g}" for f in data.frequencies) or "none given"
         print(f"bayeshyst compare: {', '.join(models)} on {data.name} ({len(data)} record(s); "
@@ -251,6 +312,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
         figures = None if args.no_figures else comparison_figures(result)
         summary = write_comparison_outputs(result, out, figures=figures,
                                            data_path=str(args.data))
+        summary = _with_working_rate(out, summary, rate.to_dict())
     if args.json:
         sys.stdout.write(json_text(summary))
     else:
@@ -449,6 +511,8 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
     out = Path(args.out)
     checkpoints = None if args.no_checkpoint else out / "checkpoints"
     sampler = sampler_settings(args)
+    full = data
+    data, rate = working_data(args, data)
     n_fits = 0
 
     def on_fit(fit: Any) -> None:
@@ -481,6 +545,18 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
         figures = None if args.no_figures else diagnosis_figures(result)
         summary = write_diagnosis_outputs(result, out, figures=figures,
                                           data_name=str(args.data))
+        entry = rate.to_dict()
+        if rate.changed:
+            # the working rate is a choice of the fit; the records are what was measured
+            entry["full_rate_check"] = check = _full_rate_check(result.final.fit, full,
+                                                                data, sampler.seed)
+            if not args.quiet:
+                print("bayeshyst diagnose: final fit scored at full rate: "
+                      + (check["error"] if "error" in check else
+                         f"RMSE {check['rmse_full_rate']:.4g} (working rate "
+                         f"{check['rmse_working_rate']:.4g}; the fit's own "
+                         f"{check['rmse_fit']:.4g})"), file=sys.stderr, flush=True)
+        summary = _with_working_rate(out, summary, entry)
     if args.json:
         sys.stdout.write(json_text(summary))
     else:
@@ -566,11 +642,15 @@ def cmd_report(args: argparse.Namespace) -> int:
     data = load_data(args)
     models = check_models(args.models) if args.models else DEFAULT_MODELS
     settings = _report_settings(args)
+    # the validation records are predicted, and predictions stay at full rate
     validation = load_validation(args)
+    # run_report takes the data as given: the working rate is applied here
+    data, rate = working_data(args, data)
     with removed_on_failure(args.out, results=_REPORT_RESULTS) as outputs:
-        done = _report_run(data, str(args.data), models, settings, args, "report", outputs,
-                           validation)
-    return _report_print(args, *done)
+        result, summary = _report_run(data, str(args.data), models, settings, args,
+                                      "report", outputs, validation)
+        summary = _with_working_rate(Path(args.out), summary, rate.to_dict())
+    return _report_print(args, result, summary)
 
 
 def cmd_demo(args: argparse.Namespace) -> int:

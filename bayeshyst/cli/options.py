@@ -14,7 +14,7 @@ from bayeshyst.inference.settings import SamplerSettings
 __all__ = ["EXIT_BAD_INPUT", "EXIT_INTERNAL", "EXIT_OK", "effect_list", "initial_condition",
            "int_at_least",
            "non_negative_float", "non_negative_int", "positive_int", "probability",
-           "sampler_settings", "unit_mapping"]
+           "sampler_settings", "unit_mapping", "working_rate"]
 
 #: exit status: success, internal error, bad input
 EXIT_OK, EXIT_INTERNAL, EXIT_BAD_INPUT = 0, 1, 2
@@ -194,3 +194,23 @@ def non_negative_float(text: str) -> float:
         raise argparse.ArgumentTypeError(f"expected a number >= 0, got {text}")
     return value
 
+
+
+def working_rate(text: str) -> str | float:
+    """An argparse type: ``auto``, ``full`` or a working rate in Hz (a finite number > 0).
+
+    Returns ``"auto"``, ``"full"`` or the rate [Hz] as a float, what
+    :func:`bayeshyst.data.working_rate.to_working_rate` takes as ``rate``.
+    """
+    word = text.strip().lower()
+    if word in ("auto", "full"):
+        return word
+    try:
+        value = float(word)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected auto, full or a rate in Hz > 0, got "
+                                         f"{text!r}") from None
+    if not (np.isfinite(value) and value > 0):
+        raise argparse.ArgumentTypeError(f"expected auto, full or a rate in Hz > 0, got "
+                                         f"{text!r}")
+    return value

@@ -27,11 +27,12 @@ from bayeshyst.cli.options import (
     positive_int,
     probability,
     unit_mapping,
+    working_rate,
 )
 from bayeshyst.inference.settings import MOVES
 from bayeshyst.likelihoods import likelihood_names
 
-__all__ = ["add_run_options", "build_parser"]
+__all__ = ["add_run_options", "add_working_rate_option", "build_parser"]
 
 
 def add_run_options(p: argparse.ArgumentParser, out_default: str, steps_help: str) -> None:
@@ -75,6 +76,17 @@ def add_run_options(p: argparse.ArgumentParser, out_default: str, steps_help: st
     p.add_argument("--json", action="store_true", help="print summary.json to stdout")
     p.add_argument("--quiet", action="store_true", help="no progress on stderr")
     p.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
+
+
+def add_working_rate_option(p: argparse.ArgumentParser) -> None:
+    """Add ``--working-rate {auto,full,HZ}`` (``diagnose``, ``compare``, ``report``)."""
+    p.add_argument("--working-rate", type=working_rate, default="auto",
+                   metavar="auto|full|HZ",
+                   help="rate the records are fitted at: auto (default) decimates each "
+                        "record, anti-aliased, to the slowest rate that keeps its output's "
+                        "and input's spectrum above the noise floor and >= 100 samples per "
+                        "excitation cycle (bayeshyst.data.working_rate); full keeps every "
+                        "sample; a number decimates to at least that many Hz")
 
 
 def add_saved_fit_options(p: argparse.ArgumentParser, out_default: str, files: str) -> None:
@@ -156,6 +168,7 @@ def build_parser() -> argparse.ArgumentParser:
                        help="sample the GP models' hyperparameters (same sampler and "
                             "criteria as every model) and score them mixed over the "
                             "draws; minutes per GP fit instead of seconds")
+    add_working_rate_option(p_cmp)
     p_cmp.set_defaults(func=cmd_compare)
 
     p_comp = sub.add_parser("compensate", help="design feedforward commands from the posterior "
@@ -295,6 +308,7 @@ def build_parser() -> argparse.ArgumentParser:
                       help="most effects added (default 6)")
     p_dg.add_argument("--no-checkpoint", action="store_true",
                       help="do not checkpoint to OUT/checkpoints/ (and do not resume)")
+    add_working_rate_option(p_dg)
     p_dg.set_defaults(func=cmd_diagnose)
 
     p_rep = sub.add_parser("report", help="the whole study on one dataset: compare models per "
@@ -322,6 +336,7 @@ def build_parser() -> argparse.ArgumentParser:
                        help="measured records NOT fitted on, driven along paths like the "
                             "feedforward commands': the tracking bands carry their residual "
                             "instead of the training residual (as in compensate)")
+    add_working_rate_option(p_rep)
     p_rep.set_defaults(func=cmd_report)
 
     p_demo = sub.add_parser("demo", help="the whole study (bayeshyst report) on the bundled "
