@@ -111,7 +111,9 @@ class ReportSettings:
     robust_quantile : float
         Quantile of ``|error|`` over draws the robust command minimises.
     n_jobs : int or None
-        Worker processes of the comparison (default: one per core).
+        Processes of the comparison's fits, the diagnosis' candidate fits and the
+        feedforward's references (default: one per core; the numbers do not depend on
+        it).
     calibration : bool
         Check the final model's predictive on held-out cycles (one more posterior run
         without the last cycle of every record) for the report's uncertainty analysis.
@@ -365,7 +367,8 @@ def _run_report(data: Dataset, names: tuple[str, ...], s: ReportSettings, out: P
         diagnosis = diagnose(
             data, chosen, s.likelihood, effects=s.effects, max_rounds=s.max_rounds,
             max_candidates=s.max_candidates, sampler=sampler, max_refits=s.max_refits,
-            budget_doublings=s.budget_doublings, checkpoint_dir=checkpoints, on_fit=on_fit)
+            budget_doublings=s.budget_doublings, checkpoint_dir=checkpoints, on_fit=on_fit,
+            n_jobs=s.n_jobs)
         times["diagnose"] = time.perf_counter() - t0
         final = diagnosis.final
         if s.calibration:
@@ -378,7 +381,7 @@ def _run_report(data: Dataset, names: tuple[str, ...], s: ReportSettings, out: P
         compensation = compensate(data, final.model, fit=final.fit,
                                   n_design_draws=s.design_draws,
                                   robust_quantile=s.robust_quantile, sampler=sampler,
-                                  validation=validation)
+                                  validation=validation, n_jobs=s.n_jobs)
         times["compensate"] = time.perf_counter() - t0
     if s.averaged and any(f is not None for f in data.by_frequency()):
         _stage(progress, "5/5 designing model-averaged feedforward per frequency")

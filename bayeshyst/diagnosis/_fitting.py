@@ -27,6 +27,7 @@ from bayeshyst.inference.posterior import Posterior
 from bayeshyst.inference.sampling import sample_posterior
 from bayeshyst.models.base import HysteresisModel
 from bayeshyst.selection.tasks import CompareSettings, fit_sampler, loo_scores
+from bayeshyst.threads import with_single_threaded_blas
 
 __all__ = ["diagnosis_fit"]
 
@@ -92,11 +93,17 @@ def _warm_walkers(post: Posterior, previous: DiagnosisFit, added: dict[str, Any]
     return walkers if walkers.shape[0] else None
 
 
+@with_single_threaded_blas
 def diagnosis_fit(data: Dataset, model: HysteresisModel, likelihood: str, label: str,
                   st: DiagnosisSettings, checkpoint_dir: Path | None,
                   warm: tuple[DiagnosisFit, dict[str, Any]] | None = None,
                   discrepancy: str | Discrepancy | None = None) -> DiagnosisFit:
     """One fit of the loop: sampled (again, if unconverged), scored, its residual analysed.
+
+    It runs with one BLAS thread wherever it runs (in the caller or in a worker of the
+    loop's prefetcher, :mod:`bayeshyst.diagnosis._workers`): a reduction split over
+    another number of threads may round differently, and the loop's result must not
+    depend on where a fit ran.
 
     Parameters
     ----------

@@ -42,13 +42,20 @@ Beyond the catalogue (:mod:`bayeshyst.diagnosis.verdict` has the rules):
   and said so in the verdict); the round goes on to the next candidate;
 * the verdict says what is left: "the base model explains the data" only when nothing
   fires and nothing observed explains the residual.
+
+The loop decides serially, but need not wait serially: while it fits a candidate in
+its own process, worker processes fit the ones it may need next -- the next candidates
+of the round, the smooth term that would challenge a kept effect, a pair's challenger
+(:class:`~bayeshyst.diagnosis._workers.Prefetcher`, ``n_jobs``). A fit's seed and
+checkpoint follow from what it is, so a prefetched fit is the one the loop would have
+made; the ones it does not reach are discarded unreported.
 """
 
 from __future__ import annotations
 
 import logging
 import math
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Hashable, Mapping, Sequence
 from dataclasses import replace
 from pathlib import Path
 from types import MappingProxyType
@@ -59,6 +66,7 @@ import numpy as np
 from bayeshyst.data.dataset import Dataset
 from bayeshyst.data.record import Record
 from bayeshyst.diagnosis._fitting import diagnosis_fit
+from bayeshyst.diagnosis._workers import Prefetcher
 from bayeshyst.diagnosis.candidates import (
     BRANCH_SHAPE,
     DISTURBANCE,
@@ -100,6 +108,7 @@ from bayeshyst.models.blocks import Disturbance, Unexplained
 from bayeshyst.models.blocks.smooth import TIME
 from bayeshyst.models.compose import Composite
 from bayeshyst.selection import paired_difference
+from bayeshyst.workers import resolve_jobs
 
 __all__ = ["DiagnosisFit", "DiagnosisResult", "DiagnosisSettings", "DiagnosisStep", "diagnose"]
 
@@ -249,6 +258,27 @@ def _try_pair(first: tuple[EffectTest, DiagnosisFit, DiagnosisStep, str, str | N
     return (cand, new_spec, new_disc, tuple(step.effect.split("+"))) if step.accepted else None
 
 
+def _speculative(candidates: Sequence[EffectTest], unexplained: EffectTest | None,
+                 budget: int) -> list[EffectTest]:
+    """A round's fits on the current fit that the serial loop may need, in its order.
+
+    The candidates within the round's ``budget`` (``max_candidates``; the first is
+    sure to be needed, each later one when every one before it was rejected or refused)
+    and, right after the first that can follow slow structure, the smooth term in time
+    that would challenge it when it passes its gate (:func:`_credited`). A refused
+    candidate does not use up the budget: what the serial loop fits beyond it is not
+    guessed and is fitted when it is reached.
+    """
+    challenger = unexplained if unexplained is not None and unexplained.variant == TIME \
+        else None
+    out: list[EffectTest] = []
+    for t in candidates[:budget]:
+        for u in (t, challenger if t.effect in SLOW_IN_TIME else None):
+            if u is not None and all(u is not v for v in out):
+                out.append(u)
+    return out
+
+
 def _check_settings(st: DiagnosisSettings) -> None:
     bad = [e for e in st.effects if e not in EFFECTS]
     if bad:
@@ -285,6 +315,7 @@ def diagnose(
     budget_doublings: int = 1,
     checkpoint_dir: str | Path | None = None,
     on_fit: Callable[[DiagnosisFit], None] | None = None,
+    n_jobs: int | None = None,
 ) -> DiagnosisResult:
     """Find what a fitted model misses, add it, refit, and report the error before and after.
 
@@ -342,7 +373,17 @@ def diagnose(
         and a fit another command made with the same data and settings into the same
         folder (the comparison's joint fit) is reused, not sampled again.
     on_fit : callable, optional
-        Called with every :class:`DiagnosisFit` as it completes (progress reports).
+        Called with every :class:`DiagnosisFit` the loop uses, in the loop's order
+        (progress reports).
+    n_jobs : int, optional
+        Processes fitting at once (default one per core). The loop decides in the order
+        above whatever ``n_jobs``; with more than one, worker processes fit ahead of it
+        the candidates (and challengers) it may need next, and the fits it turns out not
+        to need are discarded unreported. Every fit's seed follows from what is fitted,
+        so the result is the same as with 1 (every fit in this process, one at a time).
+        Workers start as :mod:`bayeshyst.workers` starts them (``fork`` where the
+        platform has it; under ``spawn`` a script needs the ``if __name__ ==
+        "__main__":`` guard). Every fit runs with one BLAS thread, wherever it runs.
 
     Returns
     -------
@@ -367,11 +408,26 @@ def diagnose(
     ckdir = None if checkpoint_dir is None else Path(checkpoint_dir)
     if ckdir is not None:
         ckdir.mkdir(parents=True, exist_ok=True)
+    ahead = resolve_jobs(n_jobs) - 1  # fits run ahead of the loop, beside its own
+    # the fit function looked up here, so a stand-in put in its place runs (in this
+    # process: the prefetcher refuses a function a fresh interpreter cannot import)
+    with Prefetcher(ahead, diagnosis_fit) as pool:
+        return _loop(data, base_model, base_label, likelihood, st, ckdir, on_fit, pool)
 
-    def fit(m: HysteresisModel, lik: str, label: str,
-            warm: tuple[DiagnosisFit, dict[str, Any]] | None = None,
-            disc: str | Discrepancy | None = None) -> DiagnosisFit:
-        f = diagnosis_fit(data, m, lik, label, st, ckdir, warm, disc)
+
+def _loop(data: Dataset, base_model: HysteresisModel, base_label: str, likelihood: str,
+          st: DiagnosisSettings, ckdir: Path | None,
+          on_fit: Callable[[DiagnosisFit], None] | None, pool: Prefetcher) -> DiagnosisResult:
+    """The rounds of :func:`diagnose`; ``pool`` fits ahead of them what they may need."""
+    FitArgs = tuple[Any, ...]  # the arguments of diagnosis_fit
+
+    def fit(args: FitArgs, key: Hashable | None = None) -> DiagnosisFit:
+        # a fit prefetched under ``key`` is the workers'; any other is fitted here
+        if key is not None and key in pool:
+            f = pool.take(key)
+        else:
+            with pool.sharing():
+                f = diagnosis_fit(*args)
         if on_fit is not None:
             on_fit(f)
         return f
@@ -380,7 +436,7 @@ def diagnose(
         out = spec if lik == "gaussian" else f"{spec} with likelihood {lik}"
         return out + (f" with discrepancy {disc}" if disc else "")
 
-    current = fit(base_model, likelihood, lab(base_label, likelihood, None))
+    current = fit((data, base_model, likelihood, lab(base_label, likelihood, None), st, ckdir))
     base, spec, disc = current, base_label, None
     rounds, steps, found = [current.analysis], [], []
     warnings = list(current.warnings)
@@ -424,27 +480,52 @@ def diagnose(
         if not candidates:
             break
 
-        def attempt(test: EffectTest, rnd: int = rnd, current: DiagnosisFit = current,
-                    spec: str = spec, disc: str | None = disc,
-                    on: tuple[DiagnosisFit, str, str | None] | None = None
-                    ) -> tuple[DiagnosisFit, DiagnosisStep, str, str | None]:
+        def planned(test: EffectTest, on: tuple[DiagnosisFit, str, str | None] | None,
+                    rnd: int = rnd, current: DiagnosisFit = current, spec: str = spec,
+                    disc: str | None = disc) -> tuple[Hashable, FitArgs, str, str | None]:
             # ``on``: augment that fit (a candidate of this round) instead of the current
-            # one; the result is still judged against the current fit
+            # one. The key names the fit within the round: what it augments and the label
             below, below_spec, below_disc = (current, spec, disc) if on is None else on
             new_model, new_lik, new_spec, new_disc, warm = _augmented(
                 test, below, below_spec, below_disc, data)
-            cand = fit(new_model, new_lik, lab(new_spec, new_lik, new_disc), warm,
-                       _candidate_discrepancy(below.posterior, new_disc))
+            label = lab(new_spec, new_lik, new_disc)
+            return ((rnd, below.label, label),
+                    (data, new_model, new_lik, label, st, ckdir, warm,
+                     _candidate_discrepancy(below.posterior, new_disc)), new_spec, new_disc)
+
+        def attempt(test: EffectTest, rnd: int = rnd, current: DiagnosisFit = current,
+                    on: tuple[DiagnosisFit, str, str | None] | None = None
+                    ) -> tuple[DiagnosisFit, DiagnosisStep, str, str | None]:
+            # the result is judged against the current fit, whatever it augments
+            key, args, new_spec, new_disc = planned(test, on)
+            cand = fit(args, key)
             warnings.extend(w for w in cand.warnings if w not in warnings)
             return cand, judge(rnd, test, current, cand, st), new_spec, new_disc
 
+        def prefetch(tests: Sequence[EffectTest],
+                     on: tuple[DiagnosisFit, str, str | None] | None = None) -> None:
+            # the first of ``tests`` the workers do not hold yet, while they have room
+            for t in tests:
+                if pool.pending >= pool.n_workers:
+                    break
+                try:
+                    key, args, _, _ = planned(t, on)
+                except Exception:  # raised again when (if) it is fitted
+                    continue
+                pool.submit(key, *args)
+
         accepted, refitted, challenged = None, 0, False
         tried: list[tuple[EffectTest, DiagnosisFit, DiagnosisStep, str, str | None]] = []
+        guesses = _speculative(candidates, unexplained, st.max_candidates)
+        reached: list[EffectTest] = []
         for test in candidates:
             if refitted >= st.max_candidates:
                 break
             if test is unexplained and challenged:
                 continue  # already fitted as a challenger this round
+            # the workers fit what may come after this one while it is fitted (or taken)
+            reached.append(test)
+            prefetch([t for t in guesses if all(t is not u for u in reached)])
             cand, step, new_spec, new_disc = attempt(test)
             tried.append((test, cand, step, new_spec, new_disc))
             if step.refused:
@@ -462,13 +543,21 @@ def diagnose(
             if step.accepted:
                 accepted = (cand, new_spec, new_disc, (step.effect,))
                 break
+        pool.discard()  # what the workers guessed and the loop did not reach
         if accepted is None:
             untried = [t for t in candidates if all(t is not u for u, *_ in tried)]
             pick = pair_for([(t, c, s) for t, c, s, _, _ in tried], untried, current,
                             _PAIRABLE)
             if pick is not None:
+                _, fit_a, _, spec_a, disc_a = tried[pick[0]]
+                if _speculative([pick[1]], unexplained, 1)[1:]:
+                    # the pair's challenger, fitted on the first effect's fit as the pair
+                    # is, is needed when the pair passes its gate: likely, as a pair is
+                    # tried only when each effect explains cycles the other loses on
+                    prefetch([unexplained], on=(fit_a, spec_a, disc_a))
                 accepted = _try_pair(tried[pick[0]], pick[1], current, attempt,
                                      unexplained, st.threshold, steps, rnd)
+                pool.discard()
         if accepted is None:
             break
         current, spec, disc, effects = accepted

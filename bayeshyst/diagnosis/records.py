@@ -8,6 +8,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass, field
+from types import MappingProxyType
 from typing import Any
 
 import numpy as np
@@ -52,6 +53,14 @@ class DiagnosisSettings:
     plausible: Mapping[str, tuple[float, float, str]] = field(default_factory=lambda: PLAUSIBLE)
     decide_unconverged: bool = False
     budget_doublings: int = 1
+
+    def __getstate__(self) -> dict[str, Any]:
+        # a mappingproxy (the default ranges) does not pickle, and the settings travel to
+        # the diagnosis' worker processes: the ranges go as a dict, read-only again there
+        return {**self.__dict__, "plausible": dict(self.plausible)}
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        self.__dict__.update({**state, "plausible": MappingProxyType(dict(state["plausible"]))})
 
     @property
     def seed(self) -> int:
