@@ -378,7 +378,7 @@ def cmd_compensate(args: argparse.Namespace) -> int:
                             n_design_draws=args.design_draws, robust_quantile=args.quantile,
                             sampler=sampler, validation=validation,
                             nominal_inverse=args.nominal_inverse,
-                            discrepancy_transfer=args.discrepancy_transfer)
+                            discrepancy_transfer=args.discrepancy_transfer, n_jobs=args.jobs)
         idata = diagnostics.to_inference_data(fit.posterior, fit.sampling,
                                               seed=int(result.settings.get("seed", 0)))
         figures = None if args.no_figures else compensation_figures(result, fit=fit)
@@ -541,7 +541,7 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
         result = diagnose(data, args.model, likelihood.name, effects=effects,
                           alpha=args.alpha, threshold=args.threshold,
                           max_rounds=args.max_rounds, sampler=sampler,
-                          checkpoint_dir=checkpoints, on_fit=on_fit)
+                          checkpoint_dir=checkpoints, on_fit=on_fit, n_jobs=args.jobs)
         figures = None if args.no_figures else diagnosis_figures(result)
         summary = write_diagnosis_outputs(result, out, figures=figures,
                                           data_name=str(args.data))

@@ -180,6 +180,9 @@ def build_parser() -> argparse.ArgumentParser:
                         help="reference to track: a sine or triangle at every frequency of "
                              "the data (default sine), or a CSV file with header t,y "
                              "(s, output unit), tracked once")
+    p_comp.add_argument("--jobs", type=positive_int, default=None,
+                        help="worker processes evaluating the references (default: one "
+                             "per core; the result does not depend on it)")
     p_comp.add_argument("--design-draws", type=positive_int, default=24, metavar="N",
                         help="posterior draws the posterior-aware commands are designed on "
                              "(default 24)")
@@ -308,6 +311,10 @@ def build_parser() -> argparse.ArgumentParser:
                       help="most effects added (default 6)")
     p_dg.add_argument("--no-checkpoint", action="store_true",
                       help="do not checkpoint to OUT/checkpoints/ (and do not resume)")
+    p_dg.add_argument("--jobs", type=positive_int, default=None,
+                      help="processes fitting at once: workers fit ahead of the loop the "
+                           "candidates it may need next (default: one per core; the "
+                           "result does not depend on it)")
     add_working_rate_option(p_dg)
     p_dg.set_defaults(func=cmd_diagnose)
 
