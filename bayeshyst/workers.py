@@ -38,15 +38,35 @@ from typing import Any
 
 from bayeshyst.errors import ParameterError
 
-__all__ = ["default_jobs", "pool_context", "process_pool", "resolve_jobs",
+__all__ = ["JOBS_ENV", "default_jobs", "pool_context", "process_pool", "resolve_jobs",
            "worker_init"]
 
+#: Environment variable that caps the default number of processes (a test runner that
+#: already runs one process per core sets it to 1, so pools do not oversubscribe).
+JOBS_ENV = "BAYESHYST_JOBS"
+
+
 def default_jobs() -> int:
-    """Cores this process may run on (its CPU affinity where the platform tells it)."""
+    """Cores this process may run on (its CPU affinity where the platform tells it).
+
+    ``BAYESHYST_JOBS`` (:data:`JOBS_ENV`), when set to a whole number >= 1, caps it.
+
+    Raises
+    ------
+    ParameterError
+        If ``BAYESHYST_JOBS`` is set to anything but a whole number >= 1.
+    """
     try:
-        return max(len(os.sched_getaffinity(0)), 1)
+        cores = max(len(os.sched_getaffinity(0)), 1)
     except AttributeError:  # macOS, Windows: no affinity query
-        return max(os.cpu_count() or 1, 1)
+        cores = max(os.cpu_count() or 1, 1)
+    text = os.environ.get(JOBS_ENV, "").strip()
+    if not text:
+        return cores
+    if not text.isdigit() or int(text) < 1:
+        raise ParameterError(f"environment variable {JOBS_ENV} must be a whole number >= 1, "
+                             f"got {text!r}")
+    return min(cores, int(text))
 
 
 def resolve_jobs(n_jobs: int | None, n_tasks: int | None = None) -> int:

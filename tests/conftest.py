@@ -19,6 +19,11 @@ if os.environ.get("PYTEST_XDIST_WORKER"):
     # the same for OpenBLAS: its team of two per worker spins on a core the other worker
     # holds (a discrepancy's Gram measured 2-3x slower with the second core busy)
     threadpool_limits(1, user_api="blas")
+    # and for bayeshyst's own process pools (the comparison's fits, the diagnosis'
+    # fits ahead of its loop, the feedforward's references): the workers already hold
+    # every core, and speculative fits on top of them only take CPU from the other
+    # worker's tests. Tests that exercise a pool ask for n_jobs=2 explicitly.
+    os.environ.setdefault("BAYESHYST_JOBS", "1")
 
 #: Files that take far longer than the rest, run first: with ``--dist loadfile`` a file
 #: runs whole on one worker, and the simulation-based calibration (20 replicates of each

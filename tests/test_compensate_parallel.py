@@ -62,3 +62,19 @@ def test_job_counts_are_checked():
 def test_a_pool_returns_results_in_input_order():
     with process_pool(2) as pool:
         assert list(pool.map(abs, [-3, 1, -2, 5])) == [3, 1, 2, 5]
+
+
+def test_the_environment_caps_the_default_number_of_processes(monkeypatch):
+    from bayeshyst.workers import JOBS_ENV, default_jobs
+
+    monkeypatch.delenv(JOBS_ENV, raising=False)
+    cores = default_jobs()
+    monkeypatch.setenv(JOBS_ENV, "1")
+    assert default_jobs() == 1 and resolve_jobs(None) == 1
+    assert resolve_jobs(2) == 2          # an explicit request is the caller's
+    monkeypatch.setenv(JOBS_ENV, str(cores + 5))
+    assert default_jobs() == cores       # a cap, never more than the cores
+    for bad in ("0", "two", "-1"):
+        monkeypatch.setenv(JOBS_ENV, bad)
+        with pytest.raises(ParameterError, match=JOBS_ENV):
+            default_jobs()

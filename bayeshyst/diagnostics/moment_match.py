@@ -37,6 +37,7 @@ from scipy.special import logsumexp
 
 from bayeshyst.diagnostics.elpd import PARETO_K_BAD
 from bayeshyst.errors import ParameterError
+from bayeshyst.tables import TableRecord, frame
 
 __all__ = ["K_GOOD", "MomentMatch", "moment_match_loo", "psis"]
 
@@ -75,7 +76,7 @@ def psis(log_ratios: np.ndarray) -> tuple[np.ndarray, float]:
 
 
 @dataclass(frozen=True)
-class MomentMatch:
+class MomentMatch(TableRecord):
     """One unit's leave-one-out density after moment matching.
 
     Attributes
@@ -114,6 +115,12 @@ class MomentMatch:
                 "pareto_k_start": num(self.pareto_k_start),
                 "transforms": list(self.transforms), "evaluations": self.evaluations,
                 "reliable": self.reliable}
+
+    def to_dataframe(self) -> Any:
+        """One row: :meth:`to_dict` (the maps joined by ``+``)."""
+        row = self.to_dict()
+        row["transforms"] = "+".join(self.transforms)
+        return frame([row])
 
     def __str__(self) -> str:
         moves = ", ".join(self.transforms) or "none"

@@ -57,7 +57,7 @@ from bayeshyst.selection.tasks import (
     run_task,
     split_data,
 )
-from bayeshyst.workers import process_pool
+from bayeshyst.workers import process_pool, resolve_jobs
 
 __all__ = [
     "check_models",
@@ -360,9 +360,7 @@ def compare_models(
                              (gp_n_train, "gp_n_train", 10)):
         if int(value) != value or value < low:
             raise ParameterError(f"{what} must be an integer >= {low}, got {value!r}")
-    n_jobs = (os.cpu_count() or 1) if n_jobs is None else int(n_jobs)
-    if n_jobs < 1:
-        raise ParameterError(f"n_jobs must be >= 1, got {n_jobs}")
+    n_jobs = resolve_jobs(n_jobs)
     settings = CompareSettings(likelihood, sampler.replace(checkpoint=None, progress=False),
                                int(draws_per_chain), int(n_lofo_draws), int(max_refits),
                                int(gp_n_train), gp_sampling=gp_sampling)
