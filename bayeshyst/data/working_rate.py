@@ -85,6 +85,7 @@ from bayeshyst.data.dataset import Dataset
 from bayeshyst.data.record import MIN_SAMPLES, Record
 from bayeshyst.data.segment import input_noise_sd
 from bayeshyst.errors import DataError, ParameterError
+from bayeshyst.tables import frame
 
 __all__ = ["ALPHA", "MARGIN", "MIN_SAMPLES_PER_CYCLE", "STOPBAND_DB", "RecordRate",
            "WorkingRate", "signal_edge", "to_working_rate"]
@@ -179,6 +180,10 @@ class RecordRate:
         out["band_hz"] = list(self.band_hz)
         return out
 
+    def to_dataframe(self) -> Any:
+        """One row: :meth:`to_dict` (the band as ``band_hz_lo``/``_hi`` columns)."""
+        return frame([self.to_dict()])
+
 
 @dataclass(frozen=True)
 class WorkingRate:
@@ -222,6 +227,10 @@ class WorkingRate:
         head = (f"working rate {mode} (>= {self.min_samples_per_cycle:g} samples per "
                 f"cycle, margin {self.margin:g}, alpha {self.alpha:g})")
         return "\n".join([head, *(f"  {r}" for r in self.records)])
+
+    def to_dataframe(self) -> Any:
+        """One row per record (:meth:`RecordRate.to_dict`)."""
+        return frame([r.to_dict() for r in self.records])
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready: the settings, one entry per record and :meth:`line`."""

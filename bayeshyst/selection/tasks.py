@@ -456,27 +456,23 @@ def _refit_bad_cycles(post: Posterior, res: Any, pointwise: np.ndarray, k: np.nd
                       ) -> tuple[np.ndarray, np.ndarray, int, float, int]:
     """Leave-one-cycle-out for the cycles whose PSIS-LOO is unreliable (Pareto k > 0.7).
 
-    Each such cycle is first moment-matched
-    (:func:`~bayeshyst.diagnostics.moment_match.moment_match_loo`: the full posterior's
-    draws moved by affine maps towards the posterior without it, a few batches of
-    simulations); only the cycles whose k stays above 0.7 are refitted exactly, worst
-    first, up to ``settings.max_refits``. Returns the pointwise elpd, the Pareto k
-    (the moment-matched k; NaN where refitted), the number of refits, the change of
-    ``p_loo`` (``lppd - elpd`` moves by the elpd change) and the number of cycles the
-    moment matching settled.
+    The worst ``settings.max_refits`` such cycles are corrected: each is first
+    moment-matched (:func:`~bayeshyst.diagnostics.moment_match.moment_match_loo`: the
+    full posterior's draws moved by affine maps towards the posterior without it, a few
+    batches of simulations) and refitted exactly only when its k stays above 0.7. Returns
+    the pointwise elpd, the Pareto k (the moment-matched k; NaN where refitted), the
+    number of refits, the change of ``p_loo`` (``lppd - elpd`` moves by the elpd
+    change) and the number of cycles the moment matching settled.
     """
     bad = [int(i) for i in np.argsort(-k) if k[i] > PARETO_K_BAD]
+    budget = bad[:settings.max_refits]
     pw, kk, dp = pointwise.copy(), k.copy(), 0.0
-    matched = _moment_matched(post, res, bad, seed) if bad else {}
-    settled = [i for i in bad if i in matched and matched[i].reliable]
+    matched = _moment_matched(post, res, budget, seed) if budget else {}
+    settled = [i for i in budget if i in matched and matched[i].reliable]
     for i in settled:
         dp += pw[i] - matched[i].elpd
         pw[i], kk[i] = matched[i].elpd, matched[i].pareto_k
-    for i in bad:
-        if i in matched and i not in settled:
-            kk[i] = min(kk[i], matched[i].pareto_k)
-    still = [i for i in bad if i not in settled]
-    todo = still[:settings.max_refits]
+    todo = [i for i in budget if i not in settled]
     n_draws = max(400, settings.n_lofo_draws)
     for j, i in enumerate(todo):
         held = post.holding_out([i])
@@ -501,9 +497,9 @@ def _refit_bad_cycles(post: Posterior, res: Any, pointwise: np.ndarray, k: np.nd
         notes.append(f"{len(settled)} cycles with Pareto k > {PARETO_K_BAD} were moment-"
                      f"matched (importance-weighted moment matching, k now "
                      f"{max(matched[i].pareto_k for i in settled):.2f} or less)")
-    if len(still) > len(todo):
-        notes.append(f"{len(still) - len(todo)} more cycles have Pareto k > {PARETO_K_BAD} "
-                     f"after moment matching and were not refitted "
+    if len(bad) > len(budget):
+        notes.append(f"{len(bad) - len(budget)} more cycles have Pareto k > {PARETO_K_BAD} "
+                     f"and were neither moment-matched nor refitted "
                      f"(max_refits={settings.max_refits}): their LOO values are unreliable")
     return pw, kk, len(todo), dp, len(settled)
 
