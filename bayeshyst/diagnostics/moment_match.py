@@ -257,10 +257,8 @@ def moment_match_loo(z: np.ndarray, log_full: Density, log_target: Density,
 def _estimate(lw: np.ndarray, lp: np.ndarray) -> float:
     """``log sum_s w_s p_s`` with normalised log weights ``lw``."""
     ok = np.isfinite(lw)
-    if not np.any(ok) or not np.all(np.isfinite(lp[ok])):
-        # a draw that counts but cannot predict the unit makes the estimate undefined
-        return math.nan if not np.any(ok) else float(logsumexp(lw[ok] + lp[ok]))
-    return float(logsumexp(lw[ok] + lp[ok]))
+    # no draw with weight: no estimate (a weighted draw whose lp is -inf adds nothing)
+    return float(logsumexp(lw[ok] + lp[ok])) if np.any(ok) else math.nan
 
 
 def _split_estimate(z: np.ndarray, lf0: np.ndarray, a: np.ndarray, c: np.ndarray,
