@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import json
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -253,13 +254,39 @@ def fast_csv(tmp_path_factory):
     return path
 
 
-def test_diagnose_cli_writes_the_working_rate(fast_csv, tmp_path, capsys):
+@pytest.fixture
+def placed(monkeypatch):
+    """Every file put in place during the test, in order.
+
+    Every file of bayeshyst is written atomically (:func:`bayeshyst.files.atomic_paths`),
+    which puts it in place with ``os.replace``: counted there, a file is counted however
+    it was written.
+    """
+    import os
+
+    real = os.replace
+    paths: list[Path] = []
+
+    def counted(src, dst, *args, **kwargs):
+        paths.append(Path(dst))
+        return real(src, dst, *args, **kwargs)
+
+    monkeypatch.setattr(os, "replace", counted)
+    return paths
+
+
+def _summaries(paths: list[Path]) -> list[Path]:
+    return [p for p in paths if p.name == "summary.json"]
+
+
+def test_diagnose_cli_writes_the_working_rate(fast_csv, tmp_path, capsys, placed):
     out = tmp_path / "diag"
     code = main(["diagnose", str(fast_csv), "--model", MODEL, "--steps", "300",
                  "--walkers", "16", "--effects", "drift", "--max-rounds", "1",
                  "--no-figures", "--no-checkpoint", "--out", str(out)])
     err = capsys.readouterr().err
     assert code == 0, err
+    assert _summaries(placed) == [out / "summary.json"]  # written once, with the entry
     assert "working rate auto: fast 1000 -> 200 Hz (k=5" in err
     entry = json.loads((out / "summary.json").read_text())["working_rate"]
     assert entry["mode"] == "auto" and entry["changed"]
@@ -282,6 +309,67 @@ def test_compare_cli_writes_the_working_rate(fast_csv, tmp_path):
     entry = json.loads((out / "summary.json").read_text())["working_rate"]
     assert entry["mode"] == "full" and not entry["changed"]
     assert entry["records"][0]["factor"] == 1
+
+
+def test_compare_cli_writes_summary_json_once_with_the_working_rate(fast_csv, tmp_path,
+                                                                   placed):
+    out = tmp_path / "cmp"
+    code = main(["compare", str(fast_csv), "--models", MODEL, "--steps", "200",
+                 "--walkers", "16", "--no-lofo", "--max-refits", "0", "--jobs", "1",
+                 "--no-figures", "--quiet", "--working-rate", "auto", "--out", str(out)])
+    assert code == 0
+    assert _summaries(placed) == [out / "summary.json"]
+    entry = json.loads((out / "summary.json").read_text())["working_rate"]
+    assert entry["mode"] == "auto" and entry["changed"]
+    assert entry["records"][0]["factor"] == 5  # 1 kHz at 100 samples per cycle of 2 Hz
+
+
+def _text(html: str) -> str:
+    """The text a browser shows of ``html``: tags dropped, entities decoded, spaces single."""
+    import html as html_module
+    import re
+
+    return " ".join(html_module.unescape(re.sub(r"<[^>]+>", " ", html)).split())
+
+
+def test_report_says_the_working_rate_in_its_data_section(fast_csv, tmp_path, placed):
+    out = tmp_path / "rep"
+    code = main(["report", str(fast_csv), "--models", MODEL, "--steps", "100",
+                 "--walkers", "16", "--no-lofo", "--max-refits", "0", "--max-rounds", "1",
+                 "--effects", "drift", "--no-calibration", "--jobs", "1", "--no-figures",
+                 "--quiet", "--out", str(out)])
+    assert code == 0
+    # every summary once: the stages' own, then the report's (last)
+    written = _summaries(placed)
+    assert sorted(written) == sorted(set(written)) and written[-1] == out / "summary.json"
+    entry = json.loads((out / "summary.json").read_text())["working_rate"]
+    assert entry["changed"] and entry["records"][0]["factor"] == 5
+    # the stages' summaries do not repeat it
+    for stage in ("compare", "diagnose"):
+        assert "working_rate" not in json.loads((out / stage / "summary.json").read_text())
+    page = (out / "report.html").read_text(encoding="utf-8")
+    data = _text(page[page.index('<section id="data">'):].split("</section>")[0])
+    # the record's own sentence, as the CLI printed it, and what it means for the table
+    assert f"{entry['records'][0]['statement']}." in data
+    assert "fast: 1000 Hz -> 200 Hz (every 5th sample, 3000 -> " in data
+    assert "1 record(s) sampled faster than the fit needs were anti-aliased" in data
+
+
+def test_report_data_section_says_when_every_record_was_kept_whole():
+    from bayeshyst.outputs.report_html import _data_html
+    from bayeshyst.outputs.report_outputs import data_overview
+
+    rec = _record(_harmonics, 0, fs=100.0 * F0, duration=10.0).with_(name="slow")
+    data = Dataset((rec,), name="d")
+    _, info = to_working_rate(data)
+    assert not info.changed
+    section = json.loads(json.dumps(data_overview(data, "d.csv")))
+    text = _text(_data_html(section, None, json.loads(json.dumps(info.to_dict()))))
+    assert ("Working rate auto: every record kept at full rate (already near its working "
+            "rate (100 samples per cycle of 1 Hz needs 100 Hz)).") in text
+    assert "decimated" not in text
+    # without an entry (the demo: no --working-rate) the section says nothing of it
+    assert "working rate" not in _text(_data_html(section, None)).lower()
 
 
 def test_cli_refuses_a_negative_working_rate(fast_csv, tmp_path, capsys):

@@ -102,20 +102,6 @@ def working_data(args: argparse.Namespace, data: Any) -> tuple[Any, Any]:
     return working, info
 
 
-def _with_working_rate(out: Path, summary: dict[str, Any], entry: dict[str, Any]
-                       ) -> dict[str, Any]:
-    """``summary`` with its ``working_rate`` entry, written again to ``summary.json``.
-
-    The writers know nothing of the working rate; the file is rewritten atomically, so
-    it is still the last file written.
-    """
-    from bayeshyst.files import jsonable, write_json
-
-    summary = {**summary, "working_rate": jsonable(entry)}
-    write_json(out / "summary.json", summary)
-    return summary
-
-
 #: posterior draws the diagnosis' final fit is scored with at full rate
 FULL_RATE_DRAWS = 100
 
@@ -311,8 +297,8 @@ def cmd_compare(args: argparse.Namespace) -> int:
                                 progress=sampler.progress)
         figures = None if args.no_figures else comparison_figures(result)
         summary = write_comparison_outputs(result, out, figures=figures,
-                                           data_path=str(args.data))
-        summary = _with_working_rate(out, summary, rate.to_dict())
+                                           data_path=str(args.data),
+                                           working_rate=rate.to_dict())
     if args.json:
         sys.stdout.write(json_text(summary))
     else:
@@ -542,9 +528,6 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
                           alpha=args.alpha, threshold=args.threshold,
                           max_rounds=args.max_rounds, sampler=sampler,
                           checkpoint_dir=checkpoints, on_fit=on_fit, n_jobs=args.jobs)
-        figures = None if args.no_figures else diagnosis_figures(result)
-        summary = write_diagnosis_outputs(result, out, figures=figures,
-                                          data_name=str(args.data))
         entry = rate.to_dict()
         if rate.changed:
             # the working rate is a choice of the fit; the records are what was measured
@@ -556,7 +539,9 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
                          f"RMSE {check['rmse_full_rate']:.4g} (working rate "
                          f"{check['rmse_working_rate']:.4g}; the fit's own "
                          f"{check['rmse_fit']:.4g})"), file=sys.stderr, flush=True)
-        summary = _with_working_rate(out, summary, entry)
+        figures = None if args.no_figures else diagnosis_figures(result)
+        summary = write_diagnosis_outputs(result, out, figures=figures,
+                                          data_name=str(args.data), working_rate=entry)
     if args.json:
         sys.stdout.write(json_text(summary))
     else:
@@ -573,11 +558,13 @@ _REPORT_RESULTS = ("compare/posteriors/*.nc",)
 
 def _report_run(data: Any, data_path: str, models: tuple[str, ...], settings: Any,
                 args: argparse.Namespace, command: str,
-                outputs: RunOutputs, validation: Any = None) -> tuple[Any, Any]:
+                outputs: RunOutputs, validation: Any = None,
+                working_rate: dict[str, Any] | None = None) -> tuple[Any, Any]:
     """The shared part of ``report`` and ``demo``: run every stage and write.
 
     ``outputs`` is the caller's :func:`removed_on_failure` of ``--out`` (a finished
-    diagnosis fit marks the first result). Returns ``(result, summary)`` for
+    diagnosis fit marks the first result); ``working_rate`` is what :func:`working_data`
+    did (``WorkingRate.to_dict()``), for the writer. Returns ``(result, summary)`` for
     :func:`_report_print`.
     """
     from bayeshyst.outputs.assemble import report_figures, report_posteriors
@@ -606,7 +593,7 @@ def _report_run(data: Any, data_path: str, models: tuple[str, ...], settings: An
     posteriors = report_posteriors(result)
     figures = None if args.no_figures else report_figures(result, posteriors)
     summary = write_report_outputs(result, out, posteriors=posteriors, figures=figures,
-                                   data_path=data_path)
+                                   data_path=data_path, working_rate=working_rate)
     return result, summary
 
 
@@ -648,8 +635,7 @@ def cmd_report(args: argparse.Namespace) -> int:
     data, rate = working_data(args, data)
     with removed_on_failure(args.out, results=_REPORT_RESULTS) as outputs:
         result, summary = _report_run(data, str(args.data), models, settings, args,
-                                      "report", outputs, validation)
-        summary = _with_working_rate(Path(args.out), summary, rate.to_dict())
+                                      "report", outputs, validation, rate.to_dict())
     return _report_print(args, result, summary)
 
 

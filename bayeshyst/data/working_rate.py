@@ -175,14 +175,18 @@ class RecordRate:
                 f"{self.input_treatment}{ends}")
 
     def to_dict(self) -> dict[str, Any]:
-        """The fields as JSON-ready values (``band_hz`` as a list)."""
+        """The fields as JSON-ready values (``band_hz`` as a list), and ``statement``.
+
+        ``statement`` is the record's text (``str(self)``), for a reader of the JSON.
+        """
         out = dict(self.__dict__)
         out["band_hz"] = list(self.band_hz)
+        out["statement"] = str(self)
         return out
 
     def to_dataframe(self) -> Any:
         """One row: :meth:`to_dict` (the band as ``band_hz_lo``/``_hi`` columns)."""
-        return frame([self.to_dict()])
+        return frame([self.to_dict()], drop=("statement",))
 
 
 @dataclass(frozen=True)
@@ -230,7 +234,7 @@ class WorkingRate:
 
     def to_dataframe(self) -> Any:
         """One row per record (:meth:`RecordRate.to_dict`)."""
-        return frame([r.to_dict() for r in self.records])
+        return frame([r.to_dict() for r in self.records], drop=("statement",))
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready: the settings, one entry per record and :meth:`line`."""

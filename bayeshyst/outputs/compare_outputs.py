@@ -18,7 +18,7 @@ from pathlib import Path
 from typing import Any
 
 from bayeshyst.files import atomic_path
-from bayeshyst.outputs.files import write_figures, write_json
+from bayeshyst.outputs.files import jsonable, write_figures, write_json
 from bayeshyst.selection import ComparisonResult, FrequencyComparison
 
 __all__ = ["CSV_COLUMNS", "comparison_summary", "error_spectrum_entry",
@@ -71,7 +71,8 @@ def error_spectrum_entry(result: ComparisonResult, fc: FrequencyComparison,
 
 
 def comparison_summary(result: ComparisonResult, *, data_path: str | None = None,
-                       files: dict[str, Any] | None = None) -> dict[str, Any]:
+                       files: dict[str, Any] | None = None,
+                       working_rate: Mapping[str, Any] | None = None) -> dict[str, Any]:
     """The machine-readable summary of a comparison.
 
     Keys: ``models``, ``per_frequency`` (each ``frequency_hz``, ``group`` (its label),
@@ -79,7 +80,8 @@ def comparison_summary(result: ComparisonResult, *, data_path: str | None = None
     se, weight, nrmse_percent, ...}`` best first — ``statement`` and, for a band
     group, ``error_spectrum`` of its best model, :func:`error_spectrum_entry`), ``overall`` (all
     frequencies jointly), ``winners``, ``statements``, ``failed_fits``, ``fits``,
-    ``settings``, ``runtime_s``, ``data``, ``files``, ``warnings``.
+    ``settings``, ``runtime_s``, ``data``, ``files``, ``warnings``, and
+    ``working_rate`` when one is given (as :func:`write_comparison_outputs` takes it).
     """
     out = result.to_dict()
     for entry, fc in zip(out["per_frequency"], result.per_frequency, strict=True):
@@ -97,6 +99,8 @@ def comparison_summary(result: ComparisonResult, *, data_path: str | None = None
     out["warnings"] = warnings
     out["data"] = data_path
     out["files"] = files or {}
+    if working_rate is not None:
+        out["working_rate"] = jsonable(dict(working_rate))
     return out
 
 
@@ -117,7 +121,8 @@ def _csv_text(result: ComparisonResult) -> str:
 
 def write_comparison_outputs(result: ComparisonResult, out_dir: str | Path, *,
                              figures: Mapping[str, Any] | None = None,
-                             data_path: str | None = None) -> dict[str, Any]:
+                             data_path: str | None = None,
+                             working_rate: Mapping[str, Any] | None = None) -> dict[str, Any]:
     """Write the comparison's files into ``out_dir`` (each atomically, ``summary.json`` last).
 
     Parameters
@@ -130,6 +135,10 @@ def write_comparison_outputs(result: ComparisonResult, out_dir: str | Path, *,
         (:func:`~bayeshyst.outputs.assemble.comparison_figures`); none by default.
     data_path : str, optional
         The data file, recorded in the summary.
+    working_rate : mapping, optional
+        The rate the records were fitted at
+        (:meth:`bayeshyst.data.working_rate.WorkingRate.to_dict`), recorded under the
+        summary's ``working_rate``; left out of it by default.
 
     Returns
     -------
@@ -148,6 +157,7 @@ def write_comparison_outputs(result: ComparisonResult, out_dir: str | Path, *,
     with atomic_path(out / "comparison.txt") as tmp:
         tmp.write_text(str(result) + "\n\n" + statements + "\n")
     files["figures"] = write_figures(out, figures)
-    summary = comparison_summary(result, data_path=data_path, files=files)
+    summary = comparison_summary(result, data_path=data_path, files=files,
+                                 working_rate=working_rate)
     write_json(out / "summary.json", summary)
     return summary

@@ -20,7 +20,7 @@ from typing import Any
 from bayeshyst.diagnosis import DiagnosisFit, DiagnosisResult, EffectTest
 from bayeshyst.errors import ParameterError
 from bayeshyst.files import atomic_path
-from bayeshyst.outputs.files import csv_cell, write_figures, write_json
+from bayeshyst.outputs.files import csv_cell, jsonable, write_figures, write_json
 
 __all__ = ["STEP_COLUMNS", "diagnosis_summary", "evidence_figures", "write_diagnosis_outputs"]
 
@@ -68,7 +68,8 @@ def _y_unit(result: DiagnosisResult) -> str:
 
 
 def diagnosis_summary(result: DiagnosisResult, *, data_name: str | None = None,
-                      outputs: list[str] | None = None) -> dict[str, Any]:
+                      outputs: list[str] | None = None,
+                      working_rate: Mapping[str, Any] | None = None) -> dict[str, Any]:
     """The machine-readable summary of a diagnosis.
 
     :meth:`DiagnosisResult.to_dict` (``base_model``, ``final_model``, ``effects_found``,
@@ -76,13 +77,16 @@ def diagnosis_summary(result: DiagnosisResult, *, data_name: str | None = None,
     ``bayes_factor_log``, ``rmse_before``/``after``, ``max_error_before``/``after``,
     ``delta_elpd``, ``delta_elpd_se``, ... —, ``before``, ``after``, ``per_frequency``,
     ``rounds``, ``cycles``, ``converged``, ``warnings``, ``settings``) plus ``command``
-    (``"diagnose"``), ``output_unit``, ``data`` and ``outputs`` (the files written).
+    (``"diagnose"``), ``output_unit``, ``data``, ``outputs`` (the files written) and
+    ``working_rate`` when one is given (as :func:`write_diagnosis_outputs` takes it).
     Non-finite numbers become ``null`` when written (:func:`~bayeshyst.outputs.files.jsonable`).
     """
     out: dict[str, Any] = {"command": "diagnose", **result.to_dict()}
     out["output_unit"] = _y_unit(result)
     out["data"] = data_name
     out["outputs"] = list(outputs or [])
+    if working_rate is not None:
+        out["working_rate"] = jsonable(dict(working_rate))
     return out
 
 
@@ -95,7 +99,8 @@ def _idata(fit: DiagnosisFit) -> Any:
 
 def write_diagnosis_outputs(result: DiagnosisResult, out_dir: str | Path, *,
                             figures: Mapping[str, Any] | None = None,
-                            data_name: str | None = None) -> dict[str, Any]:
+                            data_name: str | None = None,
+                            working_rate: Mapping[str, Any] | None = None) -> dict[str, Any]:
     """Write the diagnosis's files into ``out_dir`` (each atomically, ``summary.json`` last).
 
     Files: ``diagnosis.txt`` (the text report), ``steps.csv`` (one row per augmentation
@@ -115,6 +120,11 @@ def write_diagnosis_outputs(result: DiagnosisResult, out_dir: str | Path, *,
         (:func:`~bayeshyst.outputs.assemble.diagnosis_figures`); none by default.
     data_name : str, optional
         The data the diagnosis ran on (a path or name), recorded in the summary.
+    working_rate : mapping, optional
+        The rate the records were fitted at
+        (:meth:`bayeshyst.data.working_rate.WorkingRate.to_dict`, with the final fit
+        scored at full rate under ``full_rate_check`` when a record was decimated),
+        recorded under the summary's ``working_rate``; left out of it by default.
 
     Returns
     -------
@@ -144,6 +154,7 @@ def write_diagnosis_outputs(result: DiagnosisResult, out_dir: str | Path, *,
         diagnostics.save_netcdf(idata, out / name)
     names = ["diagnosis.txt", "steps.csv", *posteriors, *write_figures(out, figures),
              "summary.json"]
-    summary = diagnosis_summary(result, data_name=data_name, outputs=names)
+    summary = diagnosis_summary(result, data_name=data_name, outputs=names,
+                                working_rate=working_rate)
     write_json(out / "summary.json", summary)
     return summary

@@ -32,7 +32,25 @@ def _short(value: Any, limit: int = 120) -> str:
     return s if len(s) <= limit else s[: limit - 1] + "…"
 
 
-def _data_html(section: dict[str, Any], figure: Path | None) -> H.Markup:
+def _working_rate_html(entry: dict[str, Any]) -> H.Markup:
+    """What ``--working-rate`` did (:meth:`bayeshyst.data.working_rate.WorkingRate.to_dict`).
+
+    In the entry's own words (its ``statement`` texts), as the command printed them.
+    """
+    if not entry["changed"]:
+        return H.paragraph(f"{entry['statement'][:1].upper()}{entry['statement'][1:]}.")
+    changed = [r for r in entry["records"] if r["factor"] > 1]
+    kept = len(entry["records"]) - len(changed)
+    # the table below shows the records as fitted: say so before it
+    return H.join([H.paragraph(
+        f"{len(changed)} record(s) sampled faster than the fit needs were anti-aliased and "
+        "decimated to a working rate before fitting (the rates and samples below are the "
+        "working rate's)" + (f"; the other {kept} were kept whole" if kept else "") + "."),
+        *(H.paragraph(f"{r['statement']}.") for r in changed)])
+
+
+def _data_html(section: dict[str, Any], figure: Path | None,
+               working_rate: dict[str, Any] | None = None) -> H.Markup:
     rows = []
     for r in section["records"]:
         meta = r["metadata"] or {}
@@ -64,6 +82,8 @@ def _data_html(section: dict[str, Any], figure: Path | None) -> H.Markup:
             + ", ".join(f"{r['name']}: {r['frequency_hz']:g} Hz" for r in estimated[:8])
             + (", …" if len(estimated) > 8 else "") + "); a record holding several "
             "frequencies was split into one record per block."))
+    if working_rate is not None:
+        parts.append(_working_rate_html(working_rate))
     parts.append(H.table(["record", "frequency [Hz]", "fs [Hz]", "samples", "scored",
                           "input range", "output range", "metadata"], rows,
                          numeric=[False, True, True, True, True, False, False, False]))
@@ -541,7 +561,8 @@ def report_html(summary: dict[str, Any], out: Path, *, subtitle: str,
     summary : dict
         The report's summary after :func:`~bayeshyst.outputs.files.jsonable` (sections
         ``data``, ``posteriors``, ``model_selection``, ``diagnosis``, ``uncertainty``,
-        ``compensation``, ``model_averaged_feedforward``, plus ``title`` and ``settings``).
+        ``compensation``, ``model_averaged_feedforward``, plus ``title`` and ``settings``;
+        ``working_rate`` if the records were fitted at one).
     out : Path
         The report's folder: figures are read from under it and embedded.
     subtitle : str
@@ -558,7 +579,7 @@ def report_html(summary: dict[str, Any], out: Path, *, subtitle: str,
     """
     sections = [
         ("glance", "At a glance", _glance_html(summary)),
-        ("data", "Data", _data_html(summary["data"], overview)),
+        ("data", "Data", _data_html(summary["data"], overview, summary.get("working_rate"))),
         ("posteriors", "Posteriors and convergence",
          _posteriors_html(summary["posteriors"], out)),
         ("model-selection", "Model selection per frequency",

@@ -192,7 +192,8 @@ def write_report_outputs(result: ReportResult, out_dir: str | Path, *,
                          posteriors: Mapping[str, Any],
                          figures: Mapping[str, Any] | None = None,
                          data_path: str | None = None,
-                         title: str | None = None) -> dict[str, Any]:
+                         title: str | None = None,
+                         working_rate: Mapping[str, Any] | None = None) -> dict[str, Any]:
     """Write ``report.html``, ``summary.json`` and each stage's files into ``out_dir``.
 
     Parameters
@@ -212,12 +213,18 @@ def write_report_outputs(result: ReportResult, out_dir: str | Path, *,
         The data file, shown in the report and recorded in the summary.
     title : str, optional
         Report title (default: "bayeshyst report: <data name>").
+    working_rate : mapping, optional
+        The rate the records were fitted at
+        (:meth:`bayeshyst.data.working_rate.WorkingRate.to_dict`): recorded under the
+        summary's ``working_rate`` (once, not again in the stages' summaries) and said in
+        the report's Data section; left out by default.
 
     Returns
     -------
     dict
         The summary written (sections :data:`SECTIONS` plus ``command``, ``chosen_model``,
-        ``warnings``, ``settings``, ``seed``, ``runtime_s``, ``versions``, ``files``).
+        ``warnings``, ``settings``, ``seed``, ``runtime_s``, ``versions``, ``files`` and,
+        when given, ``working_rate``).
     """
     if not isinstance(result, ReportResult):
         raise TypeError(f"result must be a ReportResult, got {type(result).__name__}")
@@ -273,6 +280,8 @@ def write_report_outputs(result: ReportResult, out_dir: str | Path, *,
                   "figures": sorted(str(p.relative_to(out))
                                     for p in (out / "figures").glob("*.png"))},
     }
+    if working_rate is not None:
+        summary["working_rate"] = dict(working_rate)
     summary = jsonable(summary)
     subtitle = (f"data: {data_path or result.data.name} · models: "
                 f"{', '.join(result.comparison.models)} · seed {result.seed}")
