@@ -12,6 +12,7 @@ from __future__ import annotations
 import json
 import math
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -298,6 +299,42 @@ def test_diagnose_cli_writes_the_working_rate(fast_csv, tmp_path, capsys, placed
     assert check["n_scored_working_rate"] == rec["n_out"] - 100  # warm-up 500 / 5
     # one model, the same draws: the two RMSEs differ by the noise the filter removed
     assert 0 < check["rmse_working_rate"] < check["rmse_full_rate"] < 3 * 0.05
+    # the line printed is the record's own, with the numbers written
+    assert (f"final fit: {check['model']} scored at full rate: RMSE "
+            f"{check['rmse_full_rate']:.4g} (working rate {check['rmse_working_rate']:.4g}; "
+            f"the fit's own {check['rmse_fit']:.4g})") in err
+
+
+class _Fit:
+    """What :func:`check_at_full_rate` uses of a FitResult, predicting as told."""
+
+    model = SimpleNamespace(name="stub")
+    overall = None
+
+    def __init__(self, outcome):
+        self.outcome = outcome
+
+    def predict(self, data, *, n_draws, seed):
+        if isinstance(self.outcome, Exception):
+            raise self.outcome
+        return self.outcome
+
+
+def test_a_failed_full_rate_prediction_is_a_record_and_other_errors_are_not_hidden():
+    from bayeshyst.errors import SimulationError
+    from bayeshyst.inference.predict import FullRateCheck, check_at_full_rate
+
+    data = Dataset((_record(_harmonics, 0, duration=0.5),), name="d")
+    check = check_at_full_rate(_Fit(SimulationError("diverged at sample 7")), data, data)
+    assert isinstance(check, FullRateCheck) and check.rmse_full_rate is None
+    assert check.to_dict() == {"error": "the fit could not be scored at full rate: "
+                                        "diverged at sample 7"}
+    assert str(check) == check.error
+    none = check_at_full_rate(_Fit(SimpleNamespace(overall=None)), data, data)
+    assert none.to_dict() == {"error": "no measured output to score at full rate"}
+    # a bug is not a failed prediction: it is raised, not recorded
+    with pytest.raises(TypeError):
+        check_at_full_rate(_Fit(TypeError("a bug")), data, data)
 
 
 def test_compare_cli_writes_the_working_rate(fast_csv, tmp_path):

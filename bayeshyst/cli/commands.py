@@ -24,9 +24,9 @@ from bayeshyst.cli.options import EXIT_OK, effect_list, sampler_settings
 from bayeshyst.errors import DataError, ModelError
 from bayeshyst.files import RunOutputs, json_text, removed_on_failure
 
-__all__ = ["FULL_RATE_DRAWS", "cmd_compare", "cmd_compensate", "cmd_demo", "cmd_diagnose",
-           "cmd_export", "cmd_fit", "cmd_invert", "cmd_models", "cmd_predict", "cmd_report",
-           "cmd_study", "working_data"]
+__all__ = ["cmd_compare", "cmd_compensate", "cmd_demo", "cmd_diagnose", "cmd_export",
+           "cmd_fit", "cmd_invert", "cmd_models", "cmd_predict", "cmd_report", "cmd_study",
+           "working_data"]
 
 
 def load_validation(args: argparse.Namespace) -> Any:
@@ -100,37 +100,6 @@ def working_data(args: argparse.Namespace, data: Any) -> tuple[Any, Any]:
     if not args.quiet:
         print(f"bayeshyst {args.command}: {info.line()}", file=sys.stderr, flush=True)
     return working, info
-
-
-#: posterior draws the diagnosis' final fit is scored with at full rate
-FULL_RATE_DRAWS = 100
-
-
-def _full_rate_check(fit: Any, full: Any, working: Any, seed: int) -> dict[str, Any]:
-    """The final fit's free-run predictive RMSE on the full-rate and working-rate records.
-
-    Both with :meth:`~bayeshyst.inference.fit.FitResult.predict` (same draws, relaxed at
-    the first sample, warm-up not scored), so the two numbers differ only by the rate;
-    the fit's own posterior-mean RMSE is beside them. An error of the prediction is
-    reported in place of the numbers (the diagnosis itself stands).
-    """
-    from bayeshyst.errors import ParameterError, SimulationError
-
-    try:
-        at_full = fit.predict(full, n_draws=FULL_RATE_DRAWS, seed=seed)
-        at_working = fit.predict(working, n_draws=FULL_RATE_DRAWS, seed=seed)
-    except (DataError, ParameterError, ModelError, SimulationError) as exc:
-        return {"error": f"the final fit could not be scored at full rate: {exc}"}
-    if at_full.overall is None or at_working.overall is None:
-        return {"error": "no measured output to score at full rate"}
-    return {"model": fit.model.name, "n_draws": FULL_RATE_DRAWS,
-            "rmse_working_rate": at_working.overall.rmse,
-            "rmse_full_rate": at_full.overall.rmse,
-            "rmse_fit": fit.overall.rmse,
-            "n_scored_working_rate": int(sum(r.n_scored for r in working)),
-            "n_scored_full_rate": int(sum(r.n_scored for r in full)),
-            "method": "posterior predictive in free run (FitResult.predict), relaxed at "
-                      "the first sample, warm-up not scored"}
 
 
 def _params(space: Any) -> list[dict[str, Any]]:
@@ -484,6 +453,7 @@ def cmd_export(args: argparse.Namespace) -> int:
 def cmd_diagnose(args: argparse.Namespace) -> int:
     """``bayeshyst diagnose DATA --model M``: the residual loop, before and after."""
     from bayeshyst.diagnosis import EFFECTS, diagnose
+    from bayeshyst.inference.predict import check_at_full_rate
     from bayeshyst.likelihoods import get_likelihood
     from bayeshyst.models import get as get_model
     from bayeshyst.outputs.assemble import diagnosis_figures
@@ -531,14 +501,10 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
         entry = rate.to_dict()
         if rate.changed:
             # the working rate is a choice of the fit; the records are what was measured
-            entry["full_rate_check"] = check = _full_rate_check(result.final.fit, full,
-                                                                data, sampler.seed)
+            check = check_at_full_rate(result.final.fit, full, data, seed=sampler.seed)
+            entry["full_rate_check"] = check.to_dict()
             if not args.quiet:
-                print("bayeshyst diagnose: final fit scored at full rate: "
-                      + (check["error"] if "error" in check else
-                         f"RMSE {check['rmse_full_rate']:.4g} (working rate "
-                         f"{check['rmse_working_rate']:.4g}; the fit's own "
-                         f"{check['rmse_fit']:.4g})"), file=sys.stderr, flush=True)
+                print(f"bayeshyst diagnose: final fit: {check}", file=sys.stderr, flush=True)
         figures = None if args.no_figures else diagnosis_figures(result)
         summary = write_diagnosis_outputs(result, out, figures=figures,
                                           data_name=str(args.data), working_rate=entry)

@@ -29,7 +29,8 @@ An input outside the range the fit saw is a warning with the share of samples ou
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from typing import Any
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from scipy import special
@@ -37,7 +38,7 @@ from scipy import special
 from bayeshyst.data.dataset import Dataset
 from bayeshyst.data.groups import Band
 from bayeshyst.data.record import Record
-from bayeshyst.errors import DataError, ParameterError
+from bayeshyst.errors import DataError, ModelError, ParameterError, SimulationError
 from bayeshyst.inference.calibration import pit_values
 from bayeshyst.inference.error_spectrum import SpectrumBand, band_spectra
 from bayeshyst.inference.posterior import Posterior
@@ -52,8 +53,12 @@ from bayeshyst.inference.predictive import (
 )
 from bayeshyst.inference.protocols import Predictor
 
-__all__ = ["InitialCondition", "PredictionResult", "PredictionScore", "RecordPrediction",
-           "checked_request", "predict", "predict_posterior", "predict_predictor"]
+if TYPE_CHECKING:  # fit.py imports this module: the annotation only
+    from bayeshyst.inference.fit import FitResult
+
+__all__ = ["FULL_RATE_DRAWS", "FullRateCheck", "InitialCondition", "PredictionResult",
+           "PredictionScore", "RecordPrediction", "check_at_full_rate", "checked_request",
+           "predict", "predict_posterior", "predict_predictor"]
 
 #: a periodic prediction whose last two periods differ by more than this share of the
 #: median predictive standard deviation has not reached its steady state: the change
@@ -423,3 +428,106 @@ def predict(fit: Any, data: Dataset | Record, *, initial: InitialCondition | str
                                  source=type(fit).__name__)
     raise ParameterError(f"fit: expected a SavedFit, a FitResult, a Predictor or the path of a "
                          f"saved fit, got {type(fit).__name__}")
+
+
+# ---------------------------------------------------------------- at the full rate
+#: posterior draws :func:`check_at_full_rate` scores a fit with by default
+FULL_RATE_DRAWS = 100
+
+
+@dataclass(frozen=True)
+class FullRateCheck:
+    """A fit made at a working rate, scored on the records at their full rate.
+
+    The working rate (:func:`bayeshyst.data.working_rate.to_working_rate`) is a choice
+    of the fit; the full-rate records are what was measured. :func:`check_at_full_rate`
+    makes this record.
+
+    Attributes
+    ----------
+    model : str
+        The fitted model's name.
+    n_draws : int
+        Posterior draws each prediction simulated.
+    rmse_working_rate, rmse_full_rate : float or None
+        Free-run posterior-predictive RMSE on the working-rate and the full-rate records
+        [unit of the output ``y``]; None when not scored.
+    rmse_fit : float or None
+        The fit's own RMSE (posterior mean, on the data it was fitted to) [unit of ``y``].
+    n_scored_working_rate, n_scored_full_rate : int
+        Samples scored at each rate (warm-up left out).
+    error : str or None
+        Why the fit was not scored (a failed prediction, no measured output); the
+        numbers are None then.
+    """
+
+    model: str
+    n_draws: int
+    rmse_working_rate: float | None = None
+    rmse_full_rate: float | None = None
+    rmse_fit: float | None = None
+    n_scored_working_rate: int = 0
+    n_scored_full_rate: int = 0
+    error: str | None = None
+
+    #: how both RMSEs were computed (the same for each: they differ only by the rate)
+    METHOD = ("posterior predictive in free run (FitResult.predict), relaxed at the first "
+              "sample, warm-up not scored")
+
+    def __str__(self) -> str:
+        if self.error is not None:
+            return self.error
+        return (f"{self.model} scored at full rate: RMSE {self.rmse_full_rate:.4g} (working "
+                f"rate {self.rmse_working_rate:.4g}; the fit's own {self.rmse_fit:.4g})")
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready: ``{"error"}`` alone when not scored, else the numbers and ``method``."""
+        if self.error is not None:
+            return {"error": self.error}
+        return {"model": self.model, "n_draws": self.n_draws,
+                "rmse_working_rate": self.rmse_working_rate,
+                "rmse_full_rate": self.rmse_full_rate, "rmse_fit": self.rmse_fit,
+                "n_scored_working_rate": self.n_scored_working_rate,
+                "n_scored_full_rate": self.n_scored_full_rate, "method": self.METHOD}
+
+
+def check_at_full_rate(fit: FitResult, full: Dataset, working: Dataset, *,
+                       n_draws: int = FULL_RATE_DRAWS, seed: int = 0) -> FullRateCheck:
+    """A fit's free-run predictive RMSE on the full-rate and on the working-rate records.
+
+    Both with :meth:`~bayeshyst.inference.fit.FitResult.predict` (the same draws, relaxed
+    at the first sample, warm-up not scored), so the two numbers differ only by the rate;
+    the fit's own posterior-mean RMSE is beside them.
+
+    Parameters
+    ----------
+    fit : FitResult
+        A fit made on ``working``.
+    full : Dataset
+        The records at their full rate, with their measured outputs.
+    working : Dataset
+        The same records at their working rate (what ``fit`` was fitted to).
+    n_draws : int, default :data:`FULL_RATE_DRAWS`
+        Posterior draws simulated for each prediction.
+    seed : int, default 0
+        Seeds the choice of draws, the noise and the PIT (the same for both rates).
+
+    Returns
+    -------
+    FullRateCheck
+        An error of the prediction (bad data, parameters, model or a failed simulation)
+        is a record saying so, with no numbers: what the fit found stands without it.
+    """
+    model = fit.model.name
+    try:
+        at_full = fit.predict(full, n_draws=n_draws, seed=seed)
+        at_working = fit.predict(working, n_draws=n_draws, seed=seed)
+    except (DataError, ParameterError, ModelError, SimulationError) as exc:
+        return FullRateCheck(model, n_draws,
+                             error=f"the fit could not be scored at full rate: {exc}")
+    if at_full.overall is None or at_working.overall is None:
+        return FullRateCheck(model, n_draws, error="no measured output to score at full rate")
+    return FullRateCheck(model, n_draws, rmse_working_rate=at_working.overall.rmse,
+                         rmse_full_rate=at_full.overall.rmse, rmse_fit=fit.overall.rmse,
+                         n_scored_working_rate=int(sum(r.n_scored for r in working)),
+                         n_scored_full_rate=int(sum(r.n_scored for r in full)))

@@ -123,8 +123,9 @@ def write_diagnosis_outputs(result: DiagnosisResult, out_dir: str | Path, *,
     working_rate : mapping, optional
         The rate the records were fitted at
         (:meth:`bayeshyst.data.working_rate.WorkingRate.to_dict`, with the final fit
-        scored at full rate under ``full_rate_check`` when a record was decimated),
-        recorded under the summary's ``working_rate``; left out of it by default.
+        scored at full rate under ``full_rate_check`` when a record was decimated:
+        :meth:`bayeshyst.inference.predict.FullRateCheck.to_dict`), recorded under the
+        summary's ``working_rate``; left out of it by default.
 
     Returns
     -------
