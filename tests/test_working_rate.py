@@ -21,11 +21,11 @@ from scipy import stats
 from bayeshyst import models
 from bayeshyst.cli import main
 from bayeshyst.data import Dataset, Record, write_csv
+from bayeshyst.data.spectral_edge import signal_edge
 from bayeshyst.data.working_rate import (
     MARGIN,
     MIN_SAMPLES_PER_CYCLE,
     WorkingRate,
-    signal_edge,
     to_working_rate,
 )
 from bayeshyst.errors import DataError, ParameterError
