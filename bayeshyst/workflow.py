@@ -101,7 +101,11 @@ class ReportSettings:
     effects : tuple of str or None
         Candidate effects of the diagnosis (None: all).
     max_rounds, max_candidates : int
-        Diagnosis: most effects added; fired effects refitted per round.
+        Diagnosis: most effects added; fired effects sampled per round beyond those the
+        screen judged.
+    screen : bool
+        Diagnosis: screen every fired candidate from its MAP first
+        (:mod:`bayeshyst.diagnosis.screen`); False samples every candidate it reaches.
     budget_doublings : int
         Diagnosis: times an unconverged fit is sampled again with twice the steps before
         a candidate resting on it is not decided (the base fit too: then it is no longer
@@ -130,6 +134,7 @@ class ReportSettings:
     effects: tuple[str, ...] | None = None
     max_rounds: int = 6
     max_candidates: int = 2
+    screen: bool = True
     budget_doublings: int = 1
     design_draws: int = 24
     robust_quantile: float = 0.9
@@ -368,7 +373,7 @@ def _run_report(data: Dataset, names: tuple[str, ...], s: ReportSettings, out: P
             data, chosen, s.likelihood, effects=s.effects, max_rounds=s.max_rounds,
             max_candidates=s.max_candidates, sampler=sampler, max_refits=s.max_refits,
             budget_doublings=s.budget_doublings, checkpoint_dir=checkpoints, on_fit=on_fit,
-            n_jobs=s.n_jobs)
+            n_jobs=s.n_jobs, screen=s.screen)
         times["diagnose"] = time.perf_counter() - t0
         final = diagnosis.final
         if s.calibration:

@@ -113,11 +113,12 @@ def _exact(tasks, post, res, i, settings, seed, notes):
     Returns the refit's estimate (its draws, the linear block integrated out: what the
     exact path reports) and the bridge-sampling estimate from both posteriors' draws.
     """
+    from bayeshyst.inference.held_out import held_out_start
     from bayeshyst.inference.sampling import sample_posterior
 
     held = post.holding_out([i])
     sampler = settings.sampler.replace(seed=seed + 1, checkpoint=None, progress=False)
-    r = sample_posterior(held, sampler, start=tasks._held_out_start(held, res.start,
+    r = sample_posterior(held, sampler, start=held_out_start(held, res.start,
                                                                     sampler.seed))
     if not r.converged:
         notes.append(f"refit without cycle {i} not converged")

@@ -324,7 +324,9 @@ def _stubbed_loop(monkeypatch, pair_gain, gains=None, unconverged=frozenset()):
         return DiagnosisFit(label, fit, analysis)
 
     monkeypatch.setattr(loop, "diagnosis_fit", fake_fit)
-    return loop.diagnose(data, "pi_play(n_operators=2)", max_rounds=2, max_candidates=2)
+    # the stubs are fits, not posteriors a screen could score: every candidate is sampled
+    return loop.diagnose(data, "pi_play(n_operators=2)", max_rounds=2, max_candidates=2,
+                         screen=False)
 
 
 def test_the_loop_fits_the_pair_after_a_round_of_rejections_and_credits_both(monkeypatch):

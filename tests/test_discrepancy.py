@@ -263,9 +263,9 @@ def test_exact_refit_with_a_discrepancy_starts_at_the_held_out_conditional_mode(
     must reach the same posterior (means within 0.5 sd)."""
     from bayeshyst.data import Record
     from bayeshyst.inference.discrepancy_fit import attach_discrepancy
+    from bayeshyst.inference.held_out import held_out_start
     from bayeshyst.inference.sampling import sample_posterior
     from bayeshyst.models import get
-    from bayeshyst.selection.tasks import _held_out_start
 
     t = np.arange(4000) * 1e-3  # four 1 Hz cycles of a Bouc–Wen loop (5 nonlinear coords)
     u = 75.0 - 75.0 * np.cos(2 * np.pi * t)
@@ -276,7 +276,7 @@ def test_exact_refit_with_a_discrepancy_starts_at_the_held_out_conditional_mode(
     post, _, begin = attach_discrepancy(post0, find_map(post0, seed=np.random.default_rng(0)))
     held = post.holding_out([1])
     assert LinearStructure.of(held).design_idx.size  # the path with coordinates kept
-    start = _held_out_start(held, begin, 4)
+    start = held_out_start(held, begin, 4)
     assert np.isfinite(start.log_prob)
     _no_coefficient_move_raises(held, start)
     searched = find_map(held, seed=np.random.default_rng(4), x0=begin.z, n_screen=32,
@@ -480,7 +480,7 @@ def test_a_candidate_on_top_of_the_correction_nests_the_current_fit(pi):
     # parameters' null value it has the current fit's log-likelihood for any coefficients.
     # Re-anchored at the augmented model (the defect this guards against), the basis
     # loses the new parameters' directions and the same coefficients give another delta.
-    from bayeshyst.diagnosis.loop import _candidate_discrepancy
+    from bayeshyst.diagnosis._steps import candidate_discrepancy as _candidate_discrepancy
     from bayeshyst.models.blocks import Drift
     from bayeshyst.models.compose import Composite
 

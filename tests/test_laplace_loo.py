@@ -95,7 +95,7 @@ def test_reliable_cycles_match_the_exact_leave_one_out(tempered, seed):
     # widest of the decaying sine, moves the posterior most when left out: its k is the
     # largest
     post, start, exact = tempered
-    res = laplace_loo(post, start, n_draws=2000, seed=seed)
+    res = laplace_loo(post, start, n_draws=2000, seed=seed, refit_above=None)
     assert res.pointwise.shape == exact.shape == res.pareto_k.shape
     err = np.abs(res.pointwise - exact)
     good = res.pareto_k <= 0.5
@@ -109,12 +109,27 @@ def test_reliable_cycles_match_the_exact_leave_one_out(tempered, seed):
     assert res.n_finite == res.n_draws
 
 
+@pytest.mark.parametrize("seed", range(3))
+def test_a_cycle_that_moves_the_posterior_is_scored_from_its_own_laplace(tempered, seed):
+    # refitting every cycle above k = 0.5: the first (k 0.66-1.05 from the full
+    # posterior's draws, 0.2-0.7 nat off) is scored from the Laplace approximation of the
+    # posterior without it, which for this Gaussian posterior is that posterior itself:
+    # its error drops to the Monte Carlo error of the other cycles
+    post, start, exact = tempered
+    res = laplace_loo(post, start, n_draws=2000, seed=seed, refit_above=0.5)
+    assert 0 in res.refitted
+    assert np.all(res.pareto_k <= 0.5), res.pareto_k
+    np.testing.assert_allclose(res.pointwise, exact, rtol=0, atol=0.1)
+    assert res.reliable and "held-out Laplace" in str(res)
+    assert res.to_dict()["refitted"] == list(res.refitted)
+
+
 def test_a_proposal_narrower_than_the_posterior_is_flagged(tempered):
     # a Laplace covariance 1/400 of the truth (sd 20x too small) misses the posterior's
     # bulk: the weights' Pareto k says so, and the estimate is not reliable
     post, start, _ = tempered
     narrow = dataclasses.replace(start, covariance=start.covariance / 400.0)
-    res = laplace_loo(post, narrow, n_draws=2000, seed=0)
+    res = laplace_loo(post, narrow, n_draws=2000, seed=0, refit_above=None)
     assert res.posterior_k > PARETO_K_BAD
     assert not res.reliable
     assert "NOT reliable" in str(res)

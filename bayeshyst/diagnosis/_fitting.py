@@ -9,6 +9,7 @@ unresolved in every ensemble), scores its held-out cycles and analyses its resid
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -22,14 +23,15 @@ from bayeshyst.discrepancy import Discrepancy
 from bayeshyst.inference.calibration import uncertainty_budget
 from bayeshyst.inference.discrepancy_fit import attach_discrepancy
 from bayeshyst.inference.fit import FitResult, errors_by_frequency
-from bayeshyst.inference.optimize import find_map
+from bayeshyst.inference.optimize import MAPResult, find_map
 from bayeshyst.inference.posterior import Posterior
 from bayeshyst.inference.sampling import sample_posterior
+from bayeshyst.inference.settings import SamplerSettings
 from bayeshyst.models.base import HysteresisModel
 from bayeshyst.selection.tasks import CompareSettings, fit_sampler, loo_scores
 from bayeshyst.threads import with_single_threaded_blas
 
-__all__ = ["diagnosis_fit"]
+__all__ = ["Prepared", "diagnosis_fit", "prepare_fit"]
 
 
 def _carried(post: Posterior, previous: DiagnosisFit, added: dict[str, Any],
@@ -93,11 +95,68 @@ def _warm_walkers(post: Posterior, previous: DiagnosisFit, added: dict[str, Any]
     return walkers if walkers.shape[0] else None
 
 
+@dataclass(frozen=True)
+class Prepared:
+    """A fit's posterior and the sampler's start, before any sampling.
+
+    ``start`` is the MAP the sampler starts from: None leaves the search to the sampler
+    (which, resuming a checkpoint, reads it back instead); otherwise it is the search the
+    sampler would run (same seed), so a fit handed it samples what it would have sampled.
+    """
+
+    post: Posterior
+    start: MAPResult | None
+    initial: np.ndarray | None
+    scales: Any
+    sampler: SamplerSettings
+
+
+def prepare_fit(data: Dataset, model: HysteresisModel, likelihood: str,
+                st: DiagnosisSettings, checkpoint_dir: Path | None,
+                warm: tuple[DiagnosisFit, dict[str, Any]] | None = None,
+                discrepancy: str | Discrepancy | None = None, *,
+                search: bool = False) -> Prepared:
+    """The posterior a diagnosis fit samples, its MAP and starting walkers.
+
+    Parameters as :func:`diagnosis_fit`; ``search``: find the MAP even where the sampler
+    would find it itself (a screen needs it).
+    """
+    post = Posterior(data, model, likelihood)
+    start = initial = scales = None
+    if discrepancy is not None and post.likelihood.name in ("gaussian", "ar1"):
+        # as fit_model: the discrepancy anchored at the MAP without it and its scales
+        # fixed at their held-out optimum. Sampled jointly with its coefficients, the
+        # scales make a funnel: a block added on top of the shape correction (creep on
+        # the 150 V piezo) reached R-hat 1.87 in 10 000 steps
+        seed0 = fit_sampler(post, st.sampler, st.seed, None).seed
+        x0 = None if warm is None else _warm_point(post, warm[0], warm[1], seed0)
+        start0 = find_map(post, seed=np.random.default_rng(seed0), x0=x0)
+        post, scales, start = attach_discrepancy(post, start0, discrepancy)
+    elif discrepancy is not None:  # sampled scales: the one way for other likelihoods
+        post = Posterior(data, model, likelihood, discrepancy=discrepancy)
+    # the seed, checkpoint and walkers follow from what is fitted: the base fit of a report
+    # is the comparison's joint fit (same posterior, same settings, same checkpoint folder)
+    sampler = fit_sampler(post, st.sampler, st.seed, checkpoint_dir)
+    seed = sampler.seed
+    if warm is not None:
+        initial = _warm_walkers(post, warm[0], warm[1], seed)
+        x0 = None if scales is not None else _warm_point(post, warm[0], warm[1], seed)
+        if x0 is not None:  # an extra start of the MAP search, not a replacement
+            start = find_map(post, seed=np.random.default_rng(seed), x0=x0)
+    if start is None and search:
+        # the search sample_posterior runs when it is given no start (its last spawned
+        # seed), so that handing this one over changes nothing
+        spawned = np.random.SeedSequence(sampler.seed).spawn(sampler.n_ensembles + 1)
+        start = find_map(post, seed=np.random.default_rng(spawned[-1]))
+    return Prepared(post, start, initial, scales, sampler)
+
+
 @with_single_threaded_blas
 def diagnosis_fit(data: Dataset, model: HysteresisModel, likelihood: str, label: str,
                   st: DiagnosisSettings, checkpoint_dir: Path | None,
                   warm: tuple[DiagnosisFit, dict[str, Any]] | None = None,
-                  discrepancy: str | Discrepancy | None = None) -> DiagnosisFit:
+                  discrepancy: str | Discrepancy | None = None,
+                  prepared: Prepared | None = None) -> DiagnosisFit:
     """One fit of the loop: sampled (again, if unconverged), scored, its residual analysed.
 
     It runs with one BLAS thread wherever it runs (in the caller or in a worker of the
@@ -125,34 +184,20 @@ def diagnosis_fit(data: Dataset, model: HysteresisModel, likelihood: str, label:
         base fit.
     discrepancy : str, Discrepancy or None
         The shape correction fitted with the model, if any.
+    prepared : Prepared, optional
+        What :func:`prepare_fit` made of these arguments already (the candidate's
+        screen did): its MAP is not searched again.
 
     Returns
     -------
     DiagnosisFit
         The fit and the analysis of its residual.
     """
-    post = Posterior(data, model, likelihood)
-    start = initial = scales = None
-    if discrepancy is not None and post.likelihood.name in ("gaussian", "ar1"):
-        # as fit_model: the discrepancy anchored at the MAP without it and its scales
-        # fixed at their held-out optimum. Sampled jointly with its coefficients, the
-        # scales make a funnel: a block added on top of the shape correction (creep on
-        # the 150 V piezo) reached R-hat 1.87 in 10 000 steps
-        seed0 = fit_sampler(post, st.sampler, st.seed, None).seed
-        x0 = None if warm is None else _warm_point(post, warm[0], warm[1], seed0)
-        start0 = find_map(post, seed=np.random.default_rng(seed0), x0=x0)
-        post, scales, start = attach_discrepancy(post, start0, discrepancy)
-    elif discrepancy is not None:  # sampled scales: the one way for other likelihoods
-        post = Posterior(data, model, likelihood, discrepancy=discrepancy)
-    # the seed, checkpoint and walkers follow from what is fitted: the base fit of a report
-    # is the comparison's joint fit (same posterior, same settings, same checkpoint folder)
-    sampler = fit_sampler(post, st.sampler, st.seed, checkpoint_dir)
+    if prepared is None:
+        prepared = prepare_fit(data, model, likelihood, st, checkpoint_dir, warm, discrepancy)
+    post, start, initial = prepared.post, prepared.start, prepared.initial
+    scales, sampler = prepared.scales, prepared.sampler
     seed = sampler.seed
-    if warm is not None:
-        initial = _warm_walkers(post, warm[0], warm[1], seed)
-        x0 = None if scales is not None else _warm_point(post, warm[0], warm[1], seed)
-        if x0 is not None:  # an extra start of the MAP search, not a replacement
-            start = find_map(post, seed=np.random.default_rng(seed), x0=x0)
     res = sample_posterior(post, sampler, start=start, initial=initial)
     notes: list[str] = []
     # an unconverged fit decides nothing, so it is sampled again from the same start with

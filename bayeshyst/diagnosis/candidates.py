@@ -33,6 +33,7 @@ from bayeshyst.diagnosis.verdict import (
     MIN_ELPD_GAIN,
     MIN_GATE_UNITS,
     NOT_CONVERGED,
+    SCREEN,
     experiment_for,
     implausible,
     separates_lags,
@@ -260,7 +261,9 @@ def pair_for(tried: Sequence[tuple[EffectTest, DiagnosisFit, DiagnosisStep]],
     409 nats alone, +3 420 +- 549 together). Returns the index in ``tried`` of the
     first effect and its partner's test, or None.
 
-    The first is the rejected candidate that the gate judged on held-out cycles and
+    The first is the rejected candidate that the gate judged on held-out cycles (its fit's
+    or its screen's, :mod:`bayeshyst.diagnosis.screen`: the caller samples a screened
+    first before the pair) and
     that gained most on the whole (more than :data:`MIN_ELPD_GAIN`) while *losing* on
     some cycles -- without such cycles a partner is no remedy. Its partner is the
     tried candidate that gained most on those cycles, if one gained there at all, else
@@ -274,7 +277,7 @@ def pair_for(tried: Sequence[tuple[EffectTest, DiagnosisFit, DiagnosisStep]],
                 and step.decided_by != NOT_CONVERGED)
 
     firsts = [i for i, (_, _, step) in enumerate(tried)
-              if usable(step) and step.decided_by == "elpd"
+              if usable(step) and step.decided_by in ("elpd", SCREEN)
               and step.delta_elpd > MIN_ELPD_GAIN]
     if not firsts or current.pointwise_elpd is None:
         return None

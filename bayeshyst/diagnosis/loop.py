@@ -13,6 +13,11 @@ Two gates stand between a residual pattern and an effect in ``effects_found``:
 
 Fired effects are tried in order of support (Bayes factor; coloured noise last); the
 first that passes gate 2 is kept and the loop starts again from the augmented fit.
+Every fired effect of a round is screened first, from its augmented posterior's MAP
+(:mod:`bayeshyst.diagnosis.screen`: Laplace draws importance-corrected to each
+leave-one-cycle-out posterior): one that loses gate 2 even with the screen's error in
+its favour is rejected without being sampled, one the screen judges able to pass is
+sampled whatever the round's budget, and one it cannot judge is sampled within it.
 Effects that fire but fail gate 2 are recorded as rejected steps. When every candidate
 of a round fails and the best of them lost on some held-out cycles while gaining on the
 whole, it is fitted once more together with a partner that explains those cycles
@@ -56,30 +61,32 @@ from __future__ import annotations
 import logging
 import math
 from collections.abc import Callable, Hashable, Mapping, Sequence
-from dataclasses import replace
 from pathlib import Path
 from types import MappingProxyType
 from typing import Any
 
-import numpy as np
-
 from bayeshyst.data.dataset import Dataset
 from bayeshyst.data.record import Record
-from bayeshyst.diagnosis._fitting import diagnosis_fit
+from bayeshyst.diagnosis._fitting import Prepared, diagnosis_fit
+from bayeshyst.diagnosis._steps import (
+    PAIRABLE,
+    augmented,
+    before_noise,
+    candidate_discrepancy,
+    credited,
+    speculative,
+    try_pair,
+)
 from bayeshyst.diagnosis._workers import Prefetcher
 from bayeshyst.diagnosis.candidates import (
     BRANCH_SHAPE,
-    DISTURBANCE,
-    SHAPE_DISCREPANCY,
-    UNEXPLAINED,
     judge,
     line_candidate,
     pair_for,
     shape_candidate,
     unexplained_candidate,
 )
-from bayeshyst.diagnosis.catalogue import EFFECTS, get_effect
-from bayeshyst.diagnosis.effects import ColoredNoise, insert_after_base
+from bayeshyst.diagnosis.catalogue import EFFECTS
 from bayeshyst.diagnosis.records import (
     DiagnosisFit,
     DiagnosisResult,
@@ -87,27 +94,26 @@ from bayeshyst.diagnosis.records import (
     DiagnosisStep,
 )
 from bayeshyst.diagnosis.residual import EffectTest
+from bayeshyst.diagnosis.screen import (
+    CandidateScreen,
+    ScreenedFit,
+    screen_candidate,
+    screened_step,
+)
 from bayeshyst.diagnosis.verdict import (
     NOT_CONVERGED,
     PLAUSIBLE,
-    SLOW_IN_TIME,
     column_tie_notes,
     column_tied,
     explained_beyond_shape,
     shape_tie_notes,
     tied_beyond,
 )
-from bayeshyst.discrepancy import DISC, Discrepancy
 from bayeshyst.errors import DataError, ParameterError
-from bayeshyst.inference.posterior import Posterior
 from bayeshyst.inference.settings import SamplerSettings
 from bayeshyst.likelihoods import get_likelihood
 from bayeshyst.models import get as get_model
 from bayeshyst.models.base import HysteresisModel
-from bayeshyst.models.blocks import Disturbance, Unexplained
-from bayeshyst.models.blocks.smooth import TIME
-from bayeshyst.models.compose import Composite
-from bayeshyst.selection import paired_difference
 from bayeshyst.workers import resolve_jobs
 
 __all__ = ["DiagnosisFit", "DiagnosisResult", "DiagnosisSettings", "DiagnosisStep", "diagnose"]
@@ -116,169 +122,6 @@ _log = logging.getLogger(__name__)
 
 
 # --------------------------------------------------------------------------- the loop
-def _candidate_discrepancy(below: Posterior, disc: str | None) -> str | Discrepancy | None:
-    """The discrepancy a candidate is fitted with, given the posterior it augments.
-
-    On top of a shape correction the candidate keeps that very correction -- its basis
-    kept off the sensitivities of the model it was added to -- so that the augmented
-    model nests the current one (its new parameters at their null value give the same
-    density). Re-anchored at the augmented model, the correction would lose the
-    direction of every added parameter whether the data use it or not (a delay at
-    ``d = 0`` moves the output one way only), and the gate would compare two different
-    corrections: on the MR damper at 0.75 A every round-4 candidate raised the in-sample
-    RMSE (67.4 -> 71.6-77.5 N) and lost 175-379 nats of held-out density that way.
-    ``disc`` (a kind, ``"hsgp"``) is used when ``below`` has none: the shape candidate.
-    """
-    if disc is not None and below.discrepancy is not None:
-        return below.discrepancy
-    return disc
-
-
-def _before_noise(candidates: Sequence[EffectTest]) -> int:
-    """Where a structural candidate goes: before coloured noise, which only blurs it."""
-    noise = [i for i, t in enumerate(candidates) if t.effect == ColoredNoise.name]
-    return noise[0] if noise else len(candidates)
-
-
-def _augmented(test: EffectTest, current: DiagnosisFit, spec: str, disc: str | None,
-               data: Dataset) -> tuple[HysteresisModel, str, str, str | None,
-                                       tuple[DiagnosisFit, dict[str, Any]]]:
-    """The model ``test`` proposes: (model, likelihood, spec, discrepancy, warm start)."""
-    if test.effect == BRANCH_SHAPE:
-        # start where the current fit is, with the shape correction at zero
-        return (current.model, current.likelihood, spec, SHAPE_DISCREPANCY,
-                (current, {f"{DISC}.xi": 0.0}))
-    if test.effect == UNEXPLAINED:
-        return (Composite(current.model, (Unexplained(feature=test.variant),)),
-                current.likelihood, f"{spec}+unexplained(feature={test.variant})", disc,
-                (current, {}))
-    if test.effect == DISTURBANCE:
-        blk = Disturbance(frequency_hz=float(test.variant))
-        return (Composite(current.model, (blk,)), current.likelihood,
-                f"{spec}+disturbance(frequency_hz={blk.frequency_hz!r})", disc, (current, {}))
-    eff = get_effect(test.effect)
-    new_model, new_lik, suffix = eff.augment(current.model, current.likelihood, test.coef,
-                                             data, variant=test.variant)
-    if suffix.startswith(" "):  # the likelihood changed, not the model
-        new_spec = spec
-    elif (isinstance(new_model, Composite) and isinstance(current.model, Composite)
-          and new_model.blocks[1:] == current.model.blocks):
-        new_spec = insert_after_base(spec, suffix)  # placed before the existing blocks
-    else:
-        new_spec = spec + suffix
-    return (new_model, new_lik, new_spec, disc,
-            (current, eff.initial(test.coef, test.estimates)))
-
-
-def _challenge(step: DiagnosisStep, cand: DiagnosisFit, alt_step: DiagnosisStep,
-               alt: DiagnosisFit, threshold: float) -> tuple[DiagnosisStep, DiagnosisStep]:
-    """A kept effect that follows slow structure against a smooth term in time in its place.
-
-    The smooth term wins only when it passed the gate itself and its held-out elpd beats
-    the effect's by more than ``threshold`` standard errors; otherwise the physical
-    effect, the simpler reading, is kept. Returns both steps with their verdicts.
-    """
-    d, se = paired_difference(alt.pointwise_elpd, cand.pointwise_elpd)
-    versus = f"held-out elpd {d:+z.1f} (se {se:.1f}) against {step.effect}"
-    if alt_step.accepted and math.isfinite(se) and d > threshold * se and d > 0:
-        return (replace(step, accepted=False,
-                        reason=f"{step.reason}; but a smooth term in time explains the "
-                        f"residual better ({versus}): {step.effect} is not credited"),
-                replace(alt_step, reason=f"{alt_step.reason}; beats {step.effect}: {versus}"))
-    why = "not better" if alt_step.accepted else "not kept on its own"
-    return step, replace(alt_step, accepted=False,
-                         reason=f"{alt_step.reason}; {why} than {step.effect} ({versus}, "
-                         f"needs > {threshold:g} x se): the physical effect is kept")
-
-
-#: A fitted candidate: the fit, its step, its spec and its discrepancy (or None).
-Fitted = tuple[DiagnosisFit, DiagnosisStep, str, "str | None"]
-
-
-def _credited(effect: str, fitted: Fitted, unexplained: EffectTest | None,
-              challenger: Callable[[], Fitted], threshold: float, steps: list[DiagnosisStep],
-              rnd: int) -> tuple[Fitted, bool]:
-    """Record a fitted candidate's step, after its challenge when one is due.
-
-    When the scan says the residual follows time, an accepted effect that can follow
-    slow structure is credited only if it explains it at least as well as a generic
-    smooth term in time (``challenger()`` fits that term in its place; it cannot be read
-    physically). Returns the winner and whether the challenger was fitted.
-    """
-    cand, step, _, _ = fitted
-    ran = bool(step.accepted and effect in SLOW_IN_TIME and unexplained is not None
-               and unexplained.variant == TIME)
-    if ran:
-        alt, alt_step, alt_spec, alt_disc = challenger()
-        step, alt_step = _challenge(step, cand, alt_step, alt, threshold)
-        steps += [step, alt_step]  # in the order they were fitted
-        if alt_step.accepted:
-            _log.info("round %d: %s beaten by %s", rnd, effect, UNEXPLAINED)
-            fitted = (alt, alt_step, alt_spec, alt_disc)
-        else:
-            fitted = (cand, step, fitted[2], fitted[3])
-    else:
-        steps.append(step)
-    _log.info("round %d: %s %s", rnd, fitted[1].effect, fitted[1].verdict())
-    return fitted, ran
-
-
-#: Effects :func:`pair_for` may fit together: the catalogue's blocks (the noise model
-#: changes the likelihood, and the scan-judged candidates have their own gate)
-_PAIRABLE = tuple(e for e in EFFECTS if e != ColoredNoise.name)
-
-
-def _try_pair(first: tuple[EffectTest, DiagnosisFit, DiagnosisStep, str, str | None],
-              partner: EffectTest, current: DiagnosisFit, attempt: Callable[..., Fitted],
-              unexplained: EffectTest | None, threshold: float, steps: list[DiagnosisStep],
-              rnd: int) -> tuple[DiagnosisFit, str, str | None, tuple[str, ...]] | None:
-    """Fit ``partner`` on top of the rejected ``first`` candidate and gate the pair.
-
-    The pair is judged against the round's current fit like any candidate, and credited
-    to both effects. A partner that can follow slow structure is challenged by a smooth
-    term in time in its place, as a single effect is. Appends the steps it takes.
-    """
-    test_a, fit_a, _, spec_a, disc_a = first
-    lost = int(np.sum(fit_a.pointwise_elpd < current.pointwise_elpd))
-    n = current.pointwise_elpd.size
-    why = (f"fitted together, neither having passed alone ({test_a.effect} lost on {lost} "
-           f"of {n} held-out cycles: one noise scale serves every cycle, and it tightens "
-           f"where {test_a.effect} fits)")
-
-    def on_first(test: EffectTest, label: str) -> Fitted:
-        # fitted on top of the first effect's fit, named as the pair
-        cand, step, spec, disc = attempt(test, on=(fit_a, spec_a, disc_a))
-        return cand, replace(step, effect=label, reason=f"{why}; {step.reason}"), spec, disc
-
-    (cand, step, new_spec, new_disc), _ = _credited(
-        partner.effect, on_first(partner, f"{test_a.effect}+{partner.effect}"), unexplained,
-        lambda: on_first(unexplained, f"{test_a.effect}+{UNEXPLAINED}"), threshold, steps,
-        rnd)
-    # the step names the pair kept: the partner, or the smooth term that beat it
-    return (cand, new_spec, new_disc, tuple(step.effect.split("+"))) if step.accepted else None
-
-
-def _speculative(candidates: Sequence[EffectTest], unexplained: EffectTest | None,
-                 budget: int) -> list[EffectTest]:
-    """A round's fits on the current fit that the serial loop may need, in its order.
-
-    The candidates within the round's ``budget`` (``max_candidates``; the first is
-    sure to be needed, each later one when every one before it was rejected or refused)
-    and, right after the first that can follow slow structure, the smooth term in time
-    that would challenge it when it passes its gate (:func:`_credited`). A refused
-    candidate does not use up the budget: what the serial loop fits beyond it is not
-    guessed and is fitted when it is reached.
-    """
-    challenger = unexplained if unexplained is not None and unexplained.variant == TIME \
-        else None
-    out: list[EffectTest] = []
-    for t in candidates[:budget]:
-        for u in (t, challenger if t.effect in SLOW_IN_TIME else None):
-            if u is not None and all(u is not v for v in out):
-                out.append(u)
-    return out
-
-
 def _check_settings(st: DiagnosisSettings) -> None:
     bad = [e for e in st.effects if e not in EFFECTS]
     if bad:
@@ -316,6 +159,7 @@ def diagnose(
     checkpoint_dir: str | Path | None = None,
     on_fit: Callable[[DiagnosisFit], None] | None = None,
     n_jobs: int | None = None,
+    screen: bool = True,
 ) -> DiagnosisResult:
     """Find what a fitted model misses, add it, refit, and report the error before and after.
 
@@ -338,9 +182,10 @@ def diagnose(
     max_rounds : int
         Most effects added.
     max_candidates : int
-        Fired effects refitted per round before giving up on the round; one rejected only
+        Fired effects sampled per round before giving up on the round; one rejected only
         because its physical reading is implausible (``plausible``) or unresolved (a
-        resonance above every record's Nyquist frequency) does not count.
+        resonance above every record's Nyquist frequency) does not count, nor does one
+        the screen rejected (``screen``).
     sampler : SamplerSettings, optional
         How every fit is sampled (:func:`~bayeshyst.inference.sampling.sample_posterior`);
         each fit's seed derives from ``sampler.seed`` and what the fit is
@@ -384,6 +229,12 @@ def diagnose(
         Workers start as :mod:`bayeshyst.workers` starts them (``fork`` where the
         platform has it; under ``spawn`` a script needs the ``if __name__ ==
         "__main__":`` guard). Every fit runs with one BLAS thread, wherever it runs.
+    screen : bool
+        Screen every fired candidate of a round from its MAP first
+        (:mod:`bayeshyst.diagnosis.screen`): one the screen shows losing its gate even
+        with the screen's error in its favour is rejected without being sampled (its
+        step's ``decided_by`` is ``"screen"``); the others are sampled and judged as
+        without it. False samples every candidate the round reaches.
 
     Returns
     -------
@@ -400,7 +251,8 @@ def diagnose(
         sampler=SamplerSettings() if sampler is None else sampler, n_draws=int(n_draws),
         max_refits=int(max_refits), n_permutations=int(n_permutations),
         plausible=PLAUSIBLE if plausible is None else MappingProxyType(dict(plausible)),
-        decide_unconverged=bool(decide_unconverged), budget_doublings=budget_doublings)
+        decide_unconverged=bool(decide_unconverged), budget_doublings=budget_doublings,
+        screen=bool(screen))
     _check_settings(st)
     base_label = model if isinstance(model, str) else model.name
     base_model = get_model(model) if isinstance(model, str) else model
@@ -421,13 +273,16 @@ def _loop(data: Dataset, base_model: HysteresisModel, base_label: str, likelihoo
     """The rounds of :func:`diagnose`; ``pool`` fits ahead of them what they may need."""
     FitArgs = tuple[Any, ...]  # the arguments of diagnosis_fit
 
-    def fit(args: FitArgs, key: Hashable | None = None) -> DiagnosisFit:
-        # a fit prefetched under ``key`` is the workers'; any other is fitted here
+    def fit(args: FitArgs, key: Hashable | None = None,
+            prepared: Prepared | None = None) -> DiagnosisFit:
+        # a fit prefetched under ``key`` is the workers'; any other is fitted here, from
+        # what its screen prepared (the same posterior and MAP the fit would find)
         if key is not None and key in pool:
             f = pool.take(key)
         else:
             with pool.sharing():
-                f = diagnosis_fit(*args)
+                f = (diagnosis_fit(*args) if prepared is None
+                     else diagnosis_fit(*args, prepared=prepared))
         if on_fit is not None:
             on_fit(f)
         return f
@@ -461,17 +316,17 @@ def _loop(data: Dataset, base_model: HysteresisModel, base_label: str, likelihoo
             for t in tied:
                 shape_ties.setdefault(t.effect, t.p_beyond_shape)
             candidates = [t for t in candidates if all(t is not u for u in tied)]
-            candidates.insert(_before_noise(candidates), shape)
+            candidates.insert(before_noise(candidates), shape)
         line = line_candidate(current, st.alpha)
         if line is not None:
             # a line is structure, which an AR(1) noise model would only blur: it goes
             # before coloured noise
-            candidates.insert(_before_noise(candidates), line)
+            candidates.insert(before_noise(candidates), line)
         unexplained = unexplained_candidate(current, st.alpha)
         if unexplained is not None:
             # what no physical block explains is still structure: a smooth term in the
             # feature it follows says how much, before coloured noise would blur it
-            at = _before_noise(candidates)
+            at = before_noise(candidates)
             kept = [d.driver for d in current.analysis.drivers.selected]
             shape_at = [i for i, t in enumerate(candidates) if t.effect == BRANCH_SHAPE]
             if shape_at and kept.index(unexplained.variant) < kept.index("loop position"):
@@ -486,19 +341,35 @@ def _loop(data: Dataset, base_model: HysteresisModel, base_label: str, likelihoo
             # ``on``: augment that fit (a candidate of this round) instead of the current
             # one. The key names the fit within the round: what it augments and the label
             below, below_spec, below_disc = (current, spec, disc) if on is None else on
-            new_model, new_lik, new_spec, new_disc, warm = _augmented(
+            new_model, new_lik, new_spec, new_disc, warm = augmented(
                 test, below, below_spec, below_disc, data)
             label = lab(new_spec, new_lik, new_disc)
             return ((rnd, below.label, label),
                     (data, new_model, new_lik, label, st, ckdir, warm,
-                     _candidate_discrepancy(below.posterior, new_disc)), new_spec, new_disc)
+                     candidate_discrepancy(below.posterior, new_disc)), new_spec, new_disc)
+
+        # every candidate screened from its MAP first (on the current fit); one that
+        # loses its gate even with the screen's error in its favour is not sampled
+        screens: dict[int, tuple[CandidateScreen, Prepared, str, str | None]] = {}
+        if st.screen:
+            for t in candidates:
+                try:
+                    _, args, t_spec, t_disc = planned(t, None)
+                except Exception:  # raised again when (if) it is fitted
+                    continue
+                scr, prep = screen_candidate(args, current, st.threshold)
+                _log.info("round %d: %s", rnd, scr)
+                screens[id(t)] = (scr, prep, t_spec, t_disc)
+        rejected = {i for i, (scr, *_) in screens.items() if scr.rejects}
 
         def attempt(test: EffectTest, rnd: int = rnd, current: DiagnosisFit = current,
-                    on: tuple[DiagnosisFit, str, str | None] | None = None
+                    on: tuple[DiagnosisFit, str, str | None] | None = None,
+                    screens: dict[int, Any] = screens
                     ) -> tuple[DiagnosisFit, DiagnosisStep, str, str | None]:
             # the result is judged against the current fit, whatever it augments
             key, args, new_spec, new_disc = planned(test, on)
-            cand = fit(args, key)
+            prep = screens[id(test)][1] if on is None and id(test) in screens else None
+            cand = fit(args, key, prep)
             warnings.extend(w for w in cand.warnings if w not in warnings)
             return cand, judge(rnd, test, current, cand, st), new_spec, new_disc
 
@@ -515,14 +386,29 @@ def _loop(data: Dataset, base_model: HysteresisModel, base_label: str, likelihoo
                 pool.submit(key, *args)
 
         accepted, refitted, challenged = None, 0, False
-        tried: list[tuple[EffectTest, DiagnosisFit, DiagnosisStep, str, str | None]] = []
-        guesses = _speculative(candidates, unexplained, st.max_candidates)
+        tried: list[tuple[EffectTest, Any, DiagnosisStep, str, str | None]] = []
+        guesses = speculative([t for t in candidates if id(t) not in rejected],
+                               unexplained, st.max_candidates)
         reached: list[EffectTest] = []
         for test in candidates:
-            if refitted >= st.max_candidates:
-                break
+            if refitted >= st.max_candidates and not (
+                    id(test) in screens and screens[id(test)][0].passes):
+                # past the budget only what the screen judged able to pass is sampled
+                if not screens:
+                    break
+                continue
             if test is unexplained and challenged:
                 continue  # already fitted as a challenger this round
+            if id(test) in rejected:
+                # decided by the screen: its numbers are the step's; it does not use up
+                # the round's budget, and a pair may still build on it (fitted then)
+                scr, _, t_spec, t_disc = screens[id(test)]
+                step = screened_step(rnd, test, current, scr, st.threshold)
+                steps.append(step)
+                tried.append((test, ScreenedFit(scr.label, scr.loo.pointwise), step,
+                              t_spec, t_disc))
+                _log.info("round %d: %s %s", rnd, test.effect, step.verdict())
+                continue
             # the workers fit what may come after this one while it is fitted (or taken)
             reached.append(test)
             prefetch([t for t in guesses if all(t is not u for u in reached)])
@@ -536,7 +422,7 @@ def _loop(data: Dataset, base_model: HysteresisModel, base_label: str, likelihoo
                 refitted += 1
                 if step.decided_by == NOT_CONVERGED:
                     warnings.append(f"{test.effect}: {step.reason}")
-            (cand, step, new_spec, new_disc), ran = _credited(
+            (cand, step, new_spec, new_disc), ran = credited(
                 test.effect, (cand, step, new_spec, new_disc), unexplained,
                 lambda u=unexplained: attempt(u), st.threshold, steps, rnd)
             challenged |= ran
@@ -547,15 +433,32 @@ def _loop(data: Dataset, base_model: HysteresisModel, base_label: str, likelihoo
         if accepted is None:
             untried = [t for t in candidates if all(t is not u for u, *_ in tried)]
             pick = pair_for([(t, c, s) for t, c, s, _, _ in tried], untried, current,
-                            _PAIRABLE)
+                            PAIRABLE)
+            while pick is not None and isinstance(tried[pick[0]][1], ScreenedFit):
+                # the pair builds on the first effect's fit: a screened first is sampled
+                # now, its step becomes the fit's (kept if the fit passes after all),
+                # and the pair is chosen again on the fit's own numbers
+                test_a, _, screened, _, _ = tried[pick[0]]
+                steps.remove(screened)
+                fitted, ran = credited(test_a.effect, attempt(test_a), unexplained,
+                                        lambda u=unexplained: attempt(u), st.threshold,
+                                        steps, rnd)
+                challenged |= ran
+                tried[pick[0]] = (test_a, *fitted)
+                if fitted[1].accepted:
+                    accepted = (fitted[0], fitted[2], fitted[3], (fitted[1].effect,))
+                    pick = None
+                else:
+                    pick = pair_for([(t, c, s) for t, c, s, _, _ in tried], untried,
+                                    current, PAIRABLE)
             if pick is not None:
                 _, fit_a, _, spec_a, disc_a = tried[pick[0]]
-                if _speculative([pick[1]], unexplained, 1)[1:]:
+                if speculative([pick[1]], unexplained, 1)[1:]:
                     # the pair's challenger, fitted on the first effect's fit as the pair
                     # is, is needed when the pair passes its gate: likely, as a pair is
                     # tried only when each effect explains cycles the other loses on
                     prefetch([unexplained], on=(fit_a, spec_a, disc_a))
-                accepted = _try_pair(tried[pick[0]], pick[1], current, attempt,
+                accepted = try_pair(tried[pick[0]], pick[1], current, attempt,
                                      unexplained, st.threshold, steps, rnd)
                 pool.discard()
         if accepted is None:

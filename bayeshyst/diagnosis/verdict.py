@@ -113,6 +113,9 @@ NOT_CONVERGED = "not converged"
 #: ``decided_by`` of a step refused as unresolved on an unconverged fit
 #: (:func:`unresolved_throughout`): the gate decided nothing, the resolution did.
 BY_RESOLUTION = "resolution"
+#: ``decided_by`` of a candidate the screen rejected from its MAP, without sampling it
+#: (:mod:`bayeshyst.diagnosis.screen`).
+SCREEN = "screen"
 
 
 #: Name of the base model's own misfit among the loop's candidates.

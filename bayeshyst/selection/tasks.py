@@ -51,9 +51,8 @@ from bayeshyst.errors import DataError, ModelError, ParameterError, SimulationEr
 from bayeshyst.gp import gp_from_spec
 from bayeshyst.inference.error_spectrum import SpectrumBand, band_spectra
 from bayeshyst.inference.fit import TrackingError, errors_by_frequency, tracking_errors
-from bayeshyst.inference.held_out import held_out_log_predictive
+from bayeshyst.inference.held_out import held_out_log_predictive, held_out_start
 from bayeshyst.inference.linear import LinearStructure
-from bayeshyst.inference.optimize import MAPResult, conditional_start, find_map
 from bayeshyst.inference.posterior import Posterior, cycle_units
 from bayeshyst.inference.sampling import sample_posterior
 from bayeshyst.inference.settings import SamplerSettings
@@ -378,24 +377,6 @@ def heldout_log_density(post: Posterior, test: Dataset, z: np.ndarray
     return _logmeanexp(test_post.log_likelihood_units(zt)), test_post, zt
 
 
-def _held_out_start(held: Posterior, start: MAPResult, seed: int) -> MAPResult:
-    """Where the exact refit of ``held`` (cycles held out of a fitted posterior) starts.
-
-    Its own MAP, searched from the full fit's: by least squares and a small screen,
-    without a global search. With a discrepancy the linear block is ~100 coordinates a
-    search would differentiate one by one (a branch-shape fit on the bundled record:
-    its refit ran 5 000 steps, 13 min, unconverged); there the full fit's nonlinear
-    coordinates are kept and the block and the noise moved to the held-out data's
-    conditional mode, as the calibration check's refit does.
-    """
-    if held.discrepancy is not None:
-        structure = LinearStructure.of(held, reference=start.z)
-        if structure is not None:
-            return conditional_start(held, structure, start)
-    return find_map(held, seed=np.random.default_rng(seed), x0=start.z, n_screen=32,
-                    global_search=False)
-
-
 #: Full-posterior draws the moment matching of a cycle moves (thinned over every chain)
 MOMENT_MATCH_DRAWS = 1000
 #: Points per batch of density evaluations (bounds the simulation's memory)
@@ -487,7 +468,7 @@ def _refit_bad_cycles(post: Posterior, res: Any, pointwise: np.ndarray, k: np.nd
         # 10 kHz PI + second-order fit); a mode the walkers find above it still restarts
         # the run
         sampler = settings.sampler.replace(seed=seed + 1 + j, checkpoint=None, progress=False)
-        r = sample_posterior(held, sampler, start=_held_out_start(held, res.start, sampler.seed))
+        r = sample_posterior(held, sampler, start=held_out_start(held, res.start, sampler.seed))
         new = _refit_log_predictive(post, res, r.draws(n_draws, seed=seed), i)
         dp += pw[i] - new
         pw[i], kk[i] = new, math.nan
