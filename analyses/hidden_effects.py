@@ -42,6 +42,7 @@ Run (from the repository root)::
     python -m analyses.hidden_effects --seeds 10       # more seeds
     python -m analyses.hidden_effects --cases creep,temperature_gain --seeds 2
     python -m analyses.hidden_effects --quick          # 2 cases x 1 seed (a minute)
+    python -m analyses.hidden_effects --no-screen      # every candidate sampled
 """
 
 from __future__ import annotations
@@ -272,12 +273,13 @@ def _traced(case: Case, result: Any) -> bool:
     return any(d.driver == case.target for d in drivers)
 
 
-def _one(case: Case, seed: int, sampler: SamplerSettings, path: Path) -> dict[str, Any]:
+def _one(case: Case, seed: int, sampler: SamplerSettings, path: Path,
+         screen: bool = True) -> dict[str, Any]:
     import time
 
     from bayeshyst.diagnosis import diagnose
 
-    key = {"case": case.name, "seed": seed, "sampler": sampler.to_dict()}
+    key = {"case": case.name, "seed": seed, "sampler": sampler.to_dict(), "screen": screen}
     if path.exists():
         old = json.loads(path.read_text())
         if old.get("key") == key:
@@ -286,9 +288,10 @@ def _one(case: Case, seed: int, sampler: SamplerSettings, path: Path) -> dict[st
     data = case.make(seed)
     result = diagnose(data, case.model, sampler=dataclasses.replace(sampler, seed=seed),
                       n_draws=100, max_refits=0, max_candidates=1,
-                      max_rounds=case.max_rounds, decide_unconverged=True)
+                      max_rounds=case.max_rounds, decide_unconverged=True, screen=screen)
     row = {"key": key, "case": case.name, "group": case.group, "seed": seed,
            **score(case, result),
+           "screened_out": sum(s.decided_by == "screen" for s in result.steps),
            "rmse_before": result.base.overall.rmse, "rmse_after": result.final.overall.rmse,
            "runtime_s": round(time.perf_counter() - t0, 1)}
     write_json(path, row)
@@ -306,6 +309,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="seeds per case, --seed .. --seed + N - 1 (default 5; --quick 1)")
     p.add_argument("--steps", type=positive_int, default=300,
                    help="sampler steps per ensemble of every fit (default 300)")
+    p.add_argument("--no-screen", action="store_true",
+                   help="sample every candidate the loop reaches (the full loop) instead "
+                        "of screening each from its MAP first")
     return p
 
 
@@ -360,7 +366,8 @@ def _analyse(args: argparse.Namespace) -> int:
     rows = []
     for name in names:
         for seed in range(args.seed, args.seed + n_seeds):
-            row = _one(known[name], seed, sampler, out / "runs" / f"{name}_{seed}.json")
+            row = _one(known[name], seed, sampler, out / "runs" / f"{name}_{seed}.json",
+                       screen=not args.no_screen)
             log(f"{name} seed {seed}: {'right' if row['right'] else 'WRONG'} (kept "
                 f"{', '.join(row['effects_found']) or 'none'}; {row['runtime_s']:.0f} s)")
             rows.append(row)
@@ -369,7 +376,8 @@ def _analyse(args: argparse.Namespace) -> int:
     write_text(out / "hidden_effects.txt", text)
     write_json(out / "summary.json", {
         "command": PROG, "quick": bool(args.quick), "seeds": n_seeds,
-        "first_seed": args.seed, "sampler": sampler.to_dict(), **summary,
+        "first_seed": args.seed, "sampler": sampler.to_dict(),
+        "screen": not args.no_screen, **summary,
         "runs": [{k: v for k, v in r.items() if k != "key"} for r in rows],
         "runtime_s": round(log.elapsed, 1)})
     print(text)

@@ -95,3 +95,27 @@ def test_the_screen_does_not_judge_fewer_cycles_than_the_gate_needs(creep_args):
     assert n < MIN_GATE_UNITS
     scr, _ = screen_candidate((short, model, *rest), _current(np.full(n, 1e6)), 2.0)
     assert scr.delta_elpd < 0 and not scr.rejects  # would lose, but the gate cannot tell
+
+
+def test_the_loop_rejects_from_the_screen_and_samples_the_rest(tmp_path):
+    # the wandering record: creep fires first. Its screen rejects it (left out, the first
+    # cycle is predicted hundreds of nats worse: see above), so it is not sampled and
+    # does not use the round's one candidate; the smooth term in time is sampled and
+    # kept, as the full loop keeps it after creep's challenge
+    from bayeshyst.diagnosis import diagnose
+
+    fits = []
+    result = diagnose(_wander(), BASE, sampler=SamplerSettings(n_walkers=16, max_steps=200,
+                                                               first_chunk=100, seed=0),
+                      n_draws=50, max_refits=0, max_candidates=1, max_rounds=1,
+                      on_fit=fits.append, n_jobs=1)
+    creep, smooth = result.steps
+    assert (creep.effect, creep.decided_by, creep.accepted) == ("creep", "screen", False)
+    assert "screened out at its MAP" in creep.reason and creep.added_parameters == ()
+    assert creep.delta_elpd < 0 and creep.model_after.endswith("+creep")
+    assert smooth.effect == "unexplained" and smooth.accepted and smooth.decided_by == "elpd"
+    # the base and the smooth term were sampled, creep never
+    assert [f.label for f in fits] == [result.base.label, smooth.model_after]
+    assert result.effects_found == ("unexplained",)
+    row = result.to_dict()["steps"][0]
+    assert row["decided_by"] == "screen"
