@@ -251,7 +251,8 @@ def unresolved_added(sampling: SamplingResult, names: Sequence[str], data: Any) 
 
 def pair_for(tried: Sequence[tuple[EffectTest, DiagnosisFit, DiagnosisStep]],
              untried: Sequence[EffectTest], current: DiagnosisFit,
-             pairable: Sequence[str]) -> tuple[int, EffectTest] | None:
+             pairable: Sequence[str], first: int | None = None
+             ) -> tuple[int, EffectTest] | None:
     """Two effects to fit together when every candidate of a round lost the gate.
 
     One noise scale serves every cycle: an effect that explains the fast cycles (a
@@ -270,7 +271,8 @@ def pair_for(tried: Sequence[tuple[EffectTest, DiagnosisFit, DiagnosisStep]],
     the first candidate of the round not tried yet. Both must be in ``pairable``
     (blocks of the catalogue: not the noise model, which changes the likelihood),
     plausible, resolved and, when tried, converged. The pair is then fitted and gated
-    like any candidate.
+    like any candidate. ``first``: only that entry of ``tried`` may be the first effect
+    (a screened first chosen earlier and sampled since).
     """
     def usable(step: DiagnosisStep) -> bool:
         return (step.effect in pairable and not step.accepted and not step.refused
@@ -278,7 +280,7 @@ def pair_for(tried: Sequence[tuple[EffectTest, DiagnosisFit, DiagnosisStep]],
 
     firsts = [i for i, (_, _, step) in enumerate(tried)
               if usable(step) and step.decided_by in ("elpd", SCREEN)
-              and step.delta_elpd > MIN_ELPD_GAIN]
+              and step.delta_elpd > MIN_ELPD_GAIN and first in (None, i)]
     if not firsts or current.pointwise_elpd is None:
         return None
     a = max(firsts, key=lambda i: tried[i][2].delta_elpd)

@@ -13,11 +13,14 @@ Two gates stand between a residual pattern and an effect in ``effects_found``:
 
 Fired effects are tried in order of support (Bayes factor; coloured noise last); the
 first that passes gate 2 is kept and the loop starts again from the augmented fit.
-Every fired effect of a round is screened first, from its augmented posterior's MAP
-(:mod:`bayeshyst.diagnosis.screen`: Laplace draws importance-corrected to each
+Every fired block of the catalogue is screened first, from its augmented posterior's
+MAP (:mod:`bayeshyst.diagnosis.screen`: Laplace draws importance-corrected to each
 leave-one-cycle-out posterior): one that loses gate 2 even with the screen's error in
 its favour is rejected without being sampled, one the screen judges able to pass is
-sampled whatever the round's budget, and one it cannot judge is sampled within it.
+sampled whatever the round's budget, and one it cannot judge is sampled within it. A
+smooth term or a spectral line is screened when the budget would end the round before
+it; the shape correction and coloured noise, the last resorts, come after the round's
+pair and are sampled when reached.
 Effects that fire but fail gate 2 are recorded as rejected steps. When every candidate
 of a round fails and the best of them lost on some held-out cycles while gaining on the
 whole, it is fitted once more together with a partner that explains those cycles
@@ -87,6 +90,7 @@ from bayeshyst.diagnosis.candidates import (
     unexplained_candidate,
 )
 from bayeshyst.diagnosis.catalogue import EFFECTS
+from bayeshyst.diagnosis.effects import ColoredNoise
 from bayeshyst.diagnosis.records import (
     DiagnosisFit,
     DiagnosisResult,
@@ -119,6 +123,9 @@ from bayeshyst.workers import resolve_jobs
 __all__ = ["DiagnosisFit", "DiagnosisResult", "DiagnosisSettings", "DiagnosisStep", "diagnose"]
 
 _log = logging.getLogger(__name__)
+#: Candidates tried only after the round's pair (:func:`~bayeshyst.diagnosis.candidates.
+#: pair_for`): the shape correction and coloured noise.
+_LAST_RESORTS = (BRANCH_SHAPE, ColoredNoise.name)
 
 
 # --------------------------------------------------------------------------- the loop
@@ -351,15 +358,26 @@ def _loop(data: Dataset, base_model: HysteresisModel, base_label: str, likelihoo
         # every candidate screened from its MAP first (on the current fit); one that
         # loses its gate even with the screen's error in its favour is not sampled
         screens: dict[int, tuple[CandidateScreen, Prepared, str, str | None]] = {}
+
+        def screen_now(t: EffectTest, rnd: int = rnd, current: DiagnosisFit = current,
+                       screens: dict[int, Any] = screens) -> None:
+            try:
+                _, args, t_spec, t_disc = planned(t, None)
+            except Exception:  # raised again when (if) it is fitted
+                return
+            scr, prep = screen_candidate(args, current, st.threshold)
+            _log.info("round %d: %s", rnd, scr)
+            screens[id(t)] = (scr, prep, t_spec, t_disc)
+
         if st.screen:
+            # the catalogue's blocks up front; a smooth term or a line only when the
+            # budget would end the round before it; never the shape correction or
+            # coloured noise. Those screens cost most (on the demo 47 s for the shape
+            # and for the smooth term, 2-6 s for a block) and the shape's ended
+            # unreliable
             for t in candidates:
-                try:
-                    _, args, t_spec, t_disc = planned(t, None)
-                except Exception:  # raised again when (if) it is fitted
-                    continue
-                scr, prep = screen_candidate(args, current, st.threshold)
-                _log.info("round %d: %s", rnd, scr)
-                screens[id(t)] = (scr, prep, t_spec, t_disc)
+                if t.effect in PAIRABLE:
+                    screen_now(t)
         rejected = {i for i, (scr, *_) in screens.items() if scr.rejects}
 
         def attempt(test: EffectTest, rnd: int = rnd, current: DiagnosisFit = current,
@@ -385,21 +403,79 @@ def _loop(data: Dataset, base_model: HysteresisModel, base_label: str, likelihoo
                     continue
                 pool.submit(key, *args)
 
-        accepted, refitted, challenged = None, 0, False
+        accepted, refitted, challenged, paired = None, 0, False, False
         tried: list[tuple[EffectTest, Any, DiagnosisStep, str, str | None]] = []
         guesses = speculative([t for t in candidates if id(t) not in rejected],
-                               unexplained, st.max_candidates)
+                              unexplained, st.max_candidates)
         reached: list[EffectTest] = []
+
+        def pair_up(tried: list[Any] = tried, current: DiagnosisFit = current,
+                    candidates: list[EffectTest] = candidates, rnd: int = rnd,
+                    unexplained: EffectTest | None = unexplained,
+                    attempt: Callable[..., Any] = attempt) -> Any:
+            # two rejected effects fitted together (candidates.pair_for), or None
+            nonlocal challenged
+            untried = [t for t in candidates if all(t is not u for u, *_ in tried)]
+            pick = pair_for([(t, c, s) for t, c, s, _, _ in tried], untried, current,
+                            PAIRABLE)
+            while pick is not None and isinstance(tried[pick[0]][1], ScreenedFit):
+                # the pair builds on the first effect's fit: a screened first is sampled
+                # now, its step becomes the fit's (kept if the fit passes after all),
+                # and the pair is chosen again on the fit's own numbers
+                test_a, _, screened, _, _ = tried[pick[0]]
+                steps.remove(screened)
+                fitted, ran = credited(test_a.effect, attempt(test_a), unexplained,
+                                       lambda u=unexplained: attempt(u), st.threshold,
+                                       steps, rnd)
+                challenged |= ran
+                tried[pick[0]] = (test_a, *fitted)
+                if fitted[1].accepted:
+                    return fitted[0], fitted[2], fitted[3], (fitted[1].effect,)
+                # the same first, on its fit's own numbers (another screened first would
+                # be sampled in turn for a gain the screen already weighed)
+                pick = pair_for([(t, c, s) for t, c, s, _, _ in tried], untried,
+                                current, PAIRABLE, first=pick[0])
+            if pick is None:
+                return None
+            _, fit_a, _, spec_a, disc_a = tried[pick[0]]
+            if speculative([pick[1]], unexplained, 1)[1:]:
+                # the pair's challenger, fitted on the first effect's fit as the pair is,
+                # is needed when the pair passes its gate: likely, as a pair is tried
+                # only when each effect explains cycles the other loses on
+                prefetch([unexplained], on=(fit_a, spec_a, disc_a))
+            out = try_pair(tried[pick[0]], pick[1], current, attempt, unexplained,
+                           st.threshold, steps, rnd)
+            pool.discard()
+            return out
+
         for test in candidates:
+            if (refitted >= st.max_candidates and st.screen and id(test) not in screens
+                    and test.effect not in _LAST_RESORTS):
+                # a smooth term or a line past the budget: screened now, to be sampled
+                # if it may pass (within the budget it is sampled without a screen)
+                screen_now(test)
             if refitted >= st.max_candidates and not (
                     id(test) in screens and screens[id(test)][0].passes):
                 # past the budget only what the screen judged able to pass is sampled
-                if not screens:
+                if not st.screen:
                     break
                 continue
             if test is unexplained and challenged:
                 continue  # already fitted as a challenger this round
-            if id(test) in rejected:
+            if not paired and test.effect in _LAST_RESORTS and any(
+                    t.effect in PAIRABLE for t, *_ in tried):
+                # the last resorts (the shape correction, coloured noise) come after two
+                # physical effects that each lost alone, fitted together. Without the
+                # screen the round's budget usually ended it before them; with it every
+                # block is weighed, and the shape correction, which can take up a
+                # block's structure, must not pre-empt the pair (on the demo it did:
+                # kept in round 2 where delay + creep had been, and creep never found)
+                paired = True
+                pool.discard()
+                accepted = pair_up()
+                if accepted is not None:
+                    break
+            if id(test) in screens and screens[id(test)][0].rejects:
                 # decided by the screen: its numbers are the step's; it does not use up
                 # the round's budget, and a pair may still build on it (fitted then)
                 scr, _, t_spec, t_disc = screens[id(test)]
@@ -430,37 +506,8 @@ def _loop(data: Dataset, base_model: HysteresisModel, base_label: str, likelihoo
                 accepted = (cand, new_spec, new_disc, (step.effect,))
                 break
         pool.discard()  # what the workers guessed and the loop did not reach
-        if accepted is None:
-            untried = [t for t in candidates if all(t is not u for u, *_ in tried)]
-            pick = pair_for([(t, c, s) for t, c, s, _, _ in tried], untried, current,
-                            PAIRABLE)
-            while pick is not None and isinstance(tried[pick[0]][1], ScreenedFit):
-                # the pair builds on the first effect's fit: a screened first is sampled
-                # now, its step becomes the fit's (kept if the fit passes after all),
-                # and the pair is chosen again on the fit's own numbers
-                test_a, _, screened, _, _ = tried[pick[0]]
-                steps.remove(screened)
-                fitted, ran = credited(test_a.effect, attempt(test_a), unexplained,
-                                        lambda u=unexplained: attempt(u), st.threshold,
-                                        steps, rnd)
-                challenged |= ran
-                tried[pick[0]] = (test_a, *fitted)
-                if fitted[1].accepted:
-                    accepted = (fitted[0], fitted[2], fitted[3], (fitted[1].effect,))
-                    pick = None
-                else:
-                    pick = pair_for([(t, c, s) for t, c, s, _, _ in tried], untried,
-                                    current, PAIRABLE)
-            if pick is not None:
-                _, fit_a, _, spec_a, disc_a = tried[pick[0]]
-                if speculative([pick[1]], unexplained, 1)[1:]:
-                    # the pair's challenger, fitted on the first effect's fit as the pair
-                    # is, is needed when the pair passes its gate: likely, as a pair is
-                    # tried only when each effect explains cycles the other loses on
-                    prefetch([unexplained], on=(fit_a, spec_a, disc_a))
-                accepted = try_pair(tried[pick[0]], pick[1], current, attempt,
-                                     unexplained, st.threshold, steps, rnd)
-                pool.discard()
+        if accepted is None and not paired:
+            accepted = pair_up()
         if accepted is None:
             break
         current, spec, disc, effects = accepted

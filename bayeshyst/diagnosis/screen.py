@@ -1,8 +1,11 @@
 """Screening a candidate effect from its MAP: the full fit runs only where it can decide.
 
-Every candidate whose residual test fires is screened before any is sampled: its
-augmented posterior's MAP (the search the sampler would start from, warm-started at
-the current fit) and its held-out score without chains,
+Every catalogue block whose residual test fires is screened before any candidate is
+sampled, a smooth term or a spectral line when the round's budget would end the round
+before it (the shape correction and coloured noise are not screened: they come after
+the blocks and their pair, and the shape's screen is the costliest and least often
+reliable). A screen is the augmented posterior's MAP (the search the sampler would
+start from, warm-started at the current fit) and its held-out score without chains,
 :func:`~bayeshyst.diagnostics.laplace_loo.laplace_loo` (Laplace draws importance-
 corrected to the posterior and to each leave-one-cycle-out posterior). Against the
 current fit's cycle-wise elpd this gives the gate's change ``d`` and its standard error
