@@ -108,10 +108,12 @@ def _diagnose_lag(records, seed):
     from bayeshyst.diagnosis import diagnose
     from bayeshyst.inference.settings import SamplerSettings
 
+    # screen=False: the naming and tie rules of sampled candidates are under test; the
+    # screens of five candidates doubled this case's time (77 s against 25 s)
     return diagnose(Dataset(tuple(records), name="lag"), _BASE, max_rounds=1,
                     sampler=SamplerSettings(n_walkers=24, max_steps=400, first_chunk=200,
                                             seed=seed),
-                    n_draws=100, max_refits=0, max_candidates=1)
+                    n_draws=100, max_refits=0, max_candidates=1, screen=False)
 
 
 _SEEDS = [0, pytest.param(1, marks=pytest.mark.slow), pytest.param(2, marks=pytest.mark.slow)]

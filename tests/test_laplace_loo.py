@@ -178,3 +178,21 @@ def test_a_map_of_another_posterior_is_refused(conjugate):
     other = dataclasses.replace(start, z=start.z[:-1])
     with pytest.raises(ParameterError, match="coordinates"):
         laplace_loo(post, other)
+
+
+def test_held_out_terms_of_chosen_cycles_equal_the_full_computation():
+    # the screen's held-out refits need one cycle's term: computed alone it is the same
+    # number, bit for bit, as among all of them; the others are left at -inf
+    from bayeshyst.inference.held_out import held_out_log_predictive
+    from bayeshyst.inference.linear import LinearStructure
+    from bayeshyst.models import get
+
+    _, rec, _ = pi_data(n_ops=3, sigma=SIGMA, n=3000)
+    post = Posterior(rec, get("bouc_wen"))
+    z = post.space.sample_prior(np.random.default_rng(0), 20)
+    structure = LinearStructure.of(post, reference=z[0])
+    every = held_out_log_predictive(structure, z)
+    for units in ([0], [3], [1, 4]):
+        some = held_out_log_predictive(structure, z, units=units)
+        np.testing.assert_array_equal(some[:, units], every[:, units])
+        assert np.all(np.isneginf(np.delete(some, units, axis=1)))

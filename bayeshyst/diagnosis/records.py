@@ -205,8 +205,11 @@ class DiagnosisStep(TableRecord):
         the cycles are too few for the elpd gate), ``"residual scan"`` (the driver
         scan's or the spectral test's own calibrated p-value, for the branch shape and a
         disturbance), ``"not converged"`` (nothing decided: the augmented fit did not
-        converge) or ``"resolution"`` (the augmented fit did not converge, but the
-        resonance it adds lies above Nyquist in every ensemble: refused as unresolved).
+        converge), ``"resolution"`` (the augmented fit did not converge, but the
+        resonance it adds lies above Nyquist in every ensemble: refused as unresolved)
+        or ``"screen"`` (rejected from the candidate's MAP without sampling it,
+        :mod:`bayeshyst.diagnosis.screen`; ``after`` is then the MAP's error and
+        ``added_parameters`` is empty).
     """
 
     index: int

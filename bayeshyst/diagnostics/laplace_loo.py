@@ -276,7 +276,7 @@ def _held_out_estimate(post: Posterior, start: MAPResult, structure: LinearStruc
     z, logq = _t_draws(np.asarray(s_i.z, dtype=float), _cholesky(s_i.covariance), df,
                        n_draws, rng)
     logp = held.log_prob_batch(z)
-    term = (held_out_log_predictive(structure, z)[:, i] if structure is not None
+    term = (held_out_log_predictive(structure, z, units=[i])[:, i] if structure is not None
             else post.log_likelihood_units(z)[:, i])
     lw, k = psis(logp - logq)
     ok = np.isfinite(lw) & np.isfinite(term)

@@ -28,6 +28,8 @@ The test suite checks both against central differences of the values.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
 from scipy.linalg import lapack
 
@@ -62,7 +64,8 @@ def central_points(z: np.ndarray, idx: np.ndarray, step: float = SCALE_STEP) -> 
 
 
 def held_out_log_predictive(structure: LinearStructure, z: np.ndarray, *,
-                            chunk: int = 64) -> np.ndarray:
+                            chunk: int = 64, units: Sequence[int] | None = None
+                            ) -> np.ndarray:
     """Held-out ``log p(y_c | y_-c, z_n)`` of every cycle ``c``, shape (W, n_units).
 
     With the linear block integrated out exactly, this is the Rao-Blackwellised
@@ -81,6 +84,9 @@ def held_out_log_predictive(structure: LinearStructure, z: np.ndarray, *,
         Posterior draws.
     chunk : int
         Draws processed together (bounds the memory of the per-cycle Grams).
+    units : sequence of int, optional
+        Only these cycles' terms (the others' columns are ``-inf``); the marginal
+        without a cycle is the costly part, one factorisation per cycle and draw.
     """
     z = np.atleast_2d(np.asarray(z, dtype=float))
     n_units = structure.post.n_units
@@ -88,7 +94,7 @@ def held_out_log_predictive(structure: LinearStructure, z: np.ndarray, *,
     for a in range(0, z.shape[0], chunk):
         zz = z[a:a + chunk]
         out[a:a + chunk] = held_out_from_units(structure, unit_grams(structure, zz, n_units),
-                                               zz)
+                                               zz, units=units)
     return out
 
 
@@ -156,7 +162,8 @@ def _scaled_units(structure: LinearStructure, grams: tuple, z: np.ndarray
     return first, lag0, cross, prev, failed
 
 
-def _subsets(structure: LinearStructure, grams: tuple, z: np.ndarray):
+def _subsets(structure: LinearStructure, grams: tuple, z: np.ndarray,
+             only: Sequence[int] | None = None):
     """All samples, then stacks of 'all but one unit', as (LinearStats, units) pairs.
 
     The first pair's units are None; each later pair covers the units ``us`` for every
@@ -174,6 +181,8 @@ def _subsets(structure: LinearStructure, grams: tuple, z: np.ndarray):
                       int(n_unit.sum()), int(n_first.sum()), failed)
     yield tot, None
     units = np.flatnonzero(n_unit > 0)  # the others are held out already
+    if only is not None:
+        units = np.intersect1d(units, np.asarray(only, dtype=int))
     step = max(1, _HELD_OUT_STACK // w)
     for a in range(0, units.size, step):
         us = units[a:a + step]
@@ -193,12 +202,15 @@ def _subsets(structure: LinearStructure, grams: tuple, z: np.ndarray):
 
 
 def held_out_from_units(structure: LinearStructure, grams: tuple,
-                        z: np.ndarray) -> np.ndarray:
-    """Held-out ``log p(y_c | y_-c, z_n)`` (W, n_units) from :func:`unit_grams`."""
+                        z: np.ndarray, *, units: Sequence[int] | None = None) -> np.ndarray:
+    """Held-out ``log p(y_c | y_-c, z_n)`` (W, n_units) from :func:`unit_grams`.
+
+    ``units``: only these cycles' columns are computed (the others are ``-inf``).
+    """
     w = z.shape[0]
     out = np.full((w, grams[4].size), -np.inf)
     lm_all = None
-    for st, us in _subsets(structure, grams, z):
+    for st, us in _subsets(structure, grams, z, units):
         if us is None:
             lm_all = structure.log_marginal(st, z)
             continue

@@ -52,6 +52,7 @@ from bayeshyst.inference.predictive import (
     score_records,
 )
 from bayeshyst.inference.protocols import Predictor
+from bayeshyst.tables import TableRecord, frame
 
 if TYPE_CHECKING:  # fit.py imports this module: the annotation only
     from bayeshyst.inference.fit import FitResult
@@ -436,7 +437,7 @@ FULL_RATE_DRAWS = 100
 
 
 @dataclass(frozen=True)
-class FullRateCheck:
+class FullRateCheck(TableRecord):
     """A fit made at a working rate, scored on the records at their full rate.
 
     The working rate (:func:`bayeshyst.data.working_rate.to_working_rate`) is a choice
@@ -489,6 +490,10 @@ class FullRateCheck:
                 "rmse_full_rate": self.rmse_full_rate, "rmse_fit": self.rmse_fit,
                 "n_scored_working_rate": self.n_scored_working_rate,
                 "n_scored_full_rate": self.n_scored_full_rate, "method": self.METHOD}
+
+    def to_dataframe(self) -> Any:
+        """One row: :meth:`to_dict`."""
+        return frame([self.to_dict()])
 
 
 def check_at_full_rate(fit: FitResult, full: Dataset, working: Dataset, *,

@@ -28,7 +28,7 @@ __all__ = ["STEP_COLUMNS", "diagnosis_summary", "evidence_figures", "write_diagn
 STEP_COLUMNS = ("round", "effect", "accepted", "statistic", "statistic_value", "p_value",
                 "p_adjusted", "bayes_factor_log", "rmse_before", "rmse_after",
                 "max_error_before", "max_error_after", "delta_elpd", "delta_elpd_se",
-                "model_before", "model_after")
+                "model_before", "model_after", "decided_by")
 
 
 def _steps_csv(result: DiagnosisResult) -> str:
