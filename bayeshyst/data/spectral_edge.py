@@ -71,21 +71,7 @@ def edge_and_floor(x: np.ndarray, fs: float, *, alpha: float = ALPHA,
                    floor_at_least: float = 0.0) -> tuple[float, float] | None:
     """:func:`signal_edge` and the white-noise floor it used.
 
-    Parameters
-    ----------
-    x : ndarray of float, shape (n,)
-        A uniformly sampled channel [any unit].
-    fs : float
-        Its sampling rate [Hz].
-    alpha : float, default :data:`ALPHA`
-        Probability that white noise alone gives an edge above 0 (Bonferroni over bins).
-    exclude : ndarray of bool, shape (n - 2,), optional
-        Second-difference samples to zero before the spectrum (an input's jumps, which
-        the filter keeps as jumps and which are no band content).
-    floor_at_least : float, default 0
-        Lower bound on the floor [unit of ``x`` squared per Hz, one-sided]: content
-        below it does not count as signal (the input's band counts only where it would
-        show in the output above the output's floor).
+    Parameters are :func:`signal_edge`'s.
 
     Returns
     -------
