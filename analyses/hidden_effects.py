@@ -42,7 +42,7 @@ Run (from the repository root)::
     python -m analyses.hidden_effects --seeds 10       # more seeds
     python -m analyses.hidden_effects --cases creep,temperature_gain --seeds 2
     python -m analyses.hidden_effects --quick          # 2 cases x 1 seed (a minute)
-    python -m analyses.hidden_effects --no-screen      # every candidate sampled
+    python -m analyses.hidden_effects --screen         # candidates screened from the MAP
 """
 
 from __future__ import annotations
@@ -274,7 +274,7 @@ def _traced(case: Case, result: Any) -> bool:
 
 
 def _one(case: Case, seed: int, sampler: SamplerSettings, path: Path,
-         screen: bool = True) -> dict[str, Any]:
+         screen: bool = False) -> dict[str, Any]:
     import time
 
     from bayeshyst.diagnosis import diagnose
@@ -309,9 +309,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="seeds per case, --seed .. --seed + N - 1 (default 5; --quick 1)")
     p.add_argument("--steps", type=positive_int, default=300,
                    help="sampler steps per ensemble of every fit (default 300)")
-    p.add_argument("--no-screen", action="store_true",
-                   help="sample every candidate the loop reaches (the full loop) instead "
-                        "of screening each from its MAP first")
+    p.add_argument("--screen", action="store_true",
+                   help="screen the candidates from their MAP first (diagnose --screen)")
     return p
 
 
@@ -367,7 +366,7 @@ def _analyse(args: argparse.Namespace) -> int:
     for name in names:
         for seed in range(args.seed, args.seed + n_seeds):
             row = _one(known[name], seed, sampler, out / "runs" / f"{name}_{seed}.json",
-                       screen=not args.no_screen)
+                       screen=args.screen)
             log(f"{name} seed {seed}: {'right' if row['right'] else 'WRONG'} (kept "
                 f"{', '.join(row['effects_found']) or 'none'}; {row['runtime_s']:.0f} s)")
             rows.append(row)
@@ -377,7 +376,7 @@ def _analyse(args: argparse.Namespace) -> int:
     write_json(out / "summary.json", {
         "command": PROG, "quick": bool(args.quick), "seeds": n_seeds,
         "first_seed": args.seed, "sampler": sampler.to_dict(),
-        "screen": not args.no_screen, **summary,
+        "screen": bool(args.screen), **summary,
         "runs": [{k: v for k, v in r.items() if k != "key"} for r in rows],
         "runtime_s": round(log.elapsed, 1)})
     print(text)

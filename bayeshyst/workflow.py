@@ -104,8 +104,8 @@ class ReportSettings:
         Diagnosis: most effects added; fired effects sampled per round beyond those the
         screen judged.
     screen : bool
-        Diagnosis: screen every fired candidate from its MAP first
-        (:mod:`bayeshyst.diagnosis.screen`); False samples every candidate it reaches.
+        Diagnosis: screen the fired candidates from their MAP first
+        (:mod:`bayeshyst.diagnosis.screen`); off by default.
     budget_doublings : int
         Diagnosis: times an unconverged fit is sampled again with twice the steps before
         a candidate resting on it is not decided (the base fit too: then it is no longer
@@ -134,7 +134,7 @@ class ReportSettings:
     effects: tuple[str, ...] | None = None
     max_rounds: int = 6
     max_candidates: int = 2
-    screen: bool = True
+    screen: bool = False
     budget_doublings: int = 1
     design_draws: int = 24
     robust_quantile: float = 0.9

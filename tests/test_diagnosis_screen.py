@@ -108,7 +108,7 @@ def test_the_loop_rejects_from_the_screen_and_samples_the_rest(tmp_path):
     result = diagnose(_wander(), BASE, sampler=SamplerSettings(n_walkers=16, max_steps=200,
                                                                first_chunk=100, seed=0),
                       n_draws=50, max_refits=0, max_candidates=1, max_rounds=1,
-                      on_fit=fits.append, n_jobs=1)
+                      on_fit=fits.append, n_jobs=1, screen=True)
     creep, smooth = result.steps
     assert (creep.effect, creep.decided_by, creep.accepted) == ("creep", "screen", False)
     assert "screened out at its MAP" in creep.reason and creep.added_parameters == ()

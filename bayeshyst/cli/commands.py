@@ -498,7 +498,7 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
                           alpha=args.alpha, threshold=args.threshold,
                           max_rounds=args.max_rounds, sampler=sampler,
                           checkpoint_dir=checkpoints, on_fit=on_fit, n_jobs=args.jobs,
-                          screen=not args.no_screen)
+                          screen=args.screen)
         entry = rate.to_dict()
         if rate.changed:
             # the working rate is a choice of the fit; the records are what was measured
@@ -584,7 +584,7 @@ def _report_settings(args: argparse.Namespace) -> Any:
         likelihood=args.likelihood, sampler=sampler_settings(args), lofo=not args.no_lofo,
         max_refits=args.max_refits, effects=None if args.effects is None
         else effect_list(args.effects), max_rounds=args.max_rounds, n_jobs=args.jobs,
-        calibration=not args.no_calibration, screen=not args.no_screen)
+        calibration=not args.no_calibration, screen=args.screen)
 
 
 def cmd_report(args: argparse.Namespace) -> int:

@@ -311,10 +311,10 @@ def build_parser() -> argparse.ArgumentParser:
                       help="most effects added (default 6)")
     p_dg.add_argument("--no-checkpoint", action="store_true",
                       help="do not checkpoint to OUT/checkpoints/ (and do not resume)")
-    p_dg.add_argument("--no-screen", action="store_true",
-                      help="sample every candidate the loop reaches instead of screening "
-                           "each from its MAP first (slower; the screen rejects only what "
-                           "loses its gate even with its error given)")
+    p_dg.add_argument("--screen", action="store_true",
+                      help="screen every fired block from its MAP before sampling: one "
+                           "that loses its gate even with the screen's error given is not "
+                           "sampled, one that may pass is sampled beyond the round's budget")
     p_dg.add_argument("--jobs", type=positive_int, default=None,
                       help="processes fitting at once: workers fit ahead of the loop the "
                            "candidates it may need next (default: one per core; the "
@@ -339,9 +339,9 @@ def build_parser() -> argparse.ArgumentParser:
                        help="candidate effects of the diagnosis (default all)")
     p_rep.add_argument("--max-rounds", type=positive_int, default=6, metavar="N",
                        help="most effects the diagnosis adds (default 6)")
-    p_rep.add_argument("--no-screen", action="store_true",
-                       help="the diagnosis samples every candidate it reaches instead of "
-                            "screening each from its MAP first")
+    p_rep.add_argument("--screen", action="store_true",
+                       help="the diagnosis screens every fired block from its MAP before "
+                            "sampling (see diagnose --screen)")
     p_rep.add_argument("--no-calibration", action="store_true",
                        help="skip the uncertainty analysis' calibration check (one more "
                             "posterior run of the final model without the last cycle of "

@@ -53,7 +53,7 @@ class DiagnosisSettings:
     plausible: Mapping[str, tuple[float, float, str]] = field(default_factory=lambda: PLAUSIBLE)
     decide_unconverged: bool = False
     budget_doublings: int = 1
-    screen: bool = True
+    screen: bool = False
 
     def __getstate__(self) -> dict[str, Any]:
         # a mappingproxy (the default ranges) does not pickle, and the settings travel to
