@@ -36,6 +36,7 @@ from bayeshyst.diagnosis.verdict import (
     SCREEN,
     experiment_for,
     implausible,
+    passes_gate,
     separates_lags,
     shape_tied,
     tied_effects,
@@ -143,7 +144,7 @@ def judge(rnd: int, test: EffectTest, current: DiagnosisFit, cand: DiagnosisFit,
     better = cand.overall.rmse < current.overall.rmse
     if n_units >= MIN_GATE_UNITS and math.isfinite(d) and math.isfinite(se):
         decided_by = "elpd"
-        ok = bool(d > st.threshold * se and d > MIN_ELPD_GAIN)
+        ok = passes_gate(d, se, st.threshold)
         if ok:
             # the se in the same form as the other outcomes': "> 2 x se 99.1" read as
             # 2 se = 99.1. 'z' prints a change that rounds to zero as 0.0, not -0.0

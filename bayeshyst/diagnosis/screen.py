@@ -43,7 +43,7 @@ import numpy as np
 from bayeshyst.diagnosis._fitting import Prepared, prepare_fit
 from bayeshyst.diagnosis.records import DiagnosisFit, DiagnosisStep
 from bayeshyst.diagnosis.residual import EffectTest
-from bayeshyst.diagnosis.verdict import MIN_ELPD_GAIN, MIN_GATE_UNITS, SCREEN
+from bayeshyst.diagnosis.verdict import MIN_GATE_UNITS, SCREEN, passes_gate
 from bayeshyst.diagnostics.laplace_loo import LaplaceLoo, laplace_loo
 from bayeshyst.inference.fit import TrackingError, tracking_errors
 from bayeshyst.selection.ranking import paired_difference
@@ -177,7 +177,7 @@ def screen_candidate(args: tuple[Any, ...], current: DiagnosisFit, threshold: fl
     overall, per, _ = tracking_errors(prep.post, prep.start.z[None, :])
     scr = CandidateScreen(label, loo, d, se, margin, False, overall, tuple(per),
                           time.perf_counter() - t0)
-    rejects = scr.judged and not (d + margin > threshold * se and d + margin > MIN_ELPD_GAIN)
+    rejects = scr.judged and not passes_gate(d + margin, se, threshold)
     return replace(scr, rejects=bool(rejects)), prep
 
 

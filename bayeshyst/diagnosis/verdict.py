@@ -60,6 +60,7 @@ __all__ = [
     "experiment_for",
     "explained_beyond_shape",
     "implausible",
+    "passes_gate",
     "refused_findings",
     "separates_lags",
     "shape_tie_notes",
@@ -80,6 +81,17 @@ MIN_GATE_UNITS = 8
 #: (Sivula, Magnusson, Matamoros & Vehtari 2020). On the MR damper creep was kept for
 #: +0.7 ± 0.1 nats with the RMSE unchanged to the fourth digit.
 MIN_ELPD_GAIN = 4.0
+
+
+def passes_gate(d: float, se: float, threshold: float) -> bool:
+    """Whether a held-out elpd change passes the gate.
+
+    ``d`` (nats) must exceed ``threshold`` standard errors ``se`` and
+    :data:`MIN_ELPD_GAIN`; the candidates' judge and the screen use this one rule.
+    """
+    return bool(d > threshold * se and d > MIN_ELPD_GAIN)
+
+
 #: Log Bayes factor the score test must reach when the elpd gate cannot decide
 #: (Kass & Raftery 1995: above 5 is "very strong").
 FALLBACK_LOG_BF = 5.0

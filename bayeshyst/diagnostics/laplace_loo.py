@@ -51,7 +51,7 @@ import numpy as np
 from scipy.special import gammaln, logsumexp
 
 from bayeshyst.diagnostics.elpd import PARETO_K_BAD
-from bayeshyst.diagnostics.moment_match import psis
+from bayeshyst.diagnostics.moment_match import psis, weighted_log_mean
 from bayeshyst.errors import ParameterError
 from bayeshyst.inference.held_out import held_out_log_predictive, held_out_start
 from bayeshyst.inference.linear import LinearStructure
@@ -243,11 +243,8 @@ def laplace_loo(post: Posterior, start: MAPResult, *, n_draws: int = 2000,
     # a tempered posterior (likelihood to the power beta) loses beta times a unit's term
     beta = float(post.beta)
     for i in range(n_units):
-        lw, k = psis(log_r - beta * ll[:, i])
-        kk[i] = k
-        ok = np.isfinite(lw) & np.isfinite(ll[:, i])
-        if ok.any():
-            pointwise[i] = float(logsumexp(lw[ok] + ll[ok, i]) - logsumexp(lw[ok]))
+        lw, kk[i] = psis(log_r - beta * ll[:, i])
+        pointwise[i] = weighted_log_mean(lw, ll[:, i])
     refitted: list[int] = []
     if refit_above is not None:
         base = int(rng.integers(2**62))
@@ -279,7 +276,4 @@ def _held_out_estimate(post: Posterior, start: MAPResult, structure: LinearStruc
     term = (held_out_log_predictive(structure, z, units=[i])[:, i] if structure is not None
             else post.log_likelihood_units(z)[:, i])
     lw, k = psis(logp - logq)
-    ok = np.isfinite(lw) & np.isfinite(term)
-    if not ok.any():
-        return math.nan, math.inf
-    return float(logsumexp(lw[ok] + term[ok]) - logsumexp(lw[ok])), k
+    return weighted_log_mean(lw, term), k

@@ -39,7 +39,7 @@ from bayeshyst.diagnostics.elpd import PARETO_K_BAD
 from bayeshyst.errors import ParameterError
 from bayeshyst.tables import TableRecord, frame
 
-__all__ = ["K_GOOD", "MomentMatch", "moment_match_loo", "psis"]
+__all__ = ["K_GOOD", "MomentMatch", "moment_match_loo", "psis", "weighted_log_mean"]
 
 #: A batch density: (S, d) unconstrained points -> (S,) log density (-inf outside).
 Density = Callable[[np.ndarray], np.ndarray]
@@ -249,13 +249,17 @@ def moment_match_loo(z: np.ndarray, log_full: Density, log_target: Density,
     if not kept:
         lp = _finite(log_pred(z))
         evaluations += s
-        return MomentMatch(_estimate(lw, lp), k, k0, (), evaluations)
+        return MomentMatch(weighted_log_mean(lw, lp), k, k0, (), evaluations)
     elpd, k_split, n = _split_estimate(z, lf0, a_tot, c_tot, log_full, log_target, log_pred)
     return MomentMatch(elpd, k_split, k0, tuple(kept), evaluations + n)
 
 
-def _estimate(lw: np.ndarray, lp: np.ndarray) -> float:
-    """``log sum_s w_s p_s`` with normalised log weights ``lw``."""
+def weighted_log_mean(lw: np.ndarray, lp: np.ndarray) -> float:
+    """``log sum_s w_s p_s`` with normalised log weights ``lw`` (as :func:`psis` gives them).
+
+    ``lw`` (S,) normalised log weights (``-inf``: no weight), ``lp`` (S,) the log
+    predictive density of each draw. NaN when no draw has weight.
+    """
     ok = np.isfinite(lw)
     # no draw with weight: no estimate (a weighted draw whose lp is -inf adds nothing)
     return float(logsumexp(lw[ok] + lp[ok])) if np.any(ok) else math.nan
@@ -284,4 +288,4 @@ def _split_estimate(z: np.ndarray, lf0: np.ndarray, a: np.ndarray, c: np.ndarray
     lt = _finite(log_target(x))
     lw, k = psis(np.where(np.isfinite(log_q), lt - log_q, -np.inf))
     lp = _finite(log_pred(x))
-    return _estimate(lw, lp), k, 2 * s + half + (s - half)
+    return weighted_log_mean(lw, lp), k, 2 * s + half + (s - half)
