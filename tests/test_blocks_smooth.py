@@ -92,6 +92,43 @@ def test_a_column_feature_reads_the_column_and_is_the_identity_without_it():
     assert blk.covariates == ("load_n",) and Unexplained().covariates == ()
 
 
+@pytest.mark.parametrize("case", ["time", "column", "nominal", "own_scaling"])
+def test_the_closed_form_design_is_the_written_out_equation_in_a_and_b(case):
+    # the block's output is affine in (a, b): column j of the design is the written-out
+    # output with a unit coefficient j minus the output with none, the constant the
+    # latter (the composite's generic path applies the block that way, P + 1 times)
+    rng = np.random.default_rng(11)
+    feature = "time" if case in ("time", "own_scaling") else "load_n"
+    blk = Unexplained(feature=feature, n_basis=7)
+    n, width, m = 250, 3, 7
+    t = 2.0 + np.arange(n) / 80.0
+    load = 5 + rng.standard_normal(n)
+    w = rng.standard_normal((width, n)).cumsum(axis=1)
+    refs = np.array([1.5, 1.0, 2.0]) if case == "own_scaling" else np.full(width, 1.5)
+    halfs = np.array([1.5, 0.7, 2.5]) if case == "own_scaling" else np.full(width, 1.5)
+    spans = np.array([2.0, 3.0, 0.5])
+    rest = {"x_ref": refs, "x_half": halfs, "y_span": spans}
+    cov = None if case == "nominal" else {"load_n": load}
+    phi, const, failed = blk._linear_columns(w, t, rest, ("b", "a"), cov)
+    assert phi.shape == (width, n, 2 * m) and not failed.any()
+    x = t - t[0] if feature == "time" else load
+    zero = np.zeros(m)
+    for i in range(width):
+        def out(a, b, i=i):
+            if case == "nominal":  # no column: the identity
+                return w[i].copy()
+            return _slow_output(w[i], x, refs[i], halfs[i], a, b, spans[i], m, blk.length)
+        base = out(zero, zero)
+        np.testing.assert_allclose(const[i], base, rtol=0, atol=1e-12)
+        for j in range(m):
+            e = np.eye(m)[j]
+            # the order asked for: b's columns first, then a's
+            np.testing.assert_allclose(phi[i, :, j], out(zero, e) - base, atol=1e-12)
+            np.testing.assert_allclose(phi[i, :, m + j], out(e, zero) - base, atol=1e-12)
+    # one of the two held fixed: the generic path (None)
+    assert blk._linear_columns(w, t, rest, ("a",), cov) is None
+
+
 def test_pieces_give_the_same_output_as_one_call():
     rng = np.random.default_rng(2)
     blk = Unexplained()

@@ -218,6 +218,16 @@ class Composite(LinearInParams, HysteresisModel):
         p = sum(int(np.prod(block._shapes[nm], dtype=int)) for nm in own)
         n_sig = p + 1  # each unit vector, then beta = 0 (the block's const)
         _, block_thetas = self._split(thetas)
+        rest = {k: np.broadcast_to(np.asarray(v, dtype=np.float64),
+                                   (width, *np.shape(v)[1:]))
+                for k, v in block_thetas[where].items() if k not in own}
+        direct = block._linear_columns(np.nan_to_num(traj.y), t, rest, tuple(own), cov)
+        if direct is not None:
+            phi, const, f = direct
+            design = LinearDesign(tuple(names), np.ascontiguousarray(phi),
+                                  np.ascontiguousarray(const),
+                                  traj.failed | np.asarray(f, dtype=bool))
+            return self._through(design, t, thetas, where + 1, cov)
         rep = {k: _walker_major(v, width, n_sig)
                for k, v in block_thetas[where].items() if k not in own}
         rep.update(unit_signals(tuple(own), block._shapes, width, n_sig))
@@ -559,8 +569,18 @@ def leading_part(model: HysteresisModel, n_blocks: int, theta: Mapping[str, Any]
     if n_blocks == 0:
         return model.base, ParamSpace.sub_theta(theta, STATIC)
     keep = (STATIC, *block_namespaces(model.blocks)[:n_blocks])
-    return (Composite(model.base, tuple(model.blocks[:n_blocks])),
-            {k: v for k, v in theta.items() if k.split(".", 1)[0] in keep})
+    try:
+        head = _head(model, n_blocks)
+    except TypeError:  # a model with an unhashable setting: built afresh
+        head = Composite(model.base, tuple(model.blocks[:n_blocks]))
+    return head, {k: v for k, v in theta.items() if k.split(".", 1)[0] in keep}
+
+
+@functools.lru_cache(maxsize=64)
+def _head(model: Composite, n_blocks: int) -> Composite:
+    # one instance per (model, n): a new one per call re-derived its parameter shapes
+    # (param_space) on every design the sampler asked for
+    return Composite(model.base, tuple(model.blocks[:n_blocks]))
 
 
 def model_spec(model: HysteresisModel) -> str:

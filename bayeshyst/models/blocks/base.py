@@ -156,6 +156,20 @@ class EffectBlock(ABC):
         """:meth:`_apply` with the measured channels ``column -> (N,)`` (None: nominal)."""
         return self._apply(w, t, theta, state)
 
+    def _linear_columns(self, w: np.ndarray, t: np.ndarray, theta: Mapping[str, np.ndarray],
+                        names: tuple[str, ...], covariates: Mapping[str, np.ndarray] | None
+                        ) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+        """The block's design in its :attr:`linear_params` ``names``, in closed form.
+
+        From the steady initial state at the first sample: ``phi (W, N, P)`` (columns
+        in the order of ``names``, each parameter flattened), ``const (W, N)`` (the
+        output with those parameters zero) and ``failed (W,)``, for input ``w (W, N)``
+        and the other parameters ``theta`` (leading axis W). None (the default): the
+        composite applies the block to one unit signal per column instead, which is
+        exact for any block but costs ``P + 1`` applications.
+        """
+        return None
+
     # ------------------------------------------------------------------ conveniences
     @functools.cached_property
     def _shapes(self) -> dict[str, tuple[int, ...]]:
