@@ -356,7 +356,8 @@ def build_parser() -> argparse.ArgumentParser:
     p_demo = sub.add_parser("demo", help="the whole study (bayeshyst report) on the bundled "
                             "virtual-actuator data")
     p_demo.add_argument("--quick", action="store_true",
-                        help="about a minute: 2 models, short chains (nothing converges)")
+                        help="about half a minute: 2 models, 2 frequencies, one "
+                             "diagnosis round, every fit converged")
     p_demo.add_argument("--out", default="bayeshyst-demo",
                         help="output folder (default bayeshyst-demo)")
     p_demo.add_argument("--seed", type=int, default=0, help="random seed (default 0)")

@@ -43,7 +43,7 @@ from typing import Any
 import emcee
 import numpy as np
 from emcee.state import State
-from scipy import linalg, special
+from scipy import special
 
 from bayeshyst.inference.noise_proposals import phi_proposal, sigma_proposal
 from bayeshyst.inference.structured_target import MoveStats, StructuredTarget
@@ -202,7 +202,7 @@ def _logsumexp_rows(a: np.ndarray) -> np.ndarray:
     """``log(sum(exp(a), axis=1))`` of a 2-d array, rows of ``-inf`` giving ``-inf``.
 
     scipy's ``logsumexp`` costs three times as much per call on these small arrays, and
-    the adaptive proposal calls it thousands of times per fit.
+    the adaptive proposal calls it on every density evaluation.
     """
     top = np.max(a, axis=1)
     top = np.where(np.isfinite(top), top, 0.0)
@@ -210,9 +210,12 @@ def _logsumexp_rows(a: np.ndarray) -> np.ndarray:
         return top + np.log(np.sum(np.exp(a - top[:, None]), axis=1))
 
 
-def _lower_inverse(c: np.ndarray) -> np.ndarray:
-    """Inverse of a lower-triangular Cholesky factor ``c`` (d, d)."""
-    return linalg.solve_triangular(c, np.eye(c.shape[0]), lower=True)
+def _logsumexp_columns(a: np.ndarray) -> np.ndarray:
+    """``log(sum(exp(a), axis=0))`` of a (k, M) array (k small): one pass per row of ``a``."""
+    top = np.max(a, axis=0)
+    top = np.where(np.isfinite(top), top, 0.0)
+    with np.errstate(divide="ignore"):
+        return top + np.log(np.sum(np.exp(a - top), axis=0))
 
 
 def _fit_mixture(x: np.ndarray, k: int, iterations: int = 60
@@ -237,29 +240,32 @@ def _fit_mixture(x: np.ndarray, k: int, iterations: int = 60
     prev = -np.inf
     ll = -np.inf
     const = 0.5 * d * math.log(2 * math.pi)
+    xt = np.ascontiguousarray(x.T)                                      # (d, M)
     for _ in range(iterations):
-        logp = np.empty((m, k))
+        # component-major (k, M) and (d, M): every reduction runs along the long axis
+        # (numpy's sums across a short last axis cost several times more)
+        logp = np.empty((k, m))
         for j in range(k):
             try:
                 c = np.linalg.cholesky(cov[j] + ridge)
             except np.linalg.LinAlgError:
                 return None
-            # whitened by the inverse factor (d x d, once per component): a general
-            # solve against the (d, m) block was a third of the adaptive sampler's time
-            r = (x - mu[j]) @ _lower_inverse(c).T
-            logp[:, j] = (math.log(w[j]) - 0.5 * np.sum(r * r, axis=1)
-                          - np.sum(np.log(np.diag(c))) - const)
-        norm = _logsumexp_rows(logp)
+            # whitened by the inverse factor (d x d, once per component) rather than a
+            # general solve against the (d, M) block
+            r = np.linalg.inv(c) @ (xt - mu[j][:, None])
+            logp[j] = (math.log(w[j]) - 0.5 * np.sum(r * r, axis=0)
+                       - np.sum(np.log(np.diag(c))) - const)
+        norm = _logsumexp_columns(logp)
         ll = float(np.sum(norm))
-        resp = np.exp(logp - norm[:, None])
-        nk = resp.sum(axis=0)
+        resp = np.exp(logp - norm)
+        nk = resp.sum(axis=1)
         if np.any(nk < d + 2):
             return None
         w = nk / m
-        mu = (resp.T @ x) / nk[:, None]
+        mu = (resp @ x) / nk[:, None]
         for j in range(k):
-            dx = x - mu[j]
-            cov[j] = (resp[:, j, None] * dx).T @ dx / nk[j] + ridge
+            dx = xt - mu[j][:, None]
+            cov[j] = (dx * resp[j]) @ dx.T / nk[j] + ridge
         if ll - prev < 1e-6 * abs(ll):
             break
         prev = ll
