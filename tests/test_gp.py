@@ -276,6 +276,26 @@ def test_marginal_likelihood_gradient_equals_sklearn(fitted):
         np.testing.assert_allclose(grad, ref_grad, rtol=1e-7, atol=1e-7 * np.abs(ref_grad).max())
 
 
+@pytest.mark.parametrize("kind", ["rbf", "matern52"])
+def test_marginal_likelihood_and_gradient_equal_sklearns_for_both_kernels(kind):
+    # sklearn's GaussianProcessRegressor with the same kernel, no jitter (alpha 0): its
+    # value and analytic gradient, at points away from any optimum
+    from sklearn.gaussian_process.kernels import RBF, ConstantKernel, Matern, WhiteKernel
+
+    rng = np.random.default_rng(4)
+    z = rng.normal(size=(150, 3))
+    y = np.sin(z[:, 0]) + z[:, 1] * z[:, 2] + 0.1 * rng.normal(size=150)
+    corr = RBF([1.0, 0.7, 2.0]) if kind == "rbf" else Matern([1.0, 0.7, 2.0], nu=2.5)
+    sk = GaussianProcessRegressor(ConstantKernel(1.3) * corr + WhiteKernel(0.05),
+                                  optimizer=None, alpha=0.0).fit(z, y)
+    for _ in range(3):
+        theta = sk.kernel_.theta + rng.normal(0, 0.4, sk.kernel_.theta.size)
+        ref, ref_grad = sk.log_marginal_likelihood(theta, eval_gradient=True)
+        val, grad = log_marginal_likelihood(theta, kind, z, y)
+        assert val == pytest.approx(ref, rel=1e-10)
+        np.testing.assert_allclose(grad, ref_grad, rtol=1e-7, atol=1e-7 * np.abs(ref_grad).max())
+
+
 def test_subset_schemes():
     rng = np.random.default_rng(0)
     idx = stratified_subset(1000, 7, rng)

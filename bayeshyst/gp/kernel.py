@@ -137,13 +137,20 @@ def log_marginal_likelihood(theta: np.ndarray, kind: str, z: np.ndarray, y: np.n
     inv, info = linalg.lapack.dpotri(chol, lower=1)
     if info != 0:
         return -np.inf, np.zeros_like(theta)
-    inv = np.tril(inv) + np.tril(inv, -1).T
-    w = np.outer(alpha, alpha) - inv
+    inv = np.tril(inv)
+    inv += np.tril(inv, -1).T
+    # W = a a^T - K^-1 is never formed: its rank-one part goes through matrix-vector
+    # products, so the only (m, m) temporary is K^-1 o k' (the m x m passes, not the
+    # factorisation, were most of an evaluation at the default 1 000 points)
     grad = np.empty_like(theta)
-    grad[0] = 0.5 * c * float(np.sum(w * k))
-    grad[-1] = 0.5 * noise * float(np.trace(w))
-    g = c * w * dk
-    grad[1:-1] = (a * a).T @ g.sum(axis=1) - np.sum(a * (g @ a), axis=0)
+    k_alpha = k @ alpha
+    grad[0] = 0.5 * c * float(alpha @ k_alpha - np.vdot(inv, k))
+    grad[-1] = 0.5 * noise * float(alpha @ alpha - np.trace(inv))
+    p_mat = inv * dk
+    dk_alpha = k_alpha if dk is k else dk @ alpha
+    g_sum = c * (alpha * dk_alpha - p_mat.sum(axis=1))
+    g_a = c * (alpha[:, None] * (dk @ (alpha[:, None] * a)) - p_mat @ a)
+    grad[1:-1] = (a * a).T @ g_sum - np.sum(a * g_a, axis=0)
     return lml, grad
 
 
