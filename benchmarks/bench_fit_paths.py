@@ -113,14 +113,15 @@ def main(argv: list[str] | None = None) -> int:
              "", "**Mixture EM per call** (median of "
              f"{args.repeats}; the shapes the demo's fits give: draws x coordinates, "
              "components):", "",
-             "| draws | d | k | former | now | speed-up | same fit |", "|---|---|---|---|---|---|---|"]
+             "| draws | d | k | former | now | speed-up | same fit |",
+             "|---|---|---|---|---|---|---|"]
     for m, d, k in ((624, 3, 5), (4400, 10, 3), (13728, 10, 5)):
         x = _draws(m, d, m + d + k)
         t_old, old = median_time(lambda x=x, k=k: former_fit_mixture(x, k), args.repeats)
         t_new, new = median_time(lambda x=x, k=k: moves._fit_mixture(x, k), args.repeats)
         same = (old is None and new is None) or (
             old is not None and new is not None
-            and all(np.allclose(a, b, rtol=1e-6, atol=1e-9) for a, b in zip(old, new)))
+            and all(np.allclose(a, b, rtol=1e-6, atol=1e-9) for a, b in zip(old, new, strict=True)))
         lines.append(f"| {m} | {d} | {k} | {1e3 * t_old:.1f} ms | {1e3 * t_new:.1f} ms | "
                      f"{t_old / t_new:.2f}x | {'yes' if same else 'NO'} |")
         print(lines[-1], flush=True)
