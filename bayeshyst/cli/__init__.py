@@ -1,7 +1,8 @@
 """Command line: a thin argparse layer over the public API.
 
 Exit status: 0 success, 2 bad input (one clear line on stderr, nothing written half-way),
-1 internal error. The commands are in :mod:`bayeshyst.cli.commands`, the parser in
+1 internal error. The commands are in :mod:`bayeshyst.cli.commands` (those of the whole
+study, `report`, `demo` and `study`, in :mod:`bayeshyst.cli.study_commands`), the parser in
 :mod:`bayeshyst.cli.parser`, the option types and the one mapping of options onto
 :class:`~bayeshyst.inference.settings.SamplerSettings` in :mod:`bayeshyst.cli.options`.
 """

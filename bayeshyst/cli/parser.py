@@ -8,15 +8,12 @@ from bayeshyst._version import __version__
 from bayeshyst.cli.commands import (
     cmd_compare,
     cmd_compensate,
-    cmd_demo,
     cmd_diagnose,
     cmd_export,
     cmd_fit,
     cmd_invert,
     cmd_models,
     cmd_predict,
-    cmd_report,
-    cmd_study,
 )
 from bayeshyst.cli.options import (
     closed_probability,
@@ -29,6 +26,7 @@ from bayeshyst.cli.options import (
     unit_mapping,
     working_rate,
 )
+from bayeshyst.cli.study_commands import cmd_demo, cmd_report, cmd_study
 from bayeshyst.inference.settings import MOVES
 from bayeshyst.likelihoods import likelihood_names
 
