@@ -456,14 +456,14 @@ def test_stuck_walkers_get_anchor_components_of_their_own_spread():
     assert move._log_t((mean - 5.0)[None])[0] >= math.log(ANCHOR_WEIGHT / 2) + t_peak - 1e-9
 
 
-def test_the_row_logsumexp_is_scipys_including_rows_of_minus_infinity():
+def test_the_column_logsumexp_is_scipys_including_columns_of_minus_infinity():
     from scipy import special
 
-    from bayeshyst.inference.moves import _logsumexp_rows
+    from bayeshyst.inference.moves import _logsumexp_columns
 
     rng = np.random.default_rng(3)
-    a = 800 * rng.standard_normal((50, 4))  # far beyond exp's range: the shift matters
-    a[3] = -np.inf
-    a[7, :2] = -np.inf
-    np.testing.assert_allclose(_logsumexp_rows(a), special.logsumexp(a, axis=1),
+    a = 800 * rng.standard_normal((4, 50))  # far beyond exp's range: the shift matters
+    a[:, 3] = -np.inf
+    a[:2, 7] = -np.inf
+    np.testing.assert_allclose(_logsumexp_columns(a), special.logsumexp(a, axis=0),
                                rtol=1e-14, atol=0)

@@ -198,20 +198,13 @@ class LinearGibbsMove(_StructuredMove):
         return (np.where(acc[:, None], z_new, z), np.where(acc, lp_new, lp), acc)
 
 
-def _logsumexp_rows(a: np.ndarray) -> np.ndarray:
-    """``log(sum(exp(a), axis=1))`` of a 2-d array, rows of ``-inf`` giving ``-inf``.
-
-    scipy's ``logsumexp`` costs three times as much per call on these small arrays, and
-    the adaptive proposal calls it on every density evaluation.
-    """
-    top = np.max(a, axis=1)
-    top = np.where(np.isfinite(top), top, 0.0)
-    with np.errstate(divide="ignore"):
-        return top + np.log(np.sum(np.exp(a - top[:, None]), axis=1))
-
-
 def _logsumexp_columns(a: np.ndarray) -> np.ndarray:
-    """``log(sum(exp(a), axis=0))`` of a (k, M) array (k small): one pass per row of ``a``."""
+    """``log(sum(exp(a), axis=0))`` of a (k, M) array (k small); ``-inf`` for a column of -inf.
+
+    One pass per row of ``a``, along the long axis; scipy's ``logsumexp`` costs three
+    times as much per call on these arrays, and the proposal calls it on every density
+    evaluation and EM step.
+    """
     top = np.max(a, axis=0)
     top = np.where(np.isfinite(top), top, 0.0)
     with np.errstate(divide="ignore"):
@@ -441,7 +434,7 @@ class IndependenceMove(_StructuredMove):
             r = (x - mk) @ ci.T
             m = np.sum(r * r, axis=1)
             parts.append(math.log(wk) + const - 0.5 * ld - 0.5 * (nu + d) * np.log1p(m / nu))
-        return _logsumexp_rows(np.array(parts).T)
+        return _logsumexp_columns(np.array(parts))
 
     def propose(self, model: Any, state: State) -> tuple[State, np.ndarray]:
         """One independence proposal per walker, completed with an exact draw of ``beta``.
