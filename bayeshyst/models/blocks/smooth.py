@@ -230,21 +230,29 @@ class Unexplained(EffectBlock):
         s = self._scales()
         a = param_columns(theta, "a", width) * s                          # (W, m)
         b = param_columns(theta, "b", width) * s
-        if _same_rows(x) and _same_rows(ref) and _same_rows(half):
-            # one basis for every walker (the usual case: the feature's scaling is fixed
-            # and every signal starts with the record); evaluating the sines per walker
-            # was half the cost of a sampler step
-            phi, _ = sine_basis((x[0] - ref[0, 0]) / half[0, 0], self.n_basis)  # (N, m)
+        phi = self._basis(x, ref, half)
+        if phi.ndim == 2:  # one basis for every walker
             g = GAIN_PRIOR * (a @ phi.T)
             h = OFFSET_PRIOR * span * (b @ phi.T)
         else:
-            phi, _ = sine_basis((x - ref) / half, self.n_basis)          # (W, N, m)
             g = GAIN_PRIOR * np.einsum("wnm,wm->wn", phi, a)
             h = OFFSET_PRIOR * span * np.einsum("wnm,wm->wn", phi, b)
         with np.errstate(over="ignore", invalid="ignore"):
             out = w * (1.0 + g) + h
         failed = ~np.all(np.isfinite(out), axis=1)
         return np.ascontiguousarray(out), start, failed
+
+    def _basis(self, x: np.ndarray, ref: np.ndarray, half: np.ndarray) -> np.ndarray:
+        """The sine basis at the scaled feature ``(x - ref) / half``.
+
+        ``x`` (W or 1, N), ``ref`` and ``half`` (W or 1, 1). (N, m) when every row has
+        the same feature and scaling (the usual case: the scaling is fixed and every
+        signal starts with the record; evaluating the sines per walker was half the
+        cost of a sampler step), else (W, N, m).
+        """
+        if _same_rows(x) and _same_rows(ref) and _same_rows(half):
+            return sine_basis((x[0] - ref[0, 0]) / half[0, 0], self.n_basis)[0]
+        return sine_basis((x - ref) / half, self.n_basis)[0]
 
     def _linear_columns(self, w, t, theta, names, covariates):
         # d out / d a_j = 0.05 s_j phi_j(z) w and d out / d b_j = 0.05 span s_j phi_j(z):
@@ -265,13 +273,8 @@ class Unexplained(EffectBlock):
         ref = np.asarray(theta["x_ref"], float).reshape(-1, 1)
         half = np.asarray(theta["x_half"], float).reshape(-1, 1)
         span = np.broadcast_to(np.asarray(theta["y_span"], float).reshape(-1), (width,))
-        s = self._scales()
-        if _same_rows(ref) and _same_rows(half):
-            phi, _ = sine_basis((x - ref[0, 0]) / half[0, 0], m)              # (N, m)
-            phi = np.broadcast_to((phi * s)[None], (width, n, m))
-        else:
-            phi, _ = sine_basis((x[None, :] - ref) / half, m)                # (W, N, m)
-            phi = phi * s
+        phi = np.broadcast_to(self._basis(x[None, :], ref, half) * self._scales(),
+                              (width, n, m))
         gain = GAIN_PRIOR * phi * w[:, :, None]
         offset = OFFSET_PRIOR * span[:, None, None] * phi
         cols = {"a": gain, "b": offset}
