@@ -25,17 +25,12 @@ if os.environ.get("PYTEST_XDIST_WORKER"):
     # worker's tests. Tests that exercise a pool ask for n_jobs=2 explicitly.
     os.environ.setdefault("BAYESHYST_JOBS", "1")
 
-#: The files that take longest (summed test durations measured 2026-12-07, slowest
-#: first; benchmarks/RESULTS.md), run first. With ``--dist loadfile`` a file runs whole
-#: on one worker; started last, a long one runs alone while the other worker idles (the
-#: simulation-based calibration once did so for 10 of 20 minutes). Scheduling only: a
-#: file missing here runs after these, in collection order. ``--no-loadscope-reorder``
-#: (pyproject) keeps xdist from re-sorting the files by their number of tests.
-LONG_FILES = ("test_diagnosis.py", "test_sampling.py", "test_selection.py",
-              "test_analyses.py", "test_report.py", "test_analyses_predict_unseen.py",
-              "test_compensate.py", "test_fit_cli.py", "test_diagnosis_verdict.py",
-              "test_diagnosis_parallel.py", "test_discrepancy.py", "test_bouc_wen.py",
-              "test_inverse.py", "test_recovery.py", "test_compare_cli.py")
+#: Files that take far longer than the rest, run first: with ``--dist loadfile`` a file
+#: runs whole on one worker, and the simulation-based calibration (20 replicates of each
+#: model, alphabetically near the end) otherwise ran alone on one worker for the last
+#: half of the run while the other worker was idle (measured: 10 of 20 minutes on a slow
+#: day); its two models are two files, so the two workers start one each.
+LONG_FILES = ("test_sbc_bouc_wen.py", "test_sbc.py")
 
 
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
