@@ -63,8 +63,8 @@ def add_run_options(p: argparse.ArgumentParser, out_default: str, steps_help: st
     p.add_argument("--steps", type=positive_int, default=20_000, help=steps_help)
     p.add_argument("--walkers", type=positive_int, default=None,
                    help="walkers per ensemble (default: from the number of parameters the "
-                        "moves propose, max(12, 2 d + 2) structured, max(32, 4 ndim) de "
-                        "and stretch)")
+                        "moves propose: max(24, 4 d + 4) structured (up to 48 for a "
+                        "larger ESS target), max(32, 4 ndim) de and stretch)")
     p.add_argument("--moves", choices=MOVES, default="structured",
                    help="sampler moves: structured (default) = exact Gibbs draws of the "
                         "linear block + adaptive independence + differential evolution; "
