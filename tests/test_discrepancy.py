@@ -256,11 +256,11 @@ def test_discrepancy_scales_are_found_from_held_out_cycles(pi):
 
 
 def test_exact_refit_with_a_discrepancy_starts_at_the_held_out_conditional_mode():
-    """The refit of a PSIS-unreliable cycle keeps the fit's nonlinear coordinates and
-    moves the ~100-coordinate linear block to the held-out data's conditional mode
-    instead of searching every coefficient. Oracles: the density itself (no coefficient
-    move raises it), and a refit from a full MAP search of the held-out posterior, which
-    must reach the same posterior (means within 0.5 sd)."""
+    """The refit of a PSIS-unreliable cycle starts at the held-out data's mode, searched
+    over the nonlinear coordinates with the ~100-coordinate linear block at its
+    conditional mode, instead of differentiating every coefficient. Oracles: the density
+    itself (no coefficient move raises it), and a refit from a full MAP search of the
+    held-out posterior, which must reach the same posterior (means within 0.5 sd)."""
     from bayeshyst.data import Record
     from bayeshyst.inference.discrepancy_fit import attach_discrepancy
     from bayeshyst.inference.held_out import held_out_start
@@ -275,7 +275,7 @@ def test_exact_refit_with_a_discrepancy_starts_at_the_held_out_conditional_mode(
                              metadata={"frequency_hz": 1.0}), "bouc_wen")
     post, _, begin = attach_discrepancy(post0, find_map(post0, seed=np.random.default_rng(0)))
     held = post.holding_out([1])
-    assert LinearStructure.of(held).design_idx.size  # the path with coordinates kept
+    assert LinearStructure.of(held).design_idx.size  # nonlinear coordinates to search
     start = held_out_start(held, begin, 4)
     assert np.isfinite(start.log_prob)
     _no_coefficient_move_raises(held, start)

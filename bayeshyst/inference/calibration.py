@@ -33,7 +33,7 @@ from scipy import stats
 from bayeshyst.data.record import frequency_key, frequency_label
 from bayeshyst.inference.convergence import _autocov
 from bayeshyst.inference.linear import LinearStructure
-from bayeshyst.inference.optimize import MAPResult, conditional_start
+from bayeshyst.inference.optimize import MAPResult, profile_start
 from bayeshyst.inference.posterior import NOISE, Posterior
 from bayeshyst.inference.sampling import sample_posterior
 from bayeshyst.inference.settings import SamplerSettings
@@ -272,9 +272,10 @@ def check_calibration(post: Posterior, draws: np.ndarray, sampler: SamplerSettin
     begin = None
     structure = LinearStructure.of(held, reference=start.z) if start is not None else None
     if structure is not None:
-        # the full fit's mode, its linear block and noise moved to the held-out data's:
-        # a fresh MAP search would differentiate every coefficient
-        begin = conditional_start(held, structure, start)
+        # the held-out data's mode searched from the full fit's over the coordinates
+        # outside the linear block (a fresh MAP search would differentiate every
+        # coefficient of a discrepancy)
+        begin = profile_start(held, structure, start)
     res = sample_posterior(held, sampler, initial=draws, start=begin)
     rng = np.random.default_rng(sampler.seed)
     z = res.draws(n_draws, seed=sampler.seed)

@@ -36,7 +36,7 @@ from scipy.linalg import lapack
 from bayeshyst.inference._grams import grams, sample_rows, stacked
 from bayeshyst.inference.conditional import LinearStats
 from bayeshyst.inference.linear import LinearStructure
-from bayeshyst.inference.optimize import MAPResult, conditional_start, find_map
+from bayeshyst.inference.optimize import MAPResult, find_map, profile_start
 from bayeshyst.inference.posterior import Posterior
 
 __all__ = ["SCALE_STEP", "central_points", "held_out_from_units", "held_out_gradient",
@@ -308,10 +308,10 @@ def held_out_start(held: Posterior, start: MAPResult, seed: int) -> MAPResult:
     without a global search (one cycle moves the optimum locally). With a discrepancy
     the linear block is ~100 coordinates a search would differentiate one by one (a
     branch-shape fit on the bundled record: its exact refit ran 5 000 steps, 13 min,
-    unconverged); there the full fit's nonlinear coordinates are kept and the block and
-    the noise moved to the held-out data's conditional mode, as the calibration check's
-    refit does. The exact refits of leave-one-cycle-out start here, and so do the
-    screen's held-out Laplace approximations.
+    unconverged); there the search runs over the other coordinates with the block at its
+    conditional mean (:func:`~bayeshyst.inference.optimize.profile_start`), as the
+    calibration check's refit does. The exact refits of leave-one-cycle-out start here,
+    and so do the screen's held-out Laplace approximations.
 
     Parameters
     ----------
@@ -325,7 +325,7 @@ def held_out_start(held: Posterior, start: MAPResult, seed: int) -> MAPResult:
     if held.discrepancy is not None:
         structure = LinearStructure.of(held, reference=start.z)
         if structure is not None:
-            return conditional_start(held, structure, start)
+            return profile_start(held, structure, start)
     return find_map(held, seed=np.random.default_rng(seed), x0=start.z, n_screen=32,
                     global_search=False)
 

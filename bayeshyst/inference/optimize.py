@@ -23,7 +23,7 @@ from bayeshyst.errors import ParameterError
 from bayeshyst.inference.posterior import NOISE, Posterior
 from bayeshyst.threads import with_single_threaded_blas
 
-__all__ = ["MAPResult", "conditional_mode", "conditional_start", "find_map", "initial_ensemble",
+__all__ = ["MAPResult", "conditional_mode", "find_map", "initial_ensemble",
            "laplace_covariance", "profile_mode", "profile_start", "spread_shared_coordinates"]
 
 # stands for -log p = +inf inside the optimisers (they cannot take inf); far above any
@@ -529,7 +529,6 @@ def spread_shared_coordinates(
     return np.delete(out, todo, axis=0), shared
 
 
-
 def conditional_mode(post: Posterior, structure: Any, z: np.ndarray) -> np.ndarray:
     """``z`` with its noise re-optimised and its linear block at the conditional mean.
 
@@ -566,18 +565,6 @@ def conditional_mode(post: Posterior, structure: Any, z: np.ndarray) -> np.ndarr
     res = optimize.minimize(neg, np.asarray(z, float)[noise_idx], method="Nelder-Mead",
                             options={"xatol": 1e-5, "fatol": 1e-4})
     return with_block(res.x)
-
-
-def conditional_start(post: Posterior, structure: Any, start: MAPResult,
-                      z: np.ndarray | None = None) -> MAPResult:
-    """``start`` moved to :func:`conditional_mode` of ``post`` from ``z`` (default ``start.z``).
-
-    Its covariance is kept (the walkers' spread around the new point), its notes are not
-    (they were about the old point).
-    """
-    z0 = conditional_mode(post, structure, start.z if z is None else z)
-    return replace(start, z=z0, theta=post.space.unpack(z0), log_prob=float(post.log_prob(z0)),
-                   notes=())
 
 
 #: most restarts of :func:`profile_mode`'s polish after its first pass
@@ -683,8 +670,8 @@ def profile_start(post: Posterior, structure: Any, start: MAPResult,
                   z: np.ndarray | None = None) -> MAPResult:
     """``start`` moved to :func:`profile_mode` of ``post`` from ``z`` (default ``start.z``).
 
-    As :func:`conditional_start`: the covariance is kept (the walkers' spread around the
-    new point), the notes are not.
+    Its covariance is kept (the walkers' spread around the new point), its notes are not
+    (they were about the old point).
     """
     lp, z0 = profile_mode(post, structure, start.z if z is None else z)
     return replace(start, z=z0, theta=post.space.unpack(z0), log_prob=lp, notes=())
