@@ -42,6 +42,7 @@ from bayeshyst.inference.checkpoint import (
 )
 from bayeshyst.inference.convergence import ConvergenceReport, assess
 from bayeshyst.inference.linear import LinearStructure
+from bayeshyst.inference.mixing import explain_nonconvergence
 from bayeshyst.inference.moves import structured_moves
 from bayeshyst.inference.optimize import (
     MAPResult,
@@ -554,6 +555,11 @@ def _sample_posterior(post: Posterior, settings: SamplerSettings | None,
     burn = report.burn
     chains = np.stack([s.get_chain()[burn:report.n_steps] for s, _ in samplers])
     logp = np.stack([s.get_log_prob()[burn:report.n_steps] for s, _ in samplers])
+    if not report.converged:
+        # what held the run back, in the coordinates' own names: slow directions,
+        # pairs the data do not separate, ensembles in separate regions
+        report = replace(report, reasons=(*report.reasons, *explain_nonconvergence(
+            chains, logp, post.space, tau_factor=settings.tau_factor)))
     acc = np.stack([s.backend.accepted / max(s.iteration, 1) for s, _ in samplers])
     c1 = post.counts
     counts = EvalCounts(c1.evaluations - counts0.evaluations,
