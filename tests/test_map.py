@@ -318,3 +318,31 @@ def test_a_start_on_another_fits_discrepancy_is_the_joint_mode():
     assert -best.fun < start.log_prob + 0.05, (start.log_prob, -best.fun)
 
 
+
+
+class _Stored:
+    """What _bulk_above reads of an emcee sampler: its stored log densities."""
+
+    def __init__(self, lp):
+        self._lp = lp
+
+    def get_log_prob(self):
+        return self._lp
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_after_the_warm_up_only_the_bulk_of_the_draws_above_the_start_restarts(seed):
+    from bayeshyst.inference.sampling import MAP_SLACK, _bulk_above
+
+    # exact draws of a 20-dimensional Gaussian: log p = mode - chi2_20 / 2, whose median
+    # lies 9.67 nats below the mode (scipy.stats.chi2(20).median() / 2)
+    rng = np.random.default_rng(seed)
+    mode = 100.0
+    lp = [mode - 0.5 * rng.chisquare(20, size=(2000, 32)) for _ in range(2)]
+    samplers = [[_Stored(x), None] for x in lp]
+    # a start 3 nats below the mode: some walker passes it by more than the slack (a
+    # restart before), but the draws sample its region: no restart after the warm-up
+    assert max(float(x.max()) for x in lp) > mode - 3.0 + MAP_SLACK
+    assert not _bulk_above(samplers, 2000, mode - 3.0)
+    # a start 15 nats below: most draws lie above it, it is not their region's mode
+    assert _bulk_above(samplers, 2000, mode - 15.0)
