@@ -257,7 +257,7 @@ def _gradient(post, z, h=1e-5):
 @pytest.mark.parametrize("shift", [-8.0, 5.0, 12.0])
 def test_the_profiled_search_climbs_from_far_below_to_the_joint_mode(shift):
     from bayeshyst.inference.linear import LinearStructure
-    from bayeshyst.inference.optimize import profile_mode
+    from bayeshyst.inference.profile import profile_mode
 
     post = Posterior(_bouc_wen_record(), "bouc_wen")
     m = find_map(post, seed=0)

@@ -33,8 +33,9 @@ from scipy import stats
 from bayeshyst.data.record import frequency_key, frequency_label
 from bayeshyst.inference.convergence import _autocov
 from bayeshyst.inference.linear import LinearStructure
-from bayeshyst.inference.optimize import MAPResult, profile_start
+from bayeshyst.inference.optimize import MAPResult
 from bayeshyst.inference.posterior import NOISE, Posterior
+from bayeshyst.inference.profile import profile_start
 from bayeshyst.inference.sampling import sample_posterior
 from bayeshyst.inference.settings import SamplerSettings
 from bayeshyst.tables import TableRecord, frame

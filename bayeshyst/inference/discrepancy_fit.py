@@ -41,8 +41,9 @@ from bayeshyst.inference.held_out import (
     unit_grams,
 )
 from bayeshyst.inference.linear import LinearStructure
-from bayeshyst.inference.optimize import MAPResult, conditional_mode, profile_mode
+from bayeshyst.inference.optimize import MAPResult, conditional_mode
 from bayeshyst.inference.posterior import NOISE, Posterior
+from bayeshyst.inference.profile import profile_mode
 from bayeshyst.threads import with_single_threaded_blas
 
 __all__ = ["DiscrepancyScales", "attach_discrepancy"]
@@ -250,7 +251,7 @@ def _start(fixed: Posterior, post: Posterior, z_full: np.ndarray, post0: Posteri
 
     The search starts at ``post0``'s MAP and runs over the coordinates outside the
     linear block, the coefficients at their exact conditional mean at every point
-    (:func:`~bayeshyst.inference.optimize.profile_mode`); the covariance of the shared
+    (:func:`~bayeshyst.inference.profile.profile_mode`); the covariance of the shared
     coordinates is ``post0``'s Laplace one, the coefficients' their exact conditional
     covariance (the linear block's algebra). The basis is orthogonal to the model's
     sensitivities at the anchor only: where the model's output is far from linear in

@@ -36,8 +36,9 @@ from scipy.linalg import lapack
 from bayeshyst.inference._grams import grams, sample_rows, stacked
 from bayeshyst.inference.conditional import LinearStats
 from bayeshyst.inference.linear import LinearStructure
-from bayeshyst.inference.optimize import MAPResult, find_map, profile_start
+from bayeshyst.inference.optimize import MAPResult, find_map
 from bayeshyst.inference.posterior import Posterior
+from bayeshyst.inference.profile import profile_start
 
 __all__ = ["SCALE_STEP", "central_points", "held_out_from_units", "held_out_gradient",
            "held_out_log_predictive", "held_out_start", "unit_grams"]
@@ -309,7 +310,7 @@ def held_out_start(held: Posterior, start: MAPResult, seed: int) -> MAPResult:
     the linear block is ~100 coordinates a search would differentiate one by one (a
     branch-shape fit on the bundled record: its exact refit ran 5 000 steps, 13 min,
     unconverged); there the search runs over the other coordinates with the block at its
-    conditional mean (:func:`~bayeshyst.inference.optimize.profile_start`), as the
+    conditional mean (:func:`~bayeshyst.inference.profile.profile_start`), as the
     calibration check's refit does. The exact refits of leave-one-cycle-out start here,
     and so do the screen's held-out Laplace approximations.
 

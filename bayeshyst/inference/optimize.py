@@ -13,7 +13,7 @@ Laplace covariance that spreads the initial walkers along the posterior's own ri
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -24,7 +24,7 @@ from bayeshyst.inference.posterior import NOISE, Posterior
 from bayeshyst.threads import with_single_threaded_blas
 
 __all__ = ["MAPResult", "conditional_mode", "find_map", "initial_ensemble",
-           "laplace_covariance", "profile_mode", "profile_start", "spread_shared_coordinates"]
+           "laplace_covariance", "spread_shared_coordinates"]
 
 # stands for -log p = +inf inside the optimisers (they cannot take inf); far above any
 # feasible value, yet its square stays finite (differential evolution takes the std of
@@ -565,113 +565,3 @@ def conditional_mode(post: Posterior, structure: Any, z: np.ndarray) -> np.ndarr
     res = optimize.minimize(neg, np.asarray(z, float)[noise_idx], method="Nelder-Mead",
                             options={"xatol": 1e-5, "fatol": 1e-4})
     return with_block(res.x)
-
-
-#: most restarts of :func:`profile_mode`'s polish after its first pass
-MAX_PROFILE_PASSES = 5
-
-
-class _Profiled:
-    """The log posterior as a function of the coordinates outside the linear block.
-
-    Each point's block is set to its conditional mean (the block's conditional mode), so
-    the maximum over the other coordinates is the joint maximum. ``log_prob`` takes
-    points of the other coordinates only, as :func:`_polish`'s target.
-    """
-
-    def __init__(self, post: Posterior, structure: Any, z: np.ndarray) -> None:
-        from bayeshyst.inference.structured_target import StructuredTarget
-
-        self.structure = structure
-        self.base = np.asarray(z, dtype=float)
-        self.target = StructuredTarget(post, structure)
-
-    def full(self, x: np.ndarray) -> tuple[np.ndarray, Any]:
-        """Complete points (n, ndim) for ``x`` (n, n_other), with their Grams."""
-        s = self.structure
-        z = np.repeat(self.base[None, :], x.shape[0], axis=0)
-        z[:, s.other_idx] = x
-        # the Grams of [design, reference residual] depend on the other coordinates
-        # only: one computation serves the conditional and the likelihood
-        st = s.stats(z)
-        cond = s.conditional(st, z)
-        zb, _ = s.z_of(cond.mean)
-        good = cond.ok & np.all(np.isfinite(zb), axis=1)
-        z[np.ix_(good, s.lin_idx)] = zb[good]
-        return z, st
-
-    def log_prob(self, x: np.ndarray) -> np.ndarray:
-        z, st = self.full(np.atleast_2d(x))
-        return self.target.log_prob(z, st)
-
-
-def profile_mode(post: Posterior, structure: Any, z: np.ndarray) -> tuple[float, np.ndarray]:
-    """The posterior's mode from ``z``, searched over the coordinates outside the block.
-
-    A quasi-Newton search (:func:`_polish`) over the nonlinear and noise coordinates,
-    the linear block at its conditional mean at every point (variable projection), so a
-    posterior with a hundred linear coefficients (a discrepancy's basis) is searched in
-    the handful of coordinates that need a simulation. A start built from a smaller
-    model's MAP can lie hundreds of nats below this mode: on the measured 150 V piezo
-    (Bouc–Wen with creep, drift and the shape correction) the sampler's walkers took
-    6 000 steps to climb 550 nats from such a start.
-
-    Parameters
-    ----------
-    post : Posterior
-    structure : LinearStructure
-        Its linear block.
-    z : ndarray, shape (ndim,)
-        Where the search starts (finite density).
-
-    Returns
-    -------
-    log_prob : float
-        Log posterior at the point returned (``-inf`` if none with finite density).
-    z : ndarray, shape (ndim,)
-        The mode found, its block at the conditional mean; ``z`` itself (block
-        completed) when the search found nothing better.
-    """
-    from bayeshyst.inference.least_squares import least_squares_point
-
-    z = np.asarray(z, dtype=float)
-    prof = _Profiled(post, structure, z)
-    x0 = z[structure.other_idx]
-    if x0.size == 0:
-        zz, st = prof.full(x0[None, :])
-        return float(prof.target.log_prob(zz, st)[0]), zz[0]
-    # Gauss-Newton steps first (variable projection: a ridge such as Bouc-Wen's (alpha,
-    # beta, n) is what they follow and a gradient method crawls along), then the polish
-    # of the exact profile (the priors the least squares does not see). Not with a
-    # discrepancy's basis in the block: there the least squares ended thousands of nats
-    # below its start after a minute (measured on the 150 V piezo with creep and drift),
-    # and the polish's passes alone climbed
-    if structure.m_basis == 0:
-        f = -float(prof.log_prob(x0[None, :])[0])
-        z_lsq, _ = least_squares_point(post, structure, z)
-        f_lsq = -float(prof.log_prob(z_lsq[structure.other_idx][None, :])[0])
-        if f_lsq < f:
-            x0 = z_lsq[structure.other_idx]
-    f, x = _polish(post, x0, prof)
-    # the polish scales its coordinates by the curvature where it starts; from far below
-    # the mode those scales are wrong near it, so it starts again from where it stopped
-    # (with the curvature there) until a pass gains less than a thousandth of a nat
-    for _ in range(MAX_PROFILE_PASSES):
-        f_next, x_next = _polish(post, x, prof)
-        gained = f - f_next
-        f, x = f_next, x_next
-        if not gained > 1e-3:
-            break
-    zz, _ = prof.full(x[None, :])
-    return (-f if f < _BIG else -math.inf), zz[0]
-
-
-def profile_start(post: Posterior, structure: Any, start: MAPResult,
-                  z: np.ndarray | None = None) -> MAPResult:
-    """``start`` moved to :func:`profile_mode` of ``post`` from ``z`` (default ``start.z``).
-
-    Its covariance is kept (the walkers' spread around the new point), its notes are not
-    (they were about the old point).
-    """
-    lp, z0 = profile_mode(post, structure, start.z if z is None else z)
-    return replace(start, z=z0, theta=post.space.unpack(z0), log_prob=lp, notes=())

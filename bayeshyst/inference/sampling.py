@@ -48,10 +48,10 @@ from bayeshyst.inference.optimize import (
     MAPResult,
     find_map,
     initial_ensemble,
-    profile_start,
     spread_shared_coordinates,
 )
 from bayeshyst.inference.posterior import EvalCounts, Posterior
+from bayeshyst.inference.profile import profile_start
 from bayeshyst.inference.sampling_result import SamplingResult
 from bayeshyst.inference.settings import SamplerSettings
 from bayeshyst.inference.structured_target import MoveStats, StructuredTarget
