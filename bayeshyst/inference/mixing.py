@@ -58,16 +58,15 @@ class Region:
         plus half the log determinant of ``2 pi`` times its draws' covariance (``z``).
     weight : float
         ``exp(log_mass)`` normalised over the regions.
+    mean_z : ndarray, shape (ndim,)
+        Mean of its kept draws in ``z``.
     """
 
     ensemble: int
     mean_log_prob: float
     log_mass: float
     weight: float
-
-
-def _labels(space: ParamSpace) -> list[str]:
-    return list(space.labels)
+    mean_z: np.ndarray
 
 
 def _slowest(chains: np.ndarray, labels: list[str], tau_factor: float) -> str | None:
@@ -89,15 +88,18 @@ def _slowest(chains: np.ndarray, labels: list[str], tau_factor: float) -> str | 
 MAX_DRAWS = 20_000
 
 
-def _thinned(chains: np.ndarray) -> np.ndarray:
-    """``chains`` (E, S, W, d) with every k-th step, at most :data:`MAX_DRAWS` per ensemble."""
+def _thinned(a: np.ndarray, chains: np.ndarray) -> np.ndarray:
+    """``a`` (E, S, ...) with every k-th step of ``chains`` (E, S, W, d) kept.
+
+    ``k`` leaves at most :data:`MAX_DRAWS` draws per ensemble.
+    """
     k = max(1, math.ceil(chains.shape[1] * chains.shape[2] / MAX_DRAWS))
-    return chains[:, ::k]
+    return a[:, ::k]
 
 
 def _collinear(chains: np.ndarray, labels: list[str]) -> str | None:
     """The coordinate pairs with posterior correlation at least :data:`COLLINEAR`."""
-    flat = _thinned(chains).reshape(-1, chains.shape[-1])
+    flat = _thinned(chains, chains).reshape(-1, chains.shape[-1])
     sd = flat.std(axis=0)
     live = np.flatnonzero(sd > 0)
     if live.size < 2:
@@ -137,8 +139,7 @@ def separate_regions(chains: np.ndarray, log_prob: np.ndarray
     n_ens = chains.shape[0]
     if n_ens < 2:
         return None
-    k = max(1, math.ceil(chains.shape[1] * chains.shape[2] / MAX_DRAWS))
-    chains, log_prob = chains[:, ::k], log_prob[:, ::k]
+    chains, log_prob = _thinned(chains, chains), _thinned(log_prob, chains)
     flat = chains.reshape(n_ens, -1, chains.shape[-1])
     mean, sd = flat.mean(axis=1), flat.std(axis=1)
     lo, hi = np.percentile(flat, 1, axis=1), np.percentile(flat, 99, axis=1)
@@ -167,7 +168,7 @@ def separate_regions(chains: np.ndarray, log_prob: np.ndarray
     w = np.exp(log_mass - top) if np.isfinite(top) else np.full(n_ens, np.nan)
     w = w / np.sum(w) if np.isfinite(top) else w
     regions = [Region(e, float(np.mean(lp[e][np.isfinite(lp[e])])), float(log_mass[e]),
-                      float(w[e])) for e in range(n_ens)]
+                      float(w[e]), mean[e]) for e in range(n_ens)]
     return regions, where, best
 
 
@@ -176,12 +177,10 @@ def _regions(chains: np.ndarray, log_prob: np.ndarray, space: ParamSpace) -> str
     if found is None:
         return None
     regions, j, sep = found
-    labels = _labels(space)
-    means = _thinned(chains).reshape(chains.shape[0], -1, chains.shape[-1]).mean(axis=1)
     # the separating coordinate in physical units (its parameter unpacked at each mean)
     owner = space.owners[j]
     k = j - space.slice_of(owner).start
-    values = [float(np.ravel(space.unpack(m)[owner])[k]) for m in means]
+    values = [float(np.ravel(space.unpack(r.mean_z)[owner])[k]) for r in regions]
     unit = space[owner].unit
     where = ", ".join(f"{v:.4g}" for v in values) + (f" {unit}" if unit and unit != "1" else "")
     if all(math.isfinite(r.weight) for r in regions):
@@ -190,7 +189,7 @@ def _regions(chains: np.ndarray, log_prob: np.ndarray, space: ParamSpace) -> str
     else:
         mass = "their weights cannot be approximated (a degenerate covariance)"
     dens = ", ".join(f"{r.mean_log_prob:.1f}" for r in regions)
-    return (f"the {len(regions)} ensembles sit in separate regions ({labels[j]}: {where}; "
+    return (f"the {len(regions)} ensembles sit in separate regions ({space.labels[j]}: {where}; "
             f"{sep:.1f} sd apart): {mass} (mean log density {dens}); more steps will not "
             f"join them, and the draws weigh each region by its walkers, not by its mass")
 
@@ -218,7 +217,7 @@ def explain_nonconvergence(chains: np.ndarray, log_prob: np.ndarray, space: Para
     chains = np.asarray(chains, dtype=float)
     if chains.ndim != 4 or chains.shape[1] < 4:
         return ()
-    labels = _labels(space)
+    labels = list(space.labels)
     found = (_regions(chains, log_prob, space), _collinear(chains, labels),
              _slowest(chains, labels, tau_factor))
     return tuple(s for s in found if s is not None)
