@@ -41,9 +41,9 @@ from bayeshyst.inference.held_out import (
     unit_grams,
 )
 from bayeshyst.inference.linear import LinearStructure
-from bayeshyst.inference.optimize import MAPResult, conditional_mode
+from bayeshyst.inference.optimize import MAPResult
 from bayeshyst.inference.posterior import NOISE, Posterior
-from bayeshyst.inference.profile import profile_mode
+from bayeshyst.inference.profile import conditional_mode, profile_mode
 from bayeshyst.threads import with_single_threaded_blas
 
 __all__ = ["DiscrepancyScales", "attach_discrepancy"]
@@ -265,10 +265,9 @@ def _start(fixed: Posterior, post: Posterior, z_full: np.ndarray, post0: Posteri
     for n in space.names:
         z[space.slice_of(n)] = z_full[post.space.slice_of(n)]
     structure = LinearStructure(fixed, reference=z)
-    z = conditional_mode(fixed, structure, z)
-    lp_mode, z_mode = profile_mode(fixed, structure, z)
-    if lp_mode > float(fixed.log_prob(z)):
-        z = z_mode
+    # profile_mode never returns a point below its start (the start itself, completed,
+    # when it finds nothing better)
+    _, z = profile_mode(fixed, structure, conditional_mode(fixed, structure, z))
     cond = structure.conditional(structure.stats(z[None]), z[None])
     cov = np.zeros((space.ndim, space.ndim))
     shared = [n for n in space.names if n in post0.space.names]

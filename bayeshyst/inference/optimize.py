@@ -12,7 +12,6 @@ Laplace covariance that spreads the initial walkers along the posterior's own ri
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -20,10 +19,10 @@ import numpy as np
 from scipy import optimize
 
 from bayeshyst.errors import ParameterError
-from bayeshyst.inference.posterior import NOISE, Posterior
+from bayeshyst.inference.posterior import Posterior
 from bayeshyst.threads import with_single_threaded_blas
 
-__all__ = ["MAPResult", "conditional_mode", "find_map", "initial_ensemble",
+__all__ = ["MAPResult", "find_map", "initial_ensemble",
            "laplace_covariance", "spread_shared_coordinates"]
 
 # stands for -log p = +inf inside the optimisers (they cannot take inf); far above any
@@ -527,41 +526,3 @@ def spread_shared_coordinates(
             return out, shared
         scale *= 0.5  # the conditional ball pokes outside the support: shrink it
     return np.delete(out, todo, axis=0), shared
-
-
-def conditional_mode(post: Posterior, structure: Any, z: np.ndarray) -> np.ndarray:
-    """``z`` with its noise re-optimised and its linear block at the conditional mean.
-
-    A start for a posterior that is close to one whose MAP is known (the same model with
-    a discrepancy added, or with cycles held out): the model's nonlinear coordinates
-    stay, the noise (1-2 coordinates) is re-optimised by Nelder-Mead on the log
-    posterior with the whole linear block following it exactly. A full :func:`find_map`
-    would differentiate every linear coordinate too (minutes with a hundred of them).
-
-    Parameters
-    ----------
-    post : Posterior
-    structure : LinearStructure
-        Its linear block.
-    z : ndarray, shape (ndim,)
-    """
-    space = post.space
-    noise = [n for n in space.names if n.startswith(NOISE + ".")]
-    noise_idx = space.indices(noise)
-
-    def with_block(x: np.ndarray) -> np.ndarray:
-        zz = np.asarray(z, dtype=float).copy()
-        zz[noise_idx] = x
-        cond = structure.conditional(structure.stats(zz[None]), zz[None])
-        zz[structure.lin_idx] = structure.z_of(cond.mean)[0][0]
-        return zz
-
-    def neg(x: np.ndarray) -> float:
-        val = -post.log_prob(with_block(x))
-        return val if math.isfinite(val) else _BIG
-
-    if noise_idx.size == 0:
-        return with_block(np.zeros(0))
-    res = optimize.minimize(neg, np.asarray(z, float)[noise_idx], method="Nelder-Mead",
-                            options={"xatol": 1e-5, "fatol": 1e-4})
-    return with_block(res.x)

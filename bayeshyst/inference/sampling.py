@@ -349,6 +349,11 @@ def _advance(samplers: list, indeps: list, other: np.ndarray, settings: SamplerS
     out = _Advance()
     warm_end, frozen, last_adapt, last_rate = warmup, False, warmup, -math.inf
     reopened = 0
+
+    def warm_over(boundary: int) -> bool:
+        # frozen by a decision, or no extension point left to re-fit at
+        return frozen or not any(e > boundary for e in extend_at)
+
     for boundary in boundaries:
         for pair in samplers:
             sampler, p0 = pair
@@ -368,9 +373,8 @@ def _advance(samplers: list, indeps: list, other: np.ndarray, settings: SamplerS
         # re-fits the same proposals and restarts at the same steps
         if can_restart:
             best_lp, best_z = _best_draw(samplers, boundary)
-            warming = not frozen and any(e > boundary for e in extend_at)
             if best_lp > start.log_prob + MAP_SLACK and (
-                    warming or _bulk_above(samplers, boundary, start.log_prob)):
+                    not warm_over(boundary) or _bulk_above(samplers, boundary, start.log_prob)):
                 out.restart_from, out.best_log_prob = best_z, best_lp
                 return out
         refit = boundary in adapt_at
@@ -404,8 +408,8 @@ def _advance(samplers: list, indeps: list, other: np.ndarray, settings: SamplerS
                                 f"{out.report.ess_bulk_min:.0f}, tau {out.report.tau_max:.0f}")
         if out.report.converged:
             break
-        warm_over = frozen or not any(e > boundary for e in extend_at)
-        if warm_over and reopened < MAX_REOPENINGS and boundary <= settings.max_steps // 2:
+        if warm_over(boundary) and reopened < MAX_REOPENINGS and \
+                boundary <= settings.max_steps // 2:
             # a region the frozen proposal misses holds a walker still (a tail along a
             # ridge, a mode found late): re-fit with an anchor on each such walker and
             # burn in to here, so the kept chain has one fixed proposal again
