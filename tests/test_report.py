@@ -352,3 +352,26 @@ def test_report_renders_in_a_real_browser_without_errors(demo: tuple[int, Path],
     subprocess.run([*common, f"--screenshot={shot}", "--window-size=1280,6000",
                     report.as_uri()], capture_output=True, timeout=180)
     assert shot.is_file() and shot.stat().st_size > 50_000  # a page, not a blank
+
+
+def test_the_calibration_check_in_a_worker_gives_the_in_process_numbers(tmp_path: Path) -> None:
+    """With more than one process the calibration check runs in a worker of its own
+    while the feedforward is designed; oracle: the same report run in one process, same
+    seed (a worker's serial kernels give the bits of the parallel ones)."""
+    from bayeshyst.inference.settings import SamplerSettings
+    from bayeshyst.workflow import ReportSettings, run_report
+
+    data = load(bundled_data()).select([50.0])
+    runs = {}
+    for jobs in (1, 2):
+        settings = ReportSettings(sampler=SamplerSettings(max_steps=600, seed=3), lofo=False,
+                                  max_refits=0, max_rounds=1, max_candidates=1,
+                                  effects=("asymmetry",), design_draws=8, n_jobs=jobs,
+                                  averaged=False)
+        runs[jobs] = run_report(data, ("pi_play(n_operators=2)",), settings=settings,
+                                out_dir=tmp_path / f"jobs{jobs}")
+    one, two = runs[1], runs[2]
+    assert one.calibration is not None and one.calibration.per_frequency
+    assert two.calibration.to_dict() == one.calibration.to_dict()
+    assert two.compensation.to_dict() == one.compensation.to_dict()
+    assert list(two.runtime_s) == ["compare", "diagnose", "calibrate", "compensate", "total"]
