@@ -36,11 +36,11 @@ def main() -> None:
     parser.add_argument("--write", action="store_true", help="update benchmarks/RESULTS.md")
     args = parser.parse_args()
     from bayeshyst.data import Dataset, load
+    from bayeshyst.demo import bundled_data
     from bayeshyst.diagnosis import analyse_residual
     from bayeshyst.inference.posterior import Posterior
     from bayeshyst.inference.sampling import sample_posterior
     from bayeshyst.inference.settings import SamplerSettings
-    from bayeshyst.workflow import bundled_data
 
     raw = load(bundled_data())
     rng = np.random.default_rng(0)

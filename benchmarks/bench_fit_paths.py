@@ -104,9 +104,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--repeats", type=int, default=3, help="timings per EM case (median)")
     args = ap.parse_args(argv)
     from bayeshyst.data import load
+    from bayeshyst.demo import bundled_data
     from bayeshyst.inference import moves
     from bayeshyst.models.blocks.smooth import Unexplained
-    from bayeshyst.workflow import bundled_data
 
     lines = [f"Measured {time.strftime('%Y-%m-%d')} on {platform.machine()}, "
              f"{os.cpu_count()} cores; load average {os.getloadavg()[0]:.2f} at the start.",

@@ -39,13 +39,13 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--write", action="store_true", help="record in benchmarks/RESULTS.md")
     args = ap.parse_args(argv)
     from bayeshyst.data import load
+    from bayeshyst.demo import bundled_data
     from bayeshyst.diagnostics import PARETO_K_BAD, loo, to_inference_data
     from bayeshyst.inference.posterior import Posterior
     from bayeshyst.inference.sampling import sample_posterior
     from bayeshyst.inference.settings import SamplerSettings
     from bayeshyst.models import get
     from bayeshyst.selection import tasks
-    from bayeshyst.workflow import bundled_data
 
     data = load(bundled_data())
     sampler = SamplerSettings(max_steps=5000)

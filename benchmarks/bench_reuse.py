@@ -39,13 +39,13 @@ def main() -> None:
     args = parser.parse_args()
     from bayeshyst import diagnostics
     from bayeshyst.data import load
+    from bayeshyst.demo import bundled_data
     from bayeshyst.inference.fit import fit_model
     from bayeshyst.inference.saved import load_fit
     from bayeshyst.inference.settings import SamplerSettings
     from bayeshyst.inverse.command import design_command
     from bayeshyst.inverse.export import export_inverse
     from bayeshyst.inverse.references import reference_signal
-    from bayeshyst.workflow import bundled_data
 
     data = load(bundled_data()).select((1.0, 10.0))
     load0 = os.getloadavg()[0]

@@ -41,10 +41,10 @@ def main(argv: list[str] | None = None) -> int:
                          "written (to compare screens without sampling again)")
     args = ap.parse_args(argv)
     from bayeshyst.data import load
+    from bayeshyst.demo import DEMO_DEFAULT, bundled_data
     from bayeshyst.diagnosis import diagnose
     from bayeshyst.diagnostics.laplace_loo import laplace_loo
     from bayeshyst.selection.ranking import paired_difference
-    from bayeshyst.workflow import DEMO_DEFAULT, bundled_data
 
     data = load(bundled_data())
     s = DEMO_DEFAULT.settings

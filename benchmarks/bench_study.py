@@ -35,7 +35,7 @@ SEEDS = (0, 1)
 
 def study_file(folder: Path, steps: int) -> Path:
     """The benchmark's study: the bundled multi-frequency file, every frequency."""
-    from bayeshyst.workflow import bundled_data
+    from bayeshyst.demo import bundled_data
 
     data = bundled_data("virtual_multifreq.csv", fallback_dir=folder / "data")
     path = folder / "bench.toml"

@@ -36,6 +36,7 @@ LAYERS: tuple[tuple[str, ...], ...] = (
     ("selection", "inverse"),
     ("diagnosis",),
     ("workflow", "study"),
+    ("demo",),
     ("plotting",),
     ("outputs",),
     ("cli",),

@@ -24,9 +24,9 @@ from bayeshyst.cli import main
 from bayeshyst.data import load
 from bayeshyst.data.dataset import Dataset
 from bayeshyst.data.writers import write_csv
+from bayeshyst.demo import DEMO_QUICK, bundled_data
 from bayeshyst.outputs import html as H
 from bayeshyst.outputs.report_outputs import SECTIONS
-from bayeshyst.workflow import DEMO_QUICK, bundled_data
 
 EVIL = '<script>alert("x")</script>'
 

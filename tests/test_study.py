@@ -24,13 +24,13 @@ from bayeshyst.cli import main
 from bayeshyst.data import load
 from bayeshyst.data.dataset import Dataset
 from bayeshyst.data.writers import write_csv
+from bayeshyst.demo import bundled_data
 from bayeshyst.errors import ModelError, ParameterError
 from bayeshyst.inference.settings import SamplerSettings
 from bayeshyst.outputs.study_outputs import write_study_outputs
 from bayeshyst.selection.tasks import CompareSettings, TaskSpec, derived_seed, run_task
 from bayeshyst.study import plan_study, read_study, run_study
 from bayeshyst.study.rows import TABLE_COLUMNS, VOLATILE_COLUMNS
-from bayeshyst.workflow import bundled_data
 
 distributed = pytest.importorskip("distributed")
 

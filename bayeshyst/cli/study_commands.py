@@ -111,7 +111,7 @@ def cmd_report(args: argparse.Namespace) -> int:
 def cmd_demo(args: argparse.Namespace) -> int:
     """``bayeshyst demo``: the report on the bundled data at the demo's budget."""
     from bayeshyst.data import load
-    from bayeshyst.workflow import DEMO_DEFAULT, DEMO_QUICK, bundled_data
+    from bayeshyst.demo import DEMO_DEFAULT, DEMO_QUICK, bundled_data
 
     plan = DEMO_QUICK if args.quick else DEMO_DEFAULT
     # the data regenerated into --out (no bundled data/) are the run's own, taken back
