@@ -1,4 +1,4 @@
-"""An unconverged fit of the diagnosis is sampled again with twice the steps.
+"""An unconverged fit of the diagnosis is sampled again with twice the steps, on from its end.
 
 The oracle is a convergence rule imposed on the real sampler: its runs are recorded and
 their ``converged`` flag is set by the step budget alone (converged from ``need`` steps
@@ -47,8 +47,12 @@ def data() -> Dataset:
     return _drifting()
 
 
-def _converging_from(monkeypatch, need: int) -> list[SamplerSettings]:
-    """Record every run of the sampler; a run converges iff its budget is >= ``need``."""
+def _converging_from(monkeypatch, need: int, calls: list | None = None
+                     ) -> list[SamplerSettings]:
+    """Record every run of the sampler; a run converges iff its budget is >= ``need``.
+
+    ``calls``, when given, gets each run's keyword arguments and result.
+    """
     runs: list[SamplerSettings] = []
     real = _fitting.sample_posterior
 
@@ -56,7 +60,10 @@ def _converging_from(monkeypatch, need: int) -> list[SamplerSettings]:
         runs.append(settings)
         res = real(post, settings, **kw)
         conv = dataclasses.replace(res.convergence, converged=settings.max_steps >= need)
-        return dataclasses.replace(res, convergence=conv)
+        res = dataclasses.replace(res, convergence=conv)
+        if calls is not None:
+            calls.append((kw, res))
+        return res
 
     monkeypatch.setattr(_fitting, "sample_posterior", sample)
     return runs
@@ -72,7 +79,8 @@ def _run(data, tmp_path, **kw):
 
 def test_an_unconverged_fit_is_sampled_again_with_twice_the_steps(data, tmp_path,
                                                                    monkeypatch):
-    runs = _converging_from(monkeypatch, 2 * STEPS)
+    calls: list = []
+    runs = _converging_from(monkeypatch, 2 * STEPS, calls)
     result = _run(data, tmp_path)
     (step,) = result.steps  # drift fired on the base and was refitted
     # every fit: once at the budget, once at twice it, each with its own seed and file
@@ -80,6 +88,11 @@ def test_an_unconverged_fit_is_sampled_again_with_twice_the_steps(data, tmp_path
     for first, second in (runs[0:2], runs[2:4]):
         assert first.checkpoint != second.checkpoint and first.seed != second.seed
         assert first.checkpoint.exists() and second.checkpoint.exists()
+    # the longer run goes on from the short one's last walkers, each ensemble from its
+    # own, and from the start the short one ended with
+    for (_, short), (kw, _) in (calls[0:2], calls[2:4]):
+        np.testing.assert_array_equal(kw["walkers"], short.chains[:, -1])
+        assert kw["start"] is short.start and "initial" not in kw
     assert result.base.converged and step.converged, step.reason
     assert step.outcome in ("accepted", "rejected"), step.reason
     assert any(f"did not converge within {STEPS} steps; sampled again with {2 * STEPS}"

@@ -200,7 +200,7 @@ def diagnosis_fit(data: Dataset, model: HysteresisModel, likelihood: str, label:
     seed = sampler.seed
     res = sample_posterior(post, sampler, start=start, initial=initial)
     notes: list[str] = []
-    # an unconverged fit decides nothing, so it is sampled again from the same start with
+    # an unconverged fit decides nothing, so it is sampled again, from where it got, with
     # twice the steps before it is reported as not decided (its own seed and checkpoint:
     # the budget is part of a fit's identity). Second-order candidates on the MR damper and
     # the micromanipulator ran out of 10 000 steps in a slowly mixing offset direction
@@ -219,9 +219,14 @@ def diagnosis_fit(data: Dataset, model: HysteresisModel, likelihood: str, label:
         longer = fit_sampler(post, st.sampler.replace(max_steps=2 * sampler.max_steps),
                              st.seed, checkpoint_dir)
         notes.append(f"{label}: the sampler did not converge within {sampler.max_steps} "
-                     f"steps; sampled again with {longer.max_steps}")
+                     f"steps; sampled again with {longer.max_steps}, each ensemble going on "
+                     f"from its last walkers")
         sampler = longer
-        res = sample_posterior(post, sampler, start=start, initial=initial)
+        # from where the short run got, not from the start again: a run that ran out
+        # was still climbing or mixing slowly, and its walkers are past the climb (the
+        # 150 V piezo's creep-and-drift candidate climbed 550 nats over its first 6 000
+        # steps). Its own start (the MAP it may have restarted to) goes with them
+        res = sample_posterior(post, sampler, start=res.start, walkers=res.last_walkers)
     if unseen:
         notes.append(f"{label}: the sampler did not converge within {sampler.max_steps} "
                      f"steps; not sampled again, because the natural frequency it adds lies "

@@ -215,8 +215,9 @@ def diagnose(
         warning still say so) -- for studies of what the loop names on short chains
         (``analyses.hidden_effects``), whose decisions are provisional.
     budget_doublings : int
-        Times an unconverged fit is sampled again, from its start, with twice the step
-        budget of its last run, before it is reported as not converged (0: never). Not
+        Times an unconverged fit is sampled again with twice the step budget of its last
+        run, each ensemble going on from that run's last walkers, before it is reported
+        as not converged (0: never). Not
         with ``decide_unconverged``, which decides on the draws there are, nor for a
         candidate whose added natural frequency lies above every Nyquist frequency in
         every ensemble: it is refused as unresolved, however its modes end up weighted.

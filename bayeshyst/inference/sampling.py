@@ -44,16 +44,12 @@ from bayeshyst.inference.convergence import ConvergenceReport, assess
 from bayeshyst.inference.linear import LinearStructure
 from bayeshyst.inference.mixing import explain_nonconvergence
 from bayeshyst.inference.moves import structured_moves
-from bayeshyst.inference.optimize import (
-    MAPResult,
-    find_map,
-    initial_ensemble,
-    spread_shared_coordinates,
-)
+from bayeshyst.inference.optimize import MAPResult, find_map
 from bayeshyst.inference.posterior import EvalCounts, Posterior
 from bayeshyst.inference.profile import profile_start
 from bayeshyst.inference.sampling_result import SamplingResult
 from bayeshyst.inference.settings import SamplerSettings
+from bayeshyst.inference.starts import initial_positions, unshared_walkers
 from bayeshyst.inference.structured_target import MoveStats, StructuredTarget
 from bayeshyst.inference.warmup import (
     MAX_REOPENINGS,
@@ -118,48 +114,6 @@ def _fingerprint(post: Posterior, settings: SamplerSettings, n_walkers: int,
         "initial_sha256": start,
         **settings.fingerprint(),
     }
-
-
-def _unshared(post: Posterior, start: MAPResult, initial: np.ndarray, idx: np.ndarray,
-              rng: np.random.Generator) -> np.ndarray:
-    """The given walkers, with the coordinates they all share drawn apart.
-
-    :func:`~bayeshyst.inference.optimize.spread_shared_coordinates`; ``initial`` itself
-    when none is shared (its checkpoint identity unchanged, and no evaluation spent:
-    :func:`_initial_positions` checks the walkers' densities once).
-    """
-    pool = np.asarray(initial, dtype=float).reshape(-1, post.ndim)
-    spread, shared = spread_shared_coordinates(post, start, pool, idx, rng)
-    if shared.size == 0:
-        return initial
-    _log.info("%s: the starting walkers shared %s; drawn apart from the Laplace "
-              "conditional (an ensemble cannot leave a subspace it starts in)",
-              post.model.name, ", ".join(post.space.labels[i] for i in shared))
-    return spread
-
-
-def _initial_positions(post: Posterior, start: MAPResult, initial: np.ndarray | None,
-                       n_ens: int, n_walkers: int, rngs: list[np.random.Generator]
-                       ) -> list[np.ndarray]:
-    """Each ensemble's starting walkers: the given ones, else Laplace draws.
-
-    Of the given walkers, those without finite density are replaced by Laplace draws, and
-    the rest resampled to the ensemble size.
-    """
-    out = []
-    for e in range(n_ens):
-        rng = rngs[e]
-        if initial is None:
-            out.append(initial_ensemble(post, start, n_walkers, rng))
-            continue
-        pool = np.asarray(initial, dtype=float).reshape(-1, post.ndim)
-        pool = pool[np.isfinite(post.log_prob_batch(pool))]
-        if pool.shape[0] < n_walkers:
-            fill = initial_ensemble(post, start, n_walkers - pool.shape[0], rng)
-            pool = np.vstack([pool, fill])
-        pick = rng.choice(pool.shape[0], size=n_walkers, replace=False)
-        out.append(pool[np.sort(pick)])
-    return out
 
 
 #: how far above the MAP's log density a walker may be before the MAP is called wrong
@@ -265,7 +219,8 @@ def _attempt_rngs(seed: int, n_ens: int, attempt: int,
 
 def _ensembles(post: Posterior, settings: SamplerSettings, target: StructuredTarget,
                start: MAPResult, initial: np.ndarray | None, n_walkers: int,
-               rngs: list[np.random.Generator]) -> tuple[list, list, list]:
+               rngs: list[np.random.Generator], walkers: np.ndarray | None = None
+               ) -> tuple[list, list, list]:
     """The emcee samplers of one attempt, their move statistics and independence moves.
 
     The samplers are resumed from the checkpoint where it has steps.
@@ -298,8 +253,8 @@ def _ensembles(post: Posterior, settings: SamplerSettings, target: StructuredTar
         p0 = None
         if backend.iteration == 0:
             if starts is None:
-                starts = _initial_positions(post, start, initial, settings.n_ensembles,
-                                            n_walkers, rngs)
+                starts = initial_positions(post, start, initial, settings.n_ensembles,
+                                            n_walkers, rngs, walkers)
             p0 = starts[e]
             sampler.random_state = np.random.RandomState(
                 int(rngs[e].integers(2**31 - 1))).get_state()
@@ -429,6 +384,7 @@ def sample_posterior(
     *,
     start: MAPResult | None = None,
     initial: np.ndarray | None = None,
+    walkers: np.ndarray | None = None,
 ) -> SamplingResult:
     """Sample the posterior with independent emcee ensembles until converged.
 
@@ -450,6 +406,12 @@ def sample_posterior(
         density. A coordinate every given walker shares (a parameter set at one
         estimate) is drawn apart first, from the Laplace conditional: an ensemble's
         moves cannot leave the subspace it starts in.
+    walkers : ndarray, shape (n_ensembles, n_walkers, ndim), optional
+        Each ensemble's own starting walkers, kept apart and in place: an earlier run of
+        the same posterior continued (:attr:`SamplingResult.last_walkers`), so that a
+        longer budget does not climb again from the start to where that run got
+        (any walker without finite density is replaced by a Laplace draw). Not with
+        ``initial``.
 
     Returns
     -------
@@ -458,18 +420,20 @@ def sample_posterior(
     Raises
     ------
     ParameterError
-        For too few walkers for the move set, or a checkpoint of another run.
+        For too few walkers for the move set, a checkpoint of another run, or
+        ``walkers`` of another shape than the run's ensembles.
     """
     # a hysteresis posterior alternates numba kernels with small BLAS products: one BLAS
     # thread (bayeshyst.threads); other targets (a GP's hyperparameters over a large
     # training set) choose their own
     limit = single_threaded_blas() if isinstance(post, Posterior) else contextlib.nullcontext()
     with limit:
-        return _sample_posterior(post, settings, start, initial)
+        return _sample_posterior(post, settings, start, initial, walkers)
 
 
 def _sample_posterior(post: Posterior, settings: SamplerSettings | None,
-                      start: MAPResult | None, initial: np.ndarray | None) -> SamplingResult:
+                      start: MAPResult | None, initial: np.ndarray | None,
+                      walkers: np.ndarray | None = None) -> SamplingResult:
     t0 = time.perf_counter()
     settings = SamplerSettings() if settings is None else settings
     if not isinstance(settings, SamplerSettings):
@@ -497,14 +461,23 @@ def _sample_posterior(post: Posterior, settings: SamplerSettings | None,
     if not structured and n_walkers < 2 * ndim:
         raise ParameterError(f"n_walkers={n_walkers} is too few for {ndim} dimensions with "
                              f"{settings.moves!r} moves (need >= {2 * ndim})")
+    if walkers is not None:
+        if initial is not None:
+            raise ParameterError("give the starting walkers as a pool (initial) or per "
+                                 "ensemble (walkers), not both")
+        walkers = np.asarray(walkers, dtype=float)
+        if walkers.shape != (n_ens, n_walkers, ndim):
+            raise ParameterError(f"walkers must have shape (n_ensembles, n_walkers, ndim) = "
+                                 f"{(n_ens, n_walkers, ndim)} for this run, got "
+                                 f"{walkers.shape}")
     if initial is not None:
         # the seed's child n_ens + 1: a stream no ensemble and no MAP search draws from
-        initial = _unshared(post, start, initial, StructuredTarget(post, structure).other_idx,
-                            np.random.default_rng(np.random.SeedSequence(settings.seed)
-                                                  .spawn(n_ens + 2)[-1]))
+        initial = unshared_walkers(
+            post, start, initial, StructuredTarget(post, structure).other_idx,
+            np.random.default_rng(np.random.SeedSequence(settings.seed).spawn(n_ens + 2)[-1]))
     fp = None
     if checkpoint is not None:
-        fp = _fingerprint(post, settings, n_walkers, initial)
+        fp = _fingerprint(post, settings, n_walkers, initial if walkers is None else walkers)
         if meta is not None:
             check_fingerprint(checkpoint, meta["fingerprint"], fp)
         else:
@@ -523,7 +496,7 @@ def _sample_posterior(post: Posterior, settings: SamplerSettings | None,
             rngs = _attempt_rngs(settings.seed, n_ens, attempt, seeds)
             samplers, stats, indeps = _ensembles(
                 post, settings, target, start, initial if attempt == 0 else None,
-                n_walkers, rngs)
+                n_walkers, rngs, walkers if attempt == 0 else None)
             if bar is not None:
                 bar.reset(total=settings.max_steps * n_ens)
                 bar.update(sum(s.iteration for s, _ in samplers))

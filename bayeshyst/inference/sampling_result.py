@@ -132,6 +132,15 @@ class SamplingResult:
         return self.convergence.converged
 
     @property
+    def last_walkers(self) -> np.ndarray:
+        """Each ensemble's walkers at the last step, shape (E, W, ndim).
+
+        Where a longer run of the same posterior goes on from
+        (``sample_posterior(walkers=...)``).
+        """
+        return self.chains[:, -1].copy()
+
+    @property
     def flat_z(self) -> np.ndarray:
         """All kept draws of ``z``, shape (E * S * W, ndim)."""
         return self.chains.reshape(-1, self.chains.shape[-1])
