@@ -9,6 +9,7 @@ density replaced).
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -77,3 +78,37 @@ def test_walkers_must_match_the_runs_ensembles_and_not_come_with_a_pool(tempered
         sample_posterior(post, settings, start=start, walkers=good[:, :20])
     with pytest.raises(ParameterError, match="not both"):
         sample_posterior(post, settings, start=start, walkers=good, initial=good[0])
+
+
+def _below_the_mode(post, start, nats):
+    """``start`` moved along its first Laplace axis to ``nats`` below the mode."""
+    vals, vecs = np.linalg.eigh(start.covariance)
+    z = start.z + math.sqrt(2.0 * nats * vals[-1]) * vecs[:, -1]
+    return dataclasses.replace(start, z=z, log_prob=float(post.log_prob(z)))
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_a_continued_run_restarts_only_when_most_of_its_walkers_lie_above_the_start(
+        tempered, seed):
+    # oracle: the posterior is Gaussian (a tempered linear model at known sigma), so a
+    # draw's log density lies chi2_d / 2 below the mode (d = 5 here). Against a start
+    # 1.5 nats below the mode, a draw lies more than a nat above the start with
+    # probability P(chi2_5 < 1) = 0.04 (many of the 64 walkers x 50 warm-up steps do),
+    # but the median draw lies below the start (P(chi2_5 < 3) = 0.30): a fresh run's
+    # warm-up restarts on one walker, a run going on from draws does not. Against a
+    # start 6 nats below (P(chi2_5 < 12) = 0.97) most draws lie above, and it restarts
+    post, _, start = tempered
+    assert post.ndim == 5
+    rng = np.random.default_rng(seed)
+    chol = np.linalg.cholesky(start.covariance)
+    draws = start.z + rng.standard_normal((2, 32, post.ndim)) @ chol.T
+    settings = SamplerSettings(seed=seed, max_steps=200, first_chunk=100, n_walkers=32)
+
+    def restarted(res):
+        return any("restart 1" in n for n in res.start.notes)
+
+    near = _below_the_mode(post, start, 1.5)
+    assert restarted(sample_posterior(post, settings, start=near, initial=draws))
+    assert not restarted(sample_posterior(post, settings, start=near, walkers=draws))
+    far = _below_the_mode(post, start, 6.0)
+    assert restarted(sample_posterior(post, settings, start=far, walkers=draws))

@@ -285,13 +285,16 @@ def _refit(indeps: list, chains: list[np.ndarray], boundary: int,
 
 
 def _advance(samplers: list, indeps: list, other: np.ndarray, settings: SamplerSettings,
-             start: MAPResult, bar: Any, *, can_restart: bool) -> _Advance:
+             start: MAPResult, bar: Any, *, can_restart: bool,
+             continuing: bool = False) -> _Advance:
     """Run one attempt's ensembles chunk by chunk.
 
     Adapt the proposal during warm-up, assess convergence at the checks, and stop early
     when the walkers show the start was not the mode (``can_restart``): during the
     warm-up one walker above it suffices, after it most of the draws must be
-    (:func:`_bulk_above`). A check that fails
+    (:func:`_bulk_above`), and so must they throughout a run ``continuing`` an earlier
+    one's walkers (draws already: one of them a nat or two above a MAP polished on a
+    flat ridge is not a missed mode). A check that fails
     after the warm-up with walkers the frozen proposal holds still re-opens it (at most
     :data:`~bayeshyst.inference.warmup.MAX_REOPENINGS` times, in the first half of the
     budget): the proposal is re-fitted with an anchor on each and the burn-in moves there.
@@ -329,7 +332,8 @@ def _advance(samplers: list, indeps: list, other: np.ndarray, settings: SamplerS
         if can_restart:
             best_lp, best_z = _best_draw(samplers, boundary)
             if best_lp > start.log_prob + MAP_SLACK and (
-                    not warm_over(boundary) or _bulk_above(samplers, boundary, start.log_prob)):
+                    (not continuing and not warm_over(boundary))
+                    or _bulk_above(samplers, boundary, start.log_prob)):
                 out.restart_from, out.best_log_prob = best_z, best_lp
                 return out
         refit = boundary in adapt_at
@@ -501,7 +505,8 @@ def _sample_posterior(post: Posterior, settings: SamplerSettings | None,
                 bar.reset(total=settings.max_steps * n_ens)
                 bar.update(sum(s.iteration for s, _ in samplers))
             run = _advance(samplers, indeps, target.other_idx, settings, start, bar,
-                           can_restart=attempt < MAX_RESTARTS)
+                           can_restart=attempt < MAX_RESTARTS,
+                           continuing=walkers is not None and attempt == 0)
             if run.restart_from is None:
                 break
             # walkers found higher density than the MAP: it was not the mode. Polish from
