@@ -392,18 +392,18 @@ def _run_report(data: Dataset, names: tuple[str, ...], s: ReportSettings, out: P
         final = diagnosis.final
     with ExitStack() as stack:
         pending = None
-        if chosen is not None and s.calibration:
-            _stage(progress, f"3/5 checking {final.label}'s predictive on held-out cycles")
-            if resolve_jobs(s.n_jobs) > 1:
-                # the check is one more posterior run, independent of the feedforward:
-                # it runs in a worker of its own while the feedforward's references
-                # run here (the same numbers: a worker's serial kernels give the bits
-                # of the parallel ones)
-                pool = stack.enter_context(process_pool(1))
-                pending = pool.submit(_timed_calibration, final.fit, sampler)
-            else:
-                calibration, times["calibrate"] = _timed_calibration(final.fit, sampler)
         if chosen is not None:
+            if s.calibration:
+                _stage(progress, f"3/5 checking {final.label}'s predictive on held-out cycles")
+                if resolve_jobs(s.n_jobs) > 1:
+                    # the check is one more posterior run, independent of the feedforward:
+                    # it runs in a worker of its own while the feedforward's references
+                    # run here (the same numbers: a worker's serial kernels give the bits
+                    # of the parallel ones)
+                    pool = stack.enter_context(process_pool(1))
+                    pending = pool.submit(_timed_calibration, final.fit, sampler)
+                else:
+                    calibration, times["calibrate"] = _timed_calibration(final.fit, sampler)
             _stage(progress, f"4/5 designing feedforward with {final.label}")
             t0 = time.perf_counter()
             compensation = compensate(data, final.model, fit=final.fit,

@@ -254,7 +254,7 @@ def _ensembles(post: Posterior, settings: SamplerSettings, target: StructuredTar
         if backend.iteration == 0:
             if starts is None:
                 starts = initial_positions(post, start, initial, settings.n_ensembles,
-                                            n_walkers, rngs, walkers)
+                                           n_walkers, rngs, walkers)
             p0 = starts[e]
             sampler.random_state = np.random.RandomState(
                 int(rngs[e].integers(2**31 - 1))).get_state()
@@ -498,15 +498,18 @@ def _sample_posterior(post: Posterior, settings: SamplerSettings | None,
         while True:
             target = StructuredTarget(post, structure)
             rngs = _attempt_rngs(settings.seed, n_ens, attempt, seeds)
+            # the given walkers start the first attempt only: a restart samples afresh
+            # around its new start
+            first = attempt == 0
             samplers, stats, indeps = _ensembles(
-                post, settings, target, start, initial if attempt == 0 else None,
-                n_walkers, rngs, walkers if attempt == 0 else None)
+                post, settings, target, start, initial if first else None,
+                n_walkers, rngs, walkers if first else None)
             if bar is not None:
                 bar.reset(total=settings.max_steps * n_ens)
                 bar.update(sum(s.iteration for s, _ in samplers))
             run = _advance(samplers, indeps, target.other_idx, settings, start, bar,
                            can_restart=attempt < MAX_RESTARTS,
-                           continuing=walkers is not None and attempt == 0)
+                           continuing=first and walkers is not None)
             if run.restart_from is None:
                 break
             # walkers found higher density than the MAP: it was not the mode. Polish from
