@@ -98,10 +98,18 @@ def edge_and_floor(x: np.ndarray, fs: float, *, alpha: float = ALPHA,
     # autocorrelation at lags 1, 2 (exact; with rho = 1 it is (2 sin(w/2))^4, which the
     # window's leakage from higher bins exceeds in the lowest ones)
     win = signal.get_window("hann", nper)
-    rho1 = float(np.dot(win[:-1], win[1:]) / np.dot(win, win))
-    rho2 = float(np.dot(win[:-2], win[2:]) / np.dot(win, win))
+    # written without cancellation: 1 - rho1 and 1 - rho2 (about 1/nper^2) from
+    # differences of the window, and 6 - 8 cos w + 2 cos 2w = (2 sin(w/2))^4, so that
+    # the lowest bins of a long record (nper 125 000: a gain near 1e-18 read as 3e-15,
+    # or as 0) keep their value
+    energy = float(np.dot(win, win))
+    a1 = (0.5 * float(np.sum(np.diff(win) ** 2)) + 0.5 * (win[0] ** 2 + win[-1] ** 2)) / energy
+    a2 = (0.5 * float(np.sum((win[2:] - win[:-2]) ** 2))
+          + 0.5 * float(win[0] ** 2 + win[1] ** 2 + win[-2] ** 2 + win[-1] ** 2)) / energy
     w = 2.0 * np.pi * f / fs
-    gain = 6.0 - 8.0 * rho1 * np.cos(w) + 2.0 * rho2 * np.cos(2.0 * w)
+    # 6 - 8 (1 - a1) cos w + 2 (1 - a2) cos 2w
+    gain = (16.0 * np.sin(w / 2.0) ** 4 + (8.0 * a1 - 2.0 * a2) * np.cos(2.0 * w)
+            + 16.0 * a1 * np.sin(1.5 * w) * np.sin(w / 2.0))
     # DC and Nyquist bins are chi-square with one degree of freedom, not two: left out
     bins = slice(1, f.size - 1 if nper % 2 == 0 else f.size)
     f, r = f[bins], p[bins] / gain[bins]

@@ -24,9 +24,12 @@ f_sig(u))`` with ``f_exc`` the record's frequency (else its classified excitatio
 the fundamental, or the upper edge of a multisine's or broadband input's band), and
 ``k = floor(fs / fs_req)``. A record is decimated only when ``k >= 2``; otherwise it is
 kept whole. The band kept is ``0 .. fs_out / (2 margin)``, which holds ``f_sig`` by
-construction: the low-pass passes it (Kaiser window, ripple and stop-band attenuation
-:data:`STOPBAND_DB`, 80 dB, 1e-4) and stops everything above the new Nyquist frequency
-``fs_out / 2``, so nothing above it aliases into the band.
+construction: the low-pass passes it (ripple about 1e-4) and stops, by
+:data:`STOPBAND_DB` (80 dB), everything that would fold into it,
+``fs_out (1 - 1/(2 margin))`` and up. Between the two its power response is
+complementary about the new Nyquist frequency, so **white noise stays white** at the
+working rate (lag correlations about 0.002; see ``_design``): the noise model a record
+needs is the same at either rate.
 
 The input. A step through a low-pass rings (Gibbs: 9 % overshoot) and would drive a
 hysteresis model through minor loops it never saw. The input is **piecewise constant**
@@ -49,18 +52,19 @@ signal band-limited to ``f_B`` with ``|u - mid| <= span/2`` moves at most
 Edges. Every piece is padded by odd reflection about its end sample (level and slope
 kept: exact at the end sample itself up to the ripple, but not next to it, within half
 the filter, about 15 working-rate samples). So samples within half the filter of the
-record's end are **trimmed**, and of its start too unless the warm-up holds them (there
-they only set the initial state, which the warm-up is there to forget). A smooth
-input's jumps end pieces inside a record: within half a filter of a jump the filtered
-input carries that distortion.
+record's end are **trimmed**, and those of its start become **warm-up**: the model is
+simulated through them from the record's own beginning, where its initial state means
+what it means at the full rate, but they are not scored (a start trimmed instead would
+begin the model mid-record in a state nobody knows). A smooth input's jumps end pieces
+inside a record: within half a filter of a jump the filtered input carries that
+distortion.
 
 Everything else is carried as ``analyses/_common.cut_record`` does: every ``k``-th
-sample (``t`` unchanged; from the first, or from the first multiple of ``k`` past a
-trimmed start), segment labels subsampled, the warm-up divided by ``k`` rounded up,
-``excitation_start_index`` and ``virgin_branch_end_index`` divided by ``k`` (floor; a
-trimmed start is subtracted first, and an index that falls before it is kept as
-``<key>_before_start``), ``metadata["sampling_rate_hz"]`` the new rate and
-``metadata["working_rate"]`` what was done. Measured covariate columns are filtered
+sample from the first (``t`` unchanged), segment labels subsampled, the warm-up divided
+by ``k`` rounded up (at least the half filter's samples), ``excitation_start_index``
+and ``virgin_branch_end_index`` divided by ``k`` (floor),
+``metadata["sampling_rate_hz"]`` the new rate and ``metadata["working_rate"]`` what
+was done. Measured covariate columns are filtered
 like the output at the same cut-off (their spectra do not set the rate).
 """
 
@@ -89,8 +93,10 @@ __all__ = ["MARGIN", "MIN_SAMPLES_PER_CYCLE", "STOPBAND_DB", "RecordRate", "Work
 MIN_SAMPLES_PER_CYCLE = 100.0
 #: new Nyquist frequency over the highest frequency kept (the filter's transition band)
 MARGIN = 1.5
-#: stop-band attenuation and pass-band ripple of the anti-alias filter [dB]
+#: stop-band attenuation of the anti-alias filter [dB]
 STOPBAND_DB = 80.0
+#: side lobes of the light Kaiser taper on the anti-alias filter's taps [dB] (see _design)
+_WINDOW_DB = 30.0
 #: relative jitter of the sampling step beyond which a record is not filtered (as
 #: :attr:`Record.dt` calls a record uniform)
 _JITTER = 0.01
@@ -128,10 +134,11 @@ class RecordRate:
     noise_gain : float
         Standard deviation of white noise after the low-pass over before,
         ``sqrt(sum(h**2))`` (about ``sqrt(1 / k)``); 1 when kept whole.
-    first_index, dropped_at_end : int
-        Index of the first sample kept (0 unless samples within half the filter of the
-        start were left off, which happens when the warm-up does not hold them), and
-        how many samples after the last one kept were left off (within half the filter
+    edge_warmup : int
+        Working-rate samples at the start that are warm-up only because they lie within
+        half the filter of it (beyond the record's own warm-up; simulated, not scored).
+    dropped_at_end : int
+        How many samples after the last one kept were left off (within half the filter
         of the end, plus fewer than ``k`` of the grid).
     """
 
@@ -149,15 +156,17 @@ class RecordRate:
     n_out: int
     input_jumps: int
     noise_gain: float
-    first_index: int = 0
+    edge_warmup: int = 0
     dropped_at_end: int = 0
 
     def __str__(self) -> str:
         if self.factor == 1:
             return f"{self.record}: kept whole at {self.fs_in_hz:.6g} Hz ({self.reason})"
-        ends = (f"; samples {self.first_index}..{self.n_in - 1 - self.dropped_at_end} "
-                f"(filter edges left off)" if self.first_index or self.dropped_at_end
-                else "")
+        ends = ""
+        if self.edge_warmup:
+            ends += f"; the first {self.edge_warmup} samples warm-up (filter edge)"
+        if self.dropped_at_end:
+            ends += f"; the last {self.dropped_at_end} left off (filter edge)"
         return (f"{self.record}: {self.fs_in_hz:.6g} Hz -> {self.fs_out_hz:.6g} Hz "
                 f"(every {self.factor}th sample, {self.n_in} -> {self.n_out}); band "
                 f"0-{self.band_hz[1]:.4g} Hz kept ({self.reason}); input "
@@ -286,18 +295,51 @@ def _held(u: np.ndarray, pieces: list[tuple[int, int]], sigma: float, alpha: flo
 
 
 # ------------------------------------------------------------------------ filter
+def _step(x: np.ndarray) -> np.ndarray:
+    """A smooth (C-infinity) step from 0 at ``x <= 0`` to 1 at ``x >= 1``.
+
+    ``psi(x) / (psi(x) + psi(1 - x))`` with ``psi = exp(-1/x)``, so that
+    ``step(x) + step(1 - x) = 1``.
+    """
+    from scipy.special import expit
+
+    x = np.clip(x, 0.0, 1.0)
+    inner = (x > 0) & (x < 1)
+    out = np.where(x >= 1, 1.0, 0.0)
+    xi = x[inner]
+    out[inner] = expit(1.0 / (1.0 - xi) - 1.0 / xi)
+    return out
+
+
 def _design(k: int, margin: float) -> np.ndarray:
     """Zero-phase low-pass taps for decimation by ``k`` (odd length, unit DC gain).
 
-    Pass band to ``1 / (2 k margin)``, stop band from ``1 / (2 k)`` (cycles per input
-    sample), Kaiser window for :data:`STOPBAND_DB`.
+    In cycles per input sample: flat pass band to ``f_lo = 1 / (2 k margin)``, stop band
+    from ``f_hi = 1 / k - f_lo``, and between them the amplitude
+    ``cos(pi/2 step((f - f_lo) / (f_hi - f_lo)))`` (:func:`_step`). The transition is
+    power-complementary about the new Nyquist frequency ``1 / (2 k)``:
+    ``|H(f)|^2 + |H(1/k - f)|^2 = 1``, so the power response folded by the decimation
+    is flat and **white noise stays white** (lag correlations of the decimated noise
+    about 0.002, against 0.23 for a Kaiser low-pass with its stop band at the new
+    Nyquist frequency: every decimated record's white noise then read as coloured, and
+    the diagnosis kept an AR(1) noise model for what was the filter). Content between
+    ``f_lo`` and ``f_hi`` folds onto ``f_lo .. 1/(2k)``, outside the band kept; only
+    content above ``f_hi`` folds into it, and there the response is down by about
+    :data:`STOPBAND_DB`. The response is smooth, so its taps decay fast: frequency
+    sampling with a light Kaiser taper (:data:`_WINDOW_DB`) over twice the length a
+    Kaiser design of that attenuation and transition needs keeps the pass-band ripple
+    about 1e-4.
     """
     from scipy import signal
 
-    f_pass, f_stop = 0.5 / (k * margin), 0.5 / k
-    numtaps, beta = signal.kaiserord(STOPBAND_DB, (f_stop - f_pass) / 0.5)
+    f_lo = 0.5 / (k * margin)
+    f_hi = 1.0 / k - f_lo
+    numtaps, _ = signal.kaiserord(STOPBAND_DB, f_hi - f_lo)
     numtaps |= 1  # odd: a centre tap, so the centred convolution has zero phase
-    taps = signal.firwin(numtaps, (f_pass + f_stop) / 2.0, window=("kaiser", beta), fs=1.0)
+    grid = np.linspace(0.0, 0.5, max(1 << 14, 4 * numtaps) + 1)
+    gain = np.cos(0.5 * np.pi * _step((grid - f_lo) / (f_hi - f_lo)))
+    taps = signal.firwin2(numtaps, grid, gain, window=("kaiser", signal.kaiser_beta(_WINDOW_DB)),
+                          fs=1.0)
     return taps / taps.sum()
 
 
@@ -432,12 +474,14 @@ def _one(rec: Record, rate: str | float, spc: float, margin: float, alpha: float
     taps = _design(k, margin)
     # a sample within half the filter of an end is filtered partly against the padding
     # (exact for a sinusoid at the end sample itself, not next to it): the last ones are
-    # dropped, the first ones too unless the warm-up holds them (then they only set the
-    # model's initial state, which the warm-up is there to forget)
+    # dropped; the first ones are kept as warm-up, simulated but not scored. Dropping
+    # them would start the model mid-record in a state it cannot know: a play PI
+    # started at rest 15 working-rate samples up a 5 Hz record's first rise (10 kHz,
+    # k = 20) missed its first cycle by 10 % of the stroke, which then decided the
+    # held-out score of every candidate
     half = taps.size // 2
-    start = 0 if rec.warmup >= half else k * math.ceil(half / k)
-    keep = np.arange(start, rec.n - half, k)
-    warmup = min(max(math.ceil((rec.warmup - start) / k), 0), keep.size - 2)
+    keep = np.arange(0, rec.n - half, k)
+    warmup = min(max(math.ceil(rec.warmup / k), math.ceil(half / k)), keep.size - 2)
     if keep.size < MIN_SAMPLES or warmup < 0:
         return _whole(rec, f"too few samples at 1/{k} of the rate once the filter's "
                       f"half-length ({half} samples) is left off the ends", edges=edges,
@@ -453,17 +497,14 @@ def _one(rec: Record, rate: str | float, spc: float, margin: float, alpha: float
     treatment = "subsampled" if stepped else "filtered"
     info = RecordRate(rec.name, fs, fs_out, k, (0.0, fs_out / (2.0 * margin)), why,
                       treatment, edge_y, edge_u, f_exc, rec.n, int(keep.size),
-                      int(jumps.size), float(np.sqrt(np.sum(taps**2))), int(keep[0]),
+                      int(jumps.size), float(np.sqrt(np.sum(taps**2))),
+                      max(warmup - math.ceil(rec.warmup / k), 0),
                       int(rec.n - 1 - keep[-1]))
     meta = dict(rec.metadata)
     meta["sampling_rate_hz"] = fs_out
     for key in ("excitation_start_index", "virgin_branch_end_index"):
         if isinstance(meta.get(key), int):
-            if meta[key] >= start:
-                meta[key] = (meta[key] - start) // k
-            else:
-                # it lies in the samples left off the start: no index of the new record
-                meta[f"{key}_before_start"] = meta.pop(key)
+            meta[key] //= k
     meta["working_rate"] = str(info)
     out = rec.with_(t=rec.t[keep], u=u, y=y,
                     segment=None if rec.segment is None else rec.segment[keep],
