@@ -422,7 +422,7 @@ def _run_report(data: Dataset, names: tuple[str, ...], s: ReportSettings, out: P
     times = {k: times[k] for k in order if k in times}
     times["total"] = time.perf_counter() - start
     if calibration is not None:
-        warnings += [f"{chosen} (final model): {w}" for w in calibration.warnings]
+        warnings += [f"{diagnosis.final_model} (final model): {w}" for w in calibration.warnings]
     return ReportResult(data, comparison, chosen, diagnosis, compensation, s, int(seed),
                         calibration, tuple(warnings), times, averaged)
 

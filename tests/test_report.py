@@ -165,6 +165,10 @@ def test_demo_summary_has_every_section(demo: tuple[int, Path]) -> None:
     warned = any("not converge" in w.lower() for w in summary["warnings"])
     assert warned is bool(unconverged)
     assert not unconverged, f"fits that did not converge: {unconverged}"
+    # a calibration warning is the final model's (the diagnosed one, not the chosen)
+    for w in summary["warnings"]:
+        if "(final model)" in w:
+            assert w.startswith(f"{dg['final_model']} (final model): "), w
 
 
 def test_report_html_embeds_every_figure_and_needs_no_network(demo: tuple[int, Path]) -> None:
