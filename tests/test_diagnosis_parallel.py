@@ -153,3 +153,20 @@ def test_a_prefetched_fit_the_loop_does_not_reach_leaves_no_trace(tmp_path, work
 def test_n_jobs_must_be_a_positive_count(bad):
     with pytest.raises(ParameterError, match="n_jobs must be an integer >= 1"):
         diagnose(_wander(), BASE, n_jobs=bad)
+
+
+def test_the_caller_takes_the_second_core_back_as_soon_as_the_worker_is_done():
+    # sharing() asks at every kernel batch, not once per fit: serial while the worker
+    # sleeps, parallel once it has sent its result (read or not)
+    import time
+
+    from bayeshyst.models import _kernels as kernels
+
+    with _workers.Prefetcher(1, time.sleep) as pool, pool.sharing():
+        pool.submit("nap", 1.0)
+        assert pool.running() and not kernels.use_parallel(8, 10**9)
+        deadline = time.monotonic() + 30.0
+        while pool.running() and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert not pool.running() and kernels.use_parallel(8, 10**9)
+        assert pool.take("nap") is None

@@ -43,6 +43,30 @@ def test_use_parallel_needs_several_walkers_and_enough_work():
             pass
 
 
+def test_a_busy_check_is_asked_at_every_batch():
+    # the diagnosis yields the second core only while a worker holds it: the check is
+    # asked per batch, so a fit begun beside a worker goes parallel once it is done
+    state = {"busy": True, "asked": 0}
+
+    def busy():
+        state["asked"] += 1
+        return state["busy"]
+
+    with kernels.kernels_yield_while(busy):
+        assert not kernels.use_parallel(8, 10**9)
+        state["busy"] = False
+        assert kernels.use_parallel(8, 10**9)
+        # a batch too small for threads does not ask; a serial block stays serial
+        assert not kernels.use_parallel(1, 10**9) and state["asked"] == 2
+        with kernels.kernel_parallelism(None):
+            assert not kernels.use_parallel(8, 10**9)
+    state["busy"] = True
+    assert kernels.use_parallel(8, 10**9)  # outside the block the check is gone
+    with pytest.raises(ValueError, match="callable"):
+        with kernels.kernels_yield_while(True):
+            pass
+
+
 def test_kernel_parallelism_is_per_thread():
     # a serial block in one thread must not change what another thread reads while the
     # block is open (the race of mutating a module global on threaded Dask workers)

@@ -32,7 +32,7 @@ from collections.abc import Callable, Hashable, Iterator
 from multiprocessing.connection import Connection, wait
 from typing import Any
 
-from bayeshyst.models import kernel_parallelism
+from bayeshyst.models import kernels_yield_while
 from bayeshyst.workers import pool_context, worker_init
 
 __all__ = ["Prefetcher", "WorkerTraceback", "can_ship"]
@@ -202,19 +202,28 @@ class Prefetcher:
         self._collect(block=False)
         return any(w.tag is not None for w in self._workers)
 
+    def running(self) -> bool:
+        """Whether a worker is fitting now: it has a task and has not sent its result.
+
+        Reads no result and dispatches nothing (a poll of each running worker's pipe):
+        cheap enough to be asked at every kernel batch.
+        """
+        return any(w.tag is not None and w.proc.is_alive() and not w.conn.poll()
+                   for w in self._workers)
+
     @contextlib.contextmanager
     def sharing(self) -> Iterator[None]:
-        """Serial kernels in the caller while a worker holds a core.
+        """Serial kernels in the caller whenever a worker holds a core, parallel otherwise.
 
-        Serial or parallel, a kernel's result is the same to the bit
-        (:mod:`bayeshyst.models._kernels`). BLAS runs one thread in every diagnosis
-        fit anyway (:func:`~bayeshyst.diagnosis._fitting.diagnosis_fit`): a reduction
-        split over another number of threads may round differently.
+        Asked at every kernel batch (:func:`~bayeshyst.models.kernels_yield_while`):
+        decided once at the start of a fit, a fit begun beside a speculative one ran on
+        one core to its end, long after the worker had finished (the 150 V piezo's
+        refits: load 1.1 on 2 cores for minutes). Serial or parallel, a kernel's result
+        is the same to the bit (:mod:`bayeshyst.models._kernels`). BLAS runs one thread
+        in every diagnosis fit anyway (:func:`~bayeshyst.diagnosis._fitting.diagnosis_fit`):
+        a reduction split over another number of threads may round differently.
         """
-        if not self.busy():
-            yield
-            return
-        with kernel_parallelism(None):
+        with kernels_yield_while(self.running):
             yield
 
     def close(self) -> None:

@@ -29,7 +29,11 @@ from bayeshyst.models import (  # noqa: F401  (importing registers the models)
     preisach_clockwise,
     preisach_variants,
 )
-from bayeshyst.models._kernels import kernel_parallelism, serial_kernels_in_this_thread
+from bayeshyst.models._kernels import (
+    kernel_parallelism,
+    kernels_yield_while,
+    serial_kernels_in_this_thread,
+)
 from bayeshyst.models.base import DataScales, HysteresisModel, Trajectory, data_scales
 from bayeshyst.models.bipolar import Butterfly, ButterflyBoucWen
 from bayeshyst.models.bouc_wen import AsymmetricBoucWen, BoucWen
@@ -121,6 +125,7 @@ __all__ = [
     "data_scales",
     "get",
     "kernel_parallelism",
+    "kernels_yield_while",
     "model_class",
     "model_spec",
     "names",

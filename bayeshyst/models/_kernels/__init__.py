@@ -29,7 +29,7 @@ from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from typing import Any
 
-__all__ = ["PARALLEL_MIN_WORK", "batch_kernel", "kernel_parallelism",
+__all__ = ["PARALLEL_MIN_WORK", "batch_kernel", "kernel_parallelism", "kernels_yield_while",
            "serial_kernels_in_this_thread", "use_parallel"]
 
 #: Work (walkers x samples, or walkers x table entries, times the kernel's ``cost``)
@@ -48,6 +48,10 @@ PARALLEL_MIN_WORK = 20_000
 # their own without racing on a value another fit is reading
 _MIN_WORK: contextvars.ContextVar[int | None] = contextvars.ContextVar(
     "bayeshyst_parallel_min_work", default=None)
+# while this says another process holds a core, batches run serially (see
+# kernels_yield_while); a context variable for the same reason
+_BUSY: contextvars.ContextVar[Callable[[], bool] | None] = contextvars.ContextVar(
+    "bayeshyst_kernels_yield_while", default=None)
 
 
 @contextmanager
@@ -77,6 +81,30 @@ def kernel_parallelism(min_work: int | None = PARALLEL_MIN_WORK) -> Iterator[Non
         _MIN_WORK.reset(token)
 
 
+@contextmanager
+def kernels_yield_while(busy: Callable[[], bool]) -> Iterator[None]:
+    """Within the block, in this thread only, run a batch serially whenever ``busy()``.
+
+    ``busy`` is asked at every batch that would go parallel: a process that shares the
+    cores with workers of its own (the diagnosis' prefetched fits) yields the second
+    core while one of them runs and takes it back as soon as none does, not only at
+    the next fit. The result is the same either way, to the bit.
+
+    Parameters
+    ----------
+    busy : callable () -> bool
+        Whether another process holds a core now; cheap (it is asked per batch, a few
+        hundred times a second).
+    """
+    if not callable(busy):
+        raise ValueError(f"kernels_yield_while: busy must be callable, got {busy!r}")
+    token = _BUSY.set(busy)
+    try:
+        yield
+    finally:
+        _BUSY.reset(token)
+
+
 def serial_kernels_in_this_thread() -> None:
     """Make every batch of this thread serial for the rest of its life (a pool worker's
     initialiser: the pool already uses every core, and a forked child must never enter
@@ -98,14 +126,18 @@ def use_parallel(walkers: int, work: int) -> bool:
     Returns
     -------
     bool
-        True for more than one walker and ``work`` at least the threshold in force:
-        that of the innermost :func:`kernel_parallelism` block of this thread, else
-        :data:`PARALLEL_MIN_WORK`.
+        True for more than one walker and ``work`` at least the threshold in force
+        (that of the innermost :func:`kernel_parallelism` block of this thread, else
+        :data:`PARALLEL_MIN_WORK`), unless a :func:`kernels_yield_while` block of this
+        thread says another process holds a core.
     """
     threshold = _MIN_WORK.get()
     if threshold is None:
         threshold = PARALLEL_MIN_WORK
-    return walkers > 1 and threshold >= 0 and work >= threshold
+    if not (walkers > 1 and threshold >= 0 and work >= threshold):
+        return False
+    busy = _BUSY.get()
+    return busy is None or not busy()
 
 
 def batch_kernel(parallel: Callable[..., Any], serial: Callable[..., Any], *,
