@@ -133,7 +133,8 @@ class RecordRate:
         Increments of the input that no signal in the kept band can make.
     noise_gain : float
         Standard deviation of white noise after the low-pass over before,
-        ``sqrt(sum(h**2))`` (about ``sqrt(1 / k)``); 1 when kept whole.
+        ``sqrt(sum(h**2))`` (``sqrt(1 / k)`` to 0.2 %: the filter keeps white noise
+        white); 1 when kept whole.
     edge_warmup : int
         Working-rate samples at the start that are warm-up only because they lie within
         half the filter of it (beyond the record's own warm-up; simulated, not scored).
@@ -477,7 +478,7 @@ def _one(rec: Record, rate: str | float, spc: float, margin: float, alpha: float
     # dropped; the first ones are kept as warm-up, simulated but not scored. Dropping
     # them would start the model mid-record in a state it cannot know: a play PI
     # started at rest 15 working-rate samples up a 5 Hz record's first rise (10 kHz,
-    # k = 20) missed its first cycle by 10 % of the stroke, which then decided the
+    # k = 20) missed its first cycle by 9 % of the stroke, which then decided the
     # held-out score of every candidate
     half = taps.size // 2
     keep = np.arange(0, rec.n - half, k)

@@ -197,11 +197,6 @@ class Prefetcher:
             w.stop(kill=True)
             self._workers.remove(w)
 
-    def busy(self) -> bool:
-        """Whether a worker is running a task (after collecting finished ones)."""
-        self._collect(block=False)
-        return any(w.tag is not None for w in self._workers)
-
     def running(self) -> bool:
         """Whether a worker is fitting now: it has a task and has not sent its result.
 
