@@ -31,15 +31,17 @@ from __future__ import annotations
 
 import multiprocessing as mp
 import os
-from collections.abc import Iterator
+import pickle
+import traceback
+from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import ProcessPoolExecutor
 from contextlib import contextmanager
 from typing import Any
 
 from bayeshyst.errors import ParameterError
 
-__all__ = ["JOBS_ENV", "default_jobs", "pool_context", "process_pool", "resolve_jobs",
-           "worker_init"]
+__all__ = ["JOBS_ENV", "WorkerTraceback", "default_jobs", "pool_context", "portable",
+           "process_pool", "resolve_jobs", "run_forked", "worker_init"]
 
 #: Environment variable that caps the default number of processes (a test runner that
 #: already runs one process per core sets it to 1, so pools do not oversubscribe).
@@ -166,3 +168,98 @@ def process_pool(n_jobs: int, *, start_method: str | None = None
     with ProcessPoolExecutor(max_workers=n_jobs, mp_context=pool_context(start_method),
                              initializer=worker_init) as pool:
         yield pool
+
+
+class WorkerTraceback(Exception):
+    """The traceback of an exception raised in a worker, chained to it as its cause."""
+
+    def __str__(self) -> str:
+        return "\n\n" + str(self.args[0]) if self.args else ""
+
+
+def portable(exc: BaseException) -> BaseException:
+    """``exc`` if it survives pickling, else a RuntimeError naming it (its text kept)."""
+    try:
+        pickle.loads(pickle.dumps(exc))
+        return exc
+    except Exception:  # any failure of a foreign exception's pickling
+        return RuntimeError(f"{type(exc).__name__}: {exc}")
+
+
+def _run_share(fn: Callable[[Any], object], items: Sequence[Any], share: Sequence[int],
+               conn: Any) -> None:
+    """A forked child of :func:`run_forked`: its share of the items, then what failed."""
+    worker_init()
+    failed = []
+    for i in share:
+        try:
+            fn(items[i])
+        except Exception as exc:  # sent to the parent, which raises it
+            failed.append((i, portable(exc), traceback.format_exc()))
+    conn.send(failed)
+    conn.close()
+
+
+def run_forked(fn: Callable[[Any], object], items: Sequence[Any],
+               n_jobs: int | None = None) -> None:
+    """``fn(item)`` for every item, shared between this process and forked children.
+
+    For work whose inputs live in this process's memory and are costly or impossible to
+    pickle (matplotlib figures to save): a child started by ``fork`` sees them as they
+    are, and only a failure travels back. ``fn`` acts by side effect (writes a file);
+    what it returns is dropped. With ``n`` processes, child ``j`` takes the items
+    ``j, j + n, ...`` (``j >= 1``) and this process the others. Without ``fork`` on this
+    platform, or with one process, every item runs here, in order.
+
+    Parameters
+    ----------
+    fn : callable
+        Called once per item.
+    items : sequence
+        The items.
+    n_jobs : int or None
+        Processes, this one included (:func:`resolve_jobs`: None is one per core; never
+        more than items).
+
+    Raises
+    ------
+    Exception
+        The exception of the first item (in item order) whose ``fn`` raised, wherever
+        it ran (from a child: chained to its :class:`WorkerTraceback`), after every
+        process has finished its share.
+    RuntimeError
+        If a child died before reporting (its items named).
+    """
+    n = resolve_jobs(n_jobs, len(items))
+    if n == 1 or "fork" not in mp.get_all_start_methods():
+        for item in items:
+            fn(item)
+        return
+    ctx = mp.get_context("fork")
+    children = []
+    for j in range(1, n):
+        recv, send = ctx.Pipe(duplex=False)
+        share = list(range(j, len(items), n))
+        proc = ctx.Process(target=_run_share, args=(fn, items, share, send), daemon=True)
+        proc.start()
+        send.close()  # so that a child's death reads as EOF here
+        children.append((proc, recv, share))
+    failed: list[tuple[int, BaseException, str]] = []
+    for i in range(0, len(items), n):
+        try:
+            fn(items[i])
+        except Exception as exc:  # raised below, in item order, once the children end
+            failed.append((i, exc, ""))
+    for proc, recv, share in children:
+        try:
+            failed += recv.recv()
+        except EOFError:
+            proc.join()
+            failed.append((share[0], RuntimeError(
+                f"a forked worker died (exit code {proc.exitcode}) before reporting on "
+                f"items {share}"), ""))
+        recv.close()
+        proc.join()
+    if failed:
+        _, exc, tb = min(failed, key=lambda f: f[0])
+        raise exc from (WorkerTraceback(tb) if tb else None)

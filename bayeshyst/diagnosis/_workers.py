@@ -33,7 +33,7 @@ from multiprocessing.connection import Connection, wait
 from typing import Any
 
 from bayeshyst.models import kernels_yield_while
-from bayeshyst.workers import pool_context, worker_init
+from bayeshyst.workers import WorkerTraceback, pool_context, portable, worker_init
 
 __all__ = ["Prefetcher", "WorkerTraceback", "can_ship"]
 
@@ -46,22 +46,6 @@ def can_ship(fn: Callable[..., Any]) -> bool:
         return pickle.loads(pickle.dumps(fn)) is fn
     except (pickle.PicklingError, AttributeError, TypeError, ImportError):
         return False
-
-
-class WorkerTraceback(Exception):
-    """The traceback of an exception raised in a worker, chained to it as its cause."""
-
-    def __str__(self) -> str:
-        return "\n\n" + str(self.args[0]) if self.args else ""
-
-
-def _portable(exc: BaseException) -> BaseException:
-    """``exc`` if it survives pickling, else a RuntimeError naming it (its text kept)."""
-    try:
-        pickle.loads(pickle.dumps(exc))
-        return exc
-    except Exception:  # any failure of a foreign exception's pickling
-        return RuntimeError(f"{type(exc).__name__}: {exc}")
 
 
 def _serve(conn: Connection) -> None:
@@ -81,7 +65,7 @@ def _serve(conn: Connection) -> None:
         try:
             out = (tag, True, fn(*args), "")
         except Exception as exc:  # sent to the caller, who raises it
-            out = (tag, False, _portable(exc), traceback.format_exc())
+            out = (tag, False, portable(exc), traceback.format_exc())
         try:
             conn.send(out)  # pickled whole before a byte is written
         except (pickle.PicklingError, TypeError, AttributeError) as exc:
