@@ -74,6 +74,25 @@ def test_change_point_and_disturbance_follow_their_equations():
         Disturbance(frequency_hz=-1.0)
 
 
+def test_a_change_point_batch_is_each_row_applied_alone():
+    # walkers with repeated and distinct change times (a design's columns repeat their
+    # walker's values): every row bit for bit what that row gives on its own
+    t = np.linspace(0, 2, 501)
+    rng = np.random.default_rng(3)
+    tc = np.array([1.2, 1.2, 0.7, 1.2, 0.7, 1.9])
+    g, h = rng.normal(0, 0.05, tc.size), rng.normal(0, 0.2, tc.size)
+    w = rng.normal(size=(tc.size, t.size))
+    theta = {"t_c": tc, "g": g, "h": h, "width": np.full(tc.size, 0.008)}
+    out = ChangePoint().apply_batch(w, t, theta).y
+    for j in range(tc.size):
+        one = ChangePoint().apply(w[j], t, {"t_c": tc[j], "g": g[j], "h": h[j],
+                                            "width": 0.008}).y
+        np.testing.assert_array_equal(out[j], one)
+        step = 0.5 * (1 + np.tanh((t - tc[j]) / 0.016))
+        np.testing.assert_allclose(out[j], w[j] * (1 + g[j] * step) + h[j] * step,
+                                   rtol=1e-13, atol=1e-15)
+
+
 def test_spec_strings_rebuild_the_blocks():
     for spec in (f"{PI}+aux(column='temperature_c')", f"{PI}+change_point",
                  f"{PI}+disturbance(frequency_hz=37.3)",

@@ -210,9 +210,14 @@ class ChangePoint(EffectBlock):
 
     def _apply(self, w, t, theta, state):
         width = w.shape[0]
-        tc = np.asarray(theta["t_c"], float).reshape(width, 1)
-        wd = np.asarray(theta["width"], float).reshape(width, 1)
-        step = 0.5 * (1.0 + np.tanh((np.asarray(t, float)[None, :] - tc) / (2.0 * wd)))
+        tc = np.asarray(theta["t_c"], float).reshape(width)
+        wd = np.asarray(theta["width"], float).reshape(width)
+        # the step once per distinct (t_c, width): a linear block's design pushes each of
+        # its columns through with the walker's values repeated, and the tanh was most
+        # of this block's cost (the same formula per row, so the same bits)
+        pairs, rows = np.unique(np.stack([tc, wd], axis=1), axis=0, return_inverse=True)
+        step = 0.5 * (1.0 + np.tanh((np.asarray(t, float)[None, :] - pairs[:, :1])
+                                    / (2.0 * pairs[:, 1:])))[rows.reshape(width)]
         g = np.asarray(theta["g"], float).reshape(width, 1)
         h = np.asarray(theta["h"], float).reshape(width, 1)
         out = w * (1.0 + g * step) + h * step
