@@ -482,11 +482,12 @@ def _one(rec: Record, rate: str | float, spc: float, margin: float, alpha: float
     # held-out score of every candidate
     half = taps.size // 2
     keep = np.arange(0, rec.n - half, k)
-    warmup = min(max(math.ceil(rec.warmup / k), math.ceil(half / k)), keep.size - 2)
-    if keep.size < MIN_SAMPLES or warmup < 0:
+    if keep.size < MIN_SAMPLES:
         return _whole(rec, f"too few samples at 1/{k} of the rate once the filter's "
-                      f"half-length ({half} samples) is left off the ends", edges=edges,
+                      f"half-length ({half} samples) is left off the end", edges=edges,
                       f_exc=f_exc)
+    own_warmup = math.ceil(rec.warmup / k)
+    warmup = min(max(own_warmup, math.ceil(half / k)), keep.size - 2)
     # one record is one contiguous measurement: its output and covariates are filtered
     # whole (segment labels mark protocol phases, not breaks in the signal)
     pieces_y = [(0, rec.n)]
@@ -499,7 +500,7 @@ def _one(rec: Record, rate: str | float, spc: float, margin: float, alpha: float
     info = RecordRate(rec.name, fs, fs_out, k, (0.0, fs_out / (2.0 * margin)), why,
                       treatment, edge_y, edge_u, f_exc, rec.n, int(keep.size),
                       int(jumps.size), float(np.sqrt(np.sum(taps**2))),
-                      max(warmup - math.ceil(rec.warmup / k), 0),
+                      max(warmup - own_warmup, 0),
                       int(rec.n - 1 - keep[-1]))
     meta = dict(rec.metadata)
     meta["sampling_rate_hz"] = fs_out
